@@ -1,0 +1,51 @@
+"""The ``simshear`` command.
+
+Each sub-command lives in the module that owns the work; this file only routes. A command module exposes
+``add_arguments(parser)`` and ``run(args) -> int``; it imports heavy dependencies (torch, pybullet) inside
+``run`` so that building the parser stays fast.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+# (command words, module, one-line help)
+COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("collect",), "simshear_gym.data.collect", "render paired (sim image, shear, real image) sets"),
+    (("evaluate", "render"), "simshear_gym.evaluate.render_agreement",
+     "compare our sim renders with the published Tactile Gym sim images"),
+    (("evaluate", "collect-speed"), "simshear_gym.evaluate.collect_speed",
+     "benchmark paired tuples per second of the collection"),
+)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="simshear", description="simshear-gym: sim-to-real tactile robotics with shear")
+    groups: dict[tuple[str, ...], argparse._SubParsersAction] = {(): parser.add_subparsers(dest="command", required=True)}
+    for words, module, help_text in COMMANDS:
+        for depth in range(1, len(words)):
+            prefix = words[:depth]
+            if prefix not in groups:
+                sub = groups[words[: depth - 1]].add_parser(words[depth - 1], help=f"{words[depth - 1]} commands")
+                groups[prefix] = sub.add_subparsers(dest=f"command_{depth}", required=True)
+        sub = groups[words[:-1]].add_parser(words[-1], help=help_text, description=help_text)
+        sub.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _build_parser()
+    args = parser.parse_args(argv)
+    module = importlib.import_module(args._module)
+    try:
+        return int(module.run(args) or 0)
+    except (ValueError, FileNotFoundError) as error:  # library errors carry their own explanation
+        print(f"simshear: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
