@@ -84,3 +84,44 @@ class ReplayScene:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def map_chunks(function, chunks: list, workers: int) -> list:
+    """``[function(c) for c in chunks]``, in ``workers`` processes when there is more than one chunk.
+
+    Workers are forked where the platform allows it (start-up in milliseconds); each builds its own scene,
+    so no PyBullet client crosses a process boundary.
+    """
+    if workers <= 1 or len(chunks) <= 1:
+        return [function(chunk) for chunk in chunks]
+    import multiprocessing
+
+    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
+    with multiprocessing.get_context(method).Pool(min(workers, len(chunks))) as pool:
+        return pool.map(function, chunks)
+
+
+def _render_chunk(args: tuple[str, np.ndarray, TacTipConfig, ReplayGeometry]) -> np.ndarray:
+    contact, poses, tactip_config, geometry = args
+    size = tactip_config.image_size_px
+    images = np.empty((len(poses), size, size), dtype=np.uint8)
+    with ReplayScene(contact, tactip_config, geometry) as scene:
+        for index, pose in enumerate(poses):
+            images[index] = scene.render(pose)
+    return images
+
+
+def render_poses(
+    contact: str,
+    poses_work: np.ndarray,
+    tactip_config: TacTipConfig = TacTipConfig(),
+    geometry: ReplayGeometry = ReplayGeometry(),
+    workers: int = 1,
+) -> np.ndarray:
+    """Render many label poses: uint8 (N, H, W), in order, split over ``workers`` processes."""
+    poses = np.asarray(poses_work, dtype=np.float64).reshape(-1, 6)
+    size = tactip_config.image_size_px
+    if not len(poses):
+        return np.empty((0, size, size), dtype=np.uint8)
+    chunks = [(contact, part, tactip_config, geometry) for part in np.array_split(poses, max(workers, 1)) if len(part)]
+    return np.concatenate(map_chunks(_render_chunk, chunks, workers))

@@ -1,0 +1,734 @@
+"""TCP/IP client for a Dobot MG400 (dashboard 29999, motion 30003, feedback 30004) and a servo streamer.
+
+Every request waits for its reply (with a timeout); a non-zero ErrorID raises :class:`MG400Error`. Every motion
+command passes the :class:`~simshear_gym.real.safety.SafetyLayer` first (joint limits only when none is given),
+so nothing outside the arm's limits is ever sent.
+
+Poses are ``(x_mm, y_mm, z_mm, r_deg)`` in the robot base frame; joints ``(J1, J2, J3, J4)`` in deg.
+
+Example::
+
+    with MG400Client(MG400ClientConfig(host="192.168.1.6"), SafetyLayer(SafetyConfig())) as robot:
+        robot.enable_robot()
+        robot.mov_l(300.0, 0.0, 50.0, 0.0)
+        robot.sync()
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from simshear_gym.real.mg400_protocol import (
+    DASHBOARD_PORT,
+    FEEDBACK_PORT,
+    MOTION_PORT,
+    FeedbackBuffer,
+    MG400Feedback,
+    ProtocolError,
+    Reply,
+    ReplyBuffer,
+    RobotMode,
+    describe_alarm,
+    describe_error_id,
+    format_command,
+    parse_reply,
+)
+from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyLayer, StatusSnapshot
+from simshear_gym.sim.mg400_kinematics import forward, wrap_deg
+
+logger = logging.getLogger(__name__)
+
+Pose = tuple[float, float, float, float]
+
+
+class MG400Error(RuntimeError):
+    """The controller answered a command with a non-zero ErrorID.
+
+    Attributes:
+        error_id: the reply's ErrorID.
+        command: the command text sent.
+        description: the decoded ErrorID.
+        alarms: active alarm ids read with ``GetErrorID`` after a failed motion command (may be empty).
+    """
+
+    def __init__(self, error_id: int, command: str, alarms: Sequence[int] = ()) -> None:
+        self.error_id = int(error_id)
+        self.command = command
+        self.description = describe_error_id(self.error_id)
+        self.alarms = tuple(int(a) for a in alarms)
+        message = f"{command} failed with ErrorID {self.error_id}: {self.description}"
+        if self.alarms:
+            message += "; active alarms: " + ", ".join(f"{a} ({describe_alarm(a)})" for a in self.alarms)
+        super().__init__(message)
+
+
+class MG400ConnectionError(ConnectionError):
+    """A connection to the robot could not be opened or was lost."""
+
+
+class MG400TimeoutError(TimeoutError):
+    """No reply arrived within the timeout."""
+
+
+class FeedbackStaleError(RuntimeError):
+    """No feedback packet newer than the allowed age (or the feedback connection is lost)."""
+
+
+@dataclass(frozen=True)
+class MG400ClientConfig:
+    """Where the robot is and how long to wait.
+
+    Attributes:
+        host: controller IP address (default LAN1).
+        dashboard_port, motion_port, feedback_port: TCP ports.
+        connect_timeout_s: per-connection connect timeout, s.
+        reply_timeout_s: default wait for a reply, s.
+        sync_timeout_s: default wait for ``Sync()`` (the motion queue to empty), s.
+        use_feedback: open the 30004 feedback stream and its reader thread.
+        feedback_max_age_s: default maximum age for :meth:`MG400Client.latest_feedback`, s.
+    """
+
+    host: str = "192.168.1.6"
+    dashboard_port: int = DASHBOARD_PORT
+    motion_port: int = MOTION_PORT
+    feedback_port: int = FEEDBACK_PORT
+    connect_timeout_s: float = 2.0
+    reply_timeout_s: float = 2.0
+    sync_timeout_s: float = 60.0
+    use_feedback: bool = True
+    feedback_max_age_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not self.host:
+            raise ValueError("MG400ClientConfig.host must be a host name or IP address, got ''")
+        for name in ("dashboard_port", "motion_port", "feedback_port"):
+            port = getattr(self, name)
+            if not isinstance(port, int) or not 1 <= port <= 65535:
+                raise ValueError(f"MG400ClientConfig.{name} must be an int in 1..65535, got {port!r}")
+        for name in ("connect_timeout_s", "reply_timeout_s", "sync_timeout_s", "feedback_max_age_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"MG400ClientConfig.{name} must be finite and > 0 s, got {value!r}")
+
+
+def _connect(label: str, host: str, port: int, timeout_s: float) -> socket.socket:
+    try:
+        sock = socket.create_connection((host, port), timeout=timeout_s)
+    except OSError as error:
+        raise MG400ConnectionError(f"cannot connect to the MG400 {label} port at {host}:{port}: {error}") from error
+    sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    return sock
+
+
+class _ReplyChannel:
+    """One request/reply connection (dashboard or motion): send a command, wait for its reply."""
+
+    def __init__(self, label: str, host: str, port: int, connect_timeout_s: float) -> None:
+        self.label = label
+        self._where = f"{label} port {host}:{port}"
+        self._sock = _connect(label, host, port, connect_timeout_s)
+        self._buffer = ReplyBuffer()
+        self._ready: deque[str] = deque()
+        self._lock = threading.Lock()
+        self._stale = 0  # replies still owed to requests that timed out; discarded when they arrive
+        self._lost: str | None = None
+
+    @property
+    def connected(self) -> bool:
+        return self._lost is None
+
+    def request(self, command: str, timeout_s: float) -> Reply:
+        """Send ``command`` and return its reply."""
+        with self._lock:
+            if self._lost is not None:
+                raise MG400ConnectionError(f"cannot send {command}: the {self._where} is closed ({self._lost})")
+            logger.debug("%s <- %s", self.label, command)
+            try:
+                self._sock.sendall(command.encode("ascii"))
+            except OSError as error:
+                self._mark_lost(f"send failed: {error}")
+                raise MG400ConnectionError(f"sending {command} on the {self._where} failed: {error}") from error
+            deadline = time.monotonic() + timeout_s
+            expected = command.split("(", 1)[0].strip().lower()
+            while True:
+                text = self._next_text(deadline, command, timeout_s)
+                try:
+                    reply = parse_reply(text)
+                except ProtocolError as error:
+                    raise MG400ConnectionError(f"malformed reply to {command} on the {self._where}: {error}") \
+                        from error
+                if self._stale > 0:
+                    # Replies arrive in order, so the first ones after a timeout belong to the timed-out requests.
+                    self._stale -= 1
+                    logger.warning("discarding late reply %r on the %s", text, self._where)
+                    continue
+                if reply.command_name and reply.command_name.lower() != expected:
+                    logger.warning("discarding reply %r on the %s while waiting for %s", text, self._where, command)
+                    continue
+                logger.debug("%s -> %s", self.label, text)
+                return reply
+
+    def _next_text(self, deadline: float, command: str, timeout_s: float) -> str:
+        while not self._ready:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                self._stale += 1
+                raise MG400TimeoutError(f"no reply to {command} on the {self._where} within {timeout_s:g} s")
+            self._sock.settimeout(remaining)
+            try:
+                data = self._sock.recv(4096)
+            except socket.timeout:
+                continue
+            except OSError as error:
+                self._mark_lost(f"receive failed: {error}")
+                raise MG400ConnectionError(f"waiting for the reply to {command}: the {self._where} failed: {error}") \
+                    from error
+            if not data:
+                self._mark_lost("closed by the robot")
+                raise MG400ConnectionError(f"the robot closed the {self._where} while {command} waited for its reply")
+            try:
+                self._ready.extend(self._buffer.feed(data))
+            except ProtocolError as error:
+                self._mark_lost(str(error))
+                raise MG400ConnectionError(f"garbage on the {self._where}: {error}") from error
+        return self._ready.popleft()
+
+    def _mark_lost(self, reason: str) -> None:
+        self._lost = reason
+        logger.error("MG400 %s lost: %s", self._where, reason)
+        self._close_socket()
+
+    def _close_socket(self) -> None:
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self._sock.close()
+
+    def close(self) -> None:
+        if self._lost is None:
+            self._lost = "closed by the client"
+            self._close_socket()
+
+
+class _FeedbackReader:
+    """Reads the 30004 stream in a thread, validates packets and keeps only the newest."""
+
+    def __init__(self, host: str, port: int, connect_timeout_s: float) -> None:
+        self._where = f"feedback port {host}:{port}"
+        self._sock = _connect("feedback", host, port, connect_timeout_s)
+        self._sock.settimeout(0.1)
+        self._buffer = FeedbackBuffer()
+        self._lock = threading.Lock()
+        self._latest: tuple[MG400Feedback, float] | None = None
+        self._received = 0
+        self._lost: str | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="mg400-feedback", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self._sock.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError as error:
+                self._set_lost(f"receive failed: {error}")
+                return
+            if not data:
+                self._set_lost("closed by the robot")
+                return
+            packets, reasons = self._buffer.feed(data)
+            for reason in reasons:
+                logger.warning("rejected an MG400 feedback packet: %s", reason)
+            if packets:
+                with self._lock:
+                    self._latest = (packets[-1], time.monotonic())
+                    self._received += len(packets)
+
+    def _set_lost(self, reason: str) -> None:
+        with self._lock:
+            self._lost = reason
+        if not self._stop.is_set():
+            logger.error("MG400 %s lost: %s", self._where, reason)
+
+    @property
+    def connected(self) -> bool:
+        with self._lock:
+            return self._lost is None
+
+    @property
+    def rejected(self) -> int:
+        return self._buffer.rejected
+
+    @property
+    def received(self) -> int:
+        with self._lock:
+            return self._received
+
+    def age_s(self) -> float | None:
+        with self._lock:
+            return None if self._latest is None else time.monotonic() - self._latest[1]
+
+    def latest(self, max_age_s: float) -> MG400Feedback:
+        with self._lock:
+            latest, lost = self._latest, self._lost
+        if latest is None:
+            raise FeedbackStaleError(f"no valid feedback packet received yet on the {self._where}"
+                                     + (f" (connection lost: {lost})" if lost else ""))
+        age_s = time.monotonic() - latest[1]
+        if age_s > max_age_s:
+            raise FeedbackStaleError(f"newest feedback is {age_s:.3f} s old, max_age_s = {max_age_s:g}"
+                                     + (f" (connection lost: {lost})" if lost else ""))
+        return latest[0]
+
+    def close(self) -> None:
+        self._stop.set()
+        try:
+            self._sock.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+        self._sock.close()
+        self._thread.join(timeout=1.0)
+
+
+@dataclass(frozen=True)
+class ErrorIDs:
+    """``GetErrorID()`` result: active alarm ids of the controller and of each servo."""
+
+    controller: tuple[int, ...]
+    servos: tuple[tuple[int, ...], ...]
+
+    @property
+    def all_ids(self) -> tuple[int, ...]:
+        """Every active alarm id, controller first."""
+        return self.controller + tuple(i for servo in self.servos for i in servo)
+
+
+def _four(values: Sequence[float], name: str) -> Pose:
+    if len(values) != 4:
+        raise ValueError(f"{name} must have 4 values, got {len(values)}")
+    out = tuple(float(v) for v in values)
+    if not all(math.isfinite(v) for v in out):
+        raise ValueError(f"{name} must be finite, got {out}")
+    return out  # type: ignore[return-value]
+
+
+class MG400Client:
+    """Dashboard, motion and feedback connections to one MG400 (a context manager).
+
+    Args:
+        config: host, ports and timeouts.
+        safety: the safety layer every motion command passes; default: the arm's joint limits only.
+    """
+
+    def __init__(self, config: MG400ClientConfig | None = None, safety: SafetyLayer | None = None) -> None:
+        self.config = config if config is not None else MG400ClientConfig()
+        self.safety = safety if safety is not None else SafetyLayer(SafetyConfig.arm_limits_only())
+        self._dashboard: _ReplyChannel | None = None
+        self._motion: _ReplyChannel | None = None
+        self._feedback: _FeedbackReader | None = None
+        # Joints of the last target sent (where the robot is, or is heading); None -> measure the robot.
+        self._reference_joints: np.ndarray | None = None
+        self._motion_lock = threading.RLock()
+
+    # -- connection ----------------------------------------------------------------------------------------------
+
+    def connect(self) -> MG400Client:
+        """Open the dashboard, motion and (if configured) feedback connections."""
+        cfg = self.config
+        try:
+            self._dashboard = _ReplyChannel("dashboard", cfg.host, cfg.dashboard_port, cfg.connect_timeout_s)
+            self._motion = _ReplyChannel("motion", cfg.host, cfg.motion_port, cfg.connect_timeout_s)
+            if cfg.use_feedback:
+                self._feedback = _FeedbackReader(cfg.host, cfg.feedback_port, cfg.connect_timeout_s)
+        except MG400ConnectionError:
+            self.close()
+            raise
+        logger.info("connected to MG400 at %s", cfg.host)
+        return self
+
+    def close(self) -> None:
+        """Close all connections (idempotent)."""
+        for part in (self._feedback, self._motion, self._dashboard):
+            if part is not None:
+                part.close()
+        self._feedback = self._motion = self._dashboard = None
+
+    def __enter__(self) -> MG400Client:
+        return self.connect()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+    @property
+    def connected(self) -> bool:
+        """True when every opened connection is still up."""
+        parts = [self._dashboard, self._motion] + ([self._feedback] if self.config.use_feedback else [])
+        return all(part is not None and part.connected for part in parts)
+
+    def _channel(self, which: str) -> _ReplyChannel:
+        channel = self._dashboard if which == "dashboard" else self._motion
+        if channel is None:
+            raise MG400ConnectionError(f"the MG400 client is not connected (no {which} connection); call connect()")
+        return channel
+
+    def _request(self, which: str, command: str, timeout_s: float | None = None) -> Reply:
+        reply = self._channel(which).request(command, self.config.reply_timeout_s if timeout_s is None else timeout_s)
+        if not reply.ok:
+            raise MG400Error(reply.error_id, command, self._alarms_best_effort() if which == "motion" else ())
+        return reply
+
+    def _alarms_best_effort(self) -> tuple[int, ...]:
+        try:
+            return self.get_error_id().all_ids
+        except (MG400Error, MG400ConnectionError, MG400TimeoutError, ProtocolError) as error:
+            logger.debug("could not read alarms after a failed command: %s", error)
+            return ()
+
+    # -- dashboard -----------------------------------------------------------------------------------------------
+
+    def enable_robot(self) -> None:
+        """``EnableRobot()``."""
+        self._request("dashboard", format_command("EnableRobot"))
+
+    def disable_robot(self) -> None:
+        """``DisableRobot()``."""
+        self._request("dashboard", format_command("DisableRobot"))
+        self._reference_joints = None
+
+    def clear_error(self) -> None:
+        """``ClearError()``; follow with :meth:`continue_`."""
+        self._request("dashboard", format_command("ClearError"))
+        self._reference_joints = None
+
+    def continue_(self) -> None:
+        """``Continue()``."""
+        self._request("dashboard", format_command("Continue"))
+
+    def reset_robot(self) -> None:
+        """``ResetRobot()``: stop and clear the motion queue."""
+        self._request("dashboard", format_command("ResetRobot"))
+        self._reference_joints = None
+
+    def emergency_stop(self) -> None:
+        """``EmergencyStop()``."""
+        self._reference_joints = None
+        self._request("dashboard", format_command("EmergencyStop"))
+
+    def speed_factor(self, percent: int) -> None:
+        """``SpeedFactor(percent)``, percent in 1..100."""
+        if isinstance(percent, bool) or not isinstance(percent, int) or not 1 <= percent <= 100:
+            raise ValueError(f"speed factor must be an int percent in 1..100, got {percent!r}")
+        self._request("dashboard", format_command("SpeedFactor", percent))
+
+    def robot_mode(self) -> RobotMode:
+        """``RobotMode()``."""
+        reply = self._request("dashboard", format_command("RobotMode"))
+        numbers = reply.numbers()
+        try:
+            return RobotMode(int(numbers[0]))
+        except (IndexError, ValueError):
+            raise ProtocolError(f"RobotMode() returned {reply.values!r}, expected one mode in 1..11") from None
+
+    def get_pose(self) -> Pose:
+        """``GetPose()`` -> ``(x_mm, y_mm, z_mm, r_deg)`` (4-6 numbers are accepted; extras ignored)."""
+        return self._four_numbers(self._request("dashboard", format_command("GetPose")), "GetPose()")
+
+    def get_angle(self) -> Pose:
+        """``GetAngle()`` -> ``(J1, J2, J3, J4)`` deg (extras ignored)."""
+        return self._four_numbers(self._request("dashboard", format_command("GetAngle")), "GetAngle()")
+
+    @staticmethod
+    def _four_numbers(reply: Reply, what: str) -> Pose:
+        numbers = reply.numbers()
+        if len(numbers) < 4:
+            raise ProtocolError(f"{what} returned {reply.values!r}, expected at least 4 numbers")
+        return numbers[:4]  # type: ignore[return-value]
+
+    def get_error_id(self) -> ErrorIDs:
+        """``GetErrorID()`` -> controller and per-servo alarm ids."""
+        reply = self._request("dashboard", format_command("GetErrorID"))
+        lists = reply.values[0] if len(reply.values) == 1 and isinstance(reply.values[0], tuple) else reply.values
+        if not all(isinstance(item, tuple) for item in lists):
+            raise ProtocolError(f"GetErrorID() returned {reply.values!r}, expected [[ids],[ids],...]")
+        ids = [tuple(int(v) for v in item) for item in lists]  # type: ignore[union-attr]
+        return ErrorIDs(controller=ids[0] if ids else (), servos=tuple(ids[1:]))
+
+    # -- feedback ------------------------------------------------------------------------------------------------
+
+    def latest_feedback(self, max_age_s: float | None = None) -> MG400Feedback:
+        """The newest valid feedback packet.
+
+        Raises:
+            FeedbackStaleError: none newer than ``max_age_s`` (default ``config.feedback_max_age_s``).
+        """
+        if self._feedback is None:
+            raise FeedbackStaleError("feedback is not running (not connected, or use_feedback=False)")
+        return self._feedback.latest(self.config.feedback_max_age_s if max_age_s is None else max_age_s)
+
+    @property
+    def feedback_rejected(self) -> int:
+        """Feedback packets rejected so far (bad length field, test value or truncated)."""
+        return 0 if self._feedback is None else self._feedback.rejected
+
+    @property
+    def feedback_received(self) -> int:
+        """Valid feedback packets received so far."""
+        return 0 if self._feedback is None else self._feedback.received
+
+    def status_snapshot(self, camera_frame_age_s: float | None = None, in_contact: bool | None = None
+                        ) -> StatusSnapshot:
+        """The robot side of a :class:`StatusSnapshot` (mode and age from feedback; no network request)."""
+        mode: int | None = None
+        age_s: float | None = None
+        if self._feedback is not None:
+            age_s = self._feedback.age_s()
+            try:
+                mode = self._feedback.latest(math.inf).robot_mode
+            except FeedbackStaleError:
+                mode = None
+            if age_s is None:
+                age_s = math.inf
+        return StatusSnapshot(connected=self.connected, robot_mode=mode, feedback_age_s=age_s,
+                              camera_frame_age_s=camera_frame_age_s, in_contact=in_contact)
+
+    def measured_joints(self) -> np.ndarray:
+        """Current joints, deg: from fresh feedback if available, else ``GetAngle()``."""
+        if self._feedback is not None:
+            try:
+                return np.array(self._feedback.latest(self.config.feedback_max_age_s).q_actual_deg)
+            except FeedbackStaleError:
+                pass
+        return np.array(self.get_angle())
+
+    def measured_pose(self) -> Pose:
+        """Current flange pose: from fresh feedback if available, else ``GetPose()``."""
+        if self._feedback is not None:
+            try:
+                return self._feedback.latest(self.config.feedback_max_age_s).tool_vector_actual
+            except FeedbackStaleError:
+                pass
+        return self.get_pose()
+
+    # -- motion (all through the safety layer) -------------------------------------------------------------------
+
+    def reset_reference(self) -> None:
+        """Forget the last target sent, so the next safety check measures the robot first."""
+        self._reference_joints = None
+
+    def _current_joints(self) -> np.ndarray:
+        if self._reference_joints is None:
+            self._reference_joints = self.measured_joints()
+        return self._reference_joints
+
+    def _send_motion(self, command: str, target_joints: np.ndarray) -> None:
+        try:
+            self.safety.submit(command, lambda text: self._request("motion", text))
+        except BaseException:
+            self._reference_joints = None
+            raise
+        self._reference_joints = np.asarray(target_joints, dtype=float)
+
+    def _cartesian(self, name: str, pose: Sequence[float], kind: MotionKind, **keywords: float) -> None:
+        target = _four(pose, f"{name} target (x_mm, y_mm, z_mm, r_deg)")
+        with self._motion_lock:
+            current = forward(self._current_joints(), self.safety.config.geometry)
+            joints = self.safety.check_target(current, target, kind)
+            self._send_motion(format_command(name, *target, **keywords), joints)
+
+    def _joint(self, name: str, joints_deg: Sequence[float], kind: MotionKind, **keywords: float) -> None:
+        target = _four(joints_deg, f"{name} target (J1, J2, J3, J4) deg")
+        with self._motion_lock:
+            self.safety.check_joint_target(self._current_joints(), target, kind)
+            self._send_motion(format_command(name, *target, **keywords), np.array(target))
+
+    def mov_j(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float) -> None:
+        """Queue ``MovJ`` (joint-space move to a Cartesian pose)."""
+        self._cartesian("MovJ", (x_mm, y_mm, z_mm, r_deg), MotionKind.JOINT)
+
+    def mov_l(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float) -> None:
+        """Queue ``MovL`` (straight-line move)."""
+        self._cartesian("MovL", (x_mm, y_mm, z_mm, r_deg), MotionKind.LINEAR)
+
+    def joint_mov_j(self, j1_deg: float, j2_deg: float, j3_deg: float, j4_deg: float) -> None:
+        """Queue ``JointMovJ`` to joint angles, deg."""
+        self._joint("JointMovJ", (j1_deg, j2_deg, j3_deg, j4_deg), MotionKind.JOINT)
+
+    def servo_p(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float, t_s: float = 0.1) -> None:
+        """``ServoP``: replace the servo target with a pose, reached in ``t_s`` (0.004..3600 s)."""
+        self._servo_time(t_s)
+        self._cartesian("ServoP", (x_mm, y_mm, z_mm, r_deg), MotionKind.SERVO, t=t_s)
+
+    def servo_j(self, j1_deg: float, j2_deg: float, j3_deg: float, j4_deg: float, t_s: float = 0.1) -> None:
+        """``ServoJ``: replace the servo target with joint angles, reached in ``t_s`` (0.004..3600 s)."""
+        self._servo_time(t_s)
+        self._joint("ServoJ", (j1_deg, j2_deg, j3_deg, j4_deg), MotionKind.SERVO, t=t_s)
+
+    @staticmethod
+    def _servo_time(t_s: float) -> None:
+        if not (math.isfinite(t_s) and 0.004 <= t_s <= 3600.0):
+            raise ValueError(f"servo time t_s must be in [0.004, 3600] s, got {t_s!r}")
+
+    def sync(self, timeout_s: float | None = None) -> None:
+        """``Sync()``: wait until the motion queue is empty (default ``config.sync_timeout_s``)."""
+        if self.safety.dry_run:
+            logger.info("dry run: not sending Sync()")
+            return
+        self._request("motion", format_command("Sync"), self.config.sync_timeout_s if timeout_s is None else timeout_s)
+
+
+@dataclass(frozen=True)
+class ServoStreamConfig:
+    """Servo streaming settings.
+
+    Attributes:
+        period_s: time between ServoP commands, s.
+        margin_s: added to the period for each command's ``t`` so the robot never idles between targets, s.
+        max_step_mm: translation per command toward the goal, mm (keep within the safety layer's max_step_mm).
+        max_step_deg: R change per command toward the goal, deg.
+    """
+
+    period_s: float = 0.05
+    margin_s: float = 0.02
+    max_step_mm: float = 2.0
+    max_step_deg: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("period_s", "max_step_mm", "max_step_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"ServoStreamConfig.{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.margin_s) and self.margin_s >= 0.0):
+            raise ValueError(f"ServoStreamConfig.margin_s must be finite and >= 0 s, got {self.margin_s!r}")
+        if not 0.004 <= self.t_s <= 3600.0:
+            raise ValueError(f"ServoStreamConfig period_s + margin_s = {self.t_s:g} s must be in [0.004, 3600] s")
+
+    @property
+    def t_s(self) -> float:
+        """The ``t`` of each ServoP: period + margin, s."""
+        return self.period_s + self.margin_s
+
+
+class ServoStreamer:
+    """Sends ``ServoP`` at a fixed period toward the newest goal, in bounded steps, never queueing.
+
+    Only the newest goal is kept; each tick sends at most one command (waiting for its reply), and ticks missed
+    because a reply was slow are skipped, not caught up. The first command starts from the measured pose. Any
+    error (safety refusal, MG400 error, lost connection) stops streaming; it is re-raised by :meth:`set_goal` and
+    available as :attr:`error`.
+    """
+
+    def __init__(self, client: MG400Client, config: ServoStreamConfig | None = None) -> None:
+        self.client = client
+        self.config = config if config is not None else ServoStreamConfig()
+        self._lock = threading.Lock()
+        self._goal: np.ndarray | None = None
+        self._commanded: np.ndarray | None = None
+        self._error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.commands_sent = 0
+
+    def start(self) -> ServoStreamer:
+        """Start streaming from the measured pose."""
+        if self._thread is not None:
+            raise RuntimeError("ServoStreamer already started")
+        self._commanded = np.array(self.client.measured_pose(), dtype=float)
+        self.client.reset_reference()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name="mg400-servo", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop sending (the robot finishes the last target within its ``t``)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+
+    def __enter__(self) -> ServoStreamer:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    @property
+    def error(self) -> BaseException | None:
+        """The error that stopped streaming, if any."""
+        with self._lock:
+            return self._error
+
+    @property
+    def running(self) -> bool:
+        """True while the streaming thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def commanded_pose(self) -> Pose | None:
+        """The last pose sent (or the start pose)."""
+        with self._lock:
+            return None if self._commanded is None else tuple(self._commanded)  # type: ignore[return-value]
+
+    @property
+    def at_goal(self) -> bool:
+        """True when the last pose sent is the goal."""
+        with self._lock:
+            return self._goal is not None and self._commanded is not None and bool(
+                np.allclose(self._goal, self._commanded))
+
+    def set_goal(self, pose: Sequence[float]) -> None:
+        """Replace the goal ``(x_mm, y_mm, z_mm, r_deg)``; raises the error that stopped streaming, if any."""
+        goal = np.array(_four(pose, "servo goal (x_mm, y_mm, z_mm, r_deg)"))
+        with self._lock:
+            if self._error is not None:
+                raise self._error
+            self._goal = goal
+
+    def _next_pose(self, current: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        delta = goal - current
+        delta[3] = wrap_deg(delta[3])
+        distance_mm = float(np.linalg.norm(delta[:3]))
+        if distance_mm > self.config.max_step_mm:
+            delta[:3] *= self.config.max_step_mm / distance_mm
+        delta[3] = float(np.clip(delta[3], -self.config.max_step_deg, self.config.max_step_deg))
+        nxt = current + delta
+        if np.allclose(nxt[:3], goal[:3], atol=1e-9) and abs(wrap_deg(goal[3] - nxt[3])) < 1e-9:
+            return goal.copy()
+        return nxt
+
+    def _run(self) -> None:
+        period_s = self.config.period_s
+        next_tick = time.monotonic()
+        while not self._stop.is_set():
+            with self._lock:
+                goal, current = self._goal, self._commanded
+            if goal is not None and current is not None and not np.array_equal(goal, current):
+                pose = self._next_pose(current, goal)
+                try:
+                    self.client.servo_p(*pose, t_s=self.config.t_s)
+                except BaseException as error:  # noqa: BLE001 - any failure must stop the stream
+                    logger.error("servo streaming stopped: %s", error)
+                    with self._lock:
+                        self._error = error
+                    return
+                with self._lock:
+                    self._commanded = pose
+                self.commands_sent += 1
+            next_tick += period_s
+            delay_s = next_tick - time.monotonic()
+            if delay_s < 0.0:
+                next_tick = time.monotonic()  # late: skip the missed ticks instead of bursting
+                delay_s = 0.0
+            self._stop.wait(delay_s)
