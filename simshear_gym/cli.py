@@ -13,11 +13,14 @@ import sys
 
 # (command words, module, one-line help)
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
+    (("demo",), "simshear_gym.demo", "the default job: simulated TacTip contacts with shear, no data needed"),
     (("collect",), "simshear_gym.data.collect", "render paired (sim image, shear, real image) sets"),
     (("evaluate", "render"), "simshear_gym.evaluate.render_agreement",
      "compare our sim renders with the published Tactile Gym sim images"),
     (("evaluate", "collect-speed"), "simshear_gym.evaluate.collect_speed",
      "benchmark paired tuples per second of the collection"),
+    (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
+     "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
 )
 
 

@@ -19,6 +19,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], object], suffix
     os.close(handle)
     try:
         write(tmp)
+        os.chmod(tmp, 0o644)  # mkstemp creates 0600; results and checkpoints are ordinary files
         os.replace(tmp, target)
     except BaseException:
         if os.path.exists(tmp):

@@ -374,10 +374,3 @@ def run(args: argparse.Namespace) -> int:
           + (f", {args.write_config}" if args.write_config else ""))
     return 0
 
-
-if __name__ == "__main__":  # until the lead wires it into the CLI: python -m simshear_gym.evaluate.camera_calibration
-    import sys
-
-    _parser = argparse.ArgumentParser(prog="simshear evaluate camera", description=__doc__.splitlines()[0])
-    add_arguments(_parser)
-    sys.exit(run(_parser.parse_args()))

@@ -313,13 +313,9 @@ class CameraSource(_SourceBase):
         exposure: float | None = None,
         frame_size_px: tuple[int, int] | None = None,
     ) -> None:
-        if warmup_frames < 0:
-            raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
         self._init_state(str(source), stall_timeout_s)
-
-        if isinstance(source, (int, np.integer)) and not isinstance(source, bool) or (
-            isinstance(source, str) and source.isdigit()
-        ):
+        is_index = isinstance(source, (int, np.integer)) and not isinstance(source, bool)
+        if is_index or (isinstance(source, str) and source.isdigit()):
             index = int(source)
             self.name = f"camera device {index}"
             capture = cv2.VideoCapture(index)
@@ -420,6 +416,9 @@ class CameraSource(_SourceBase):
         self._live: _LiveReader | None = None
 
     def _start_live(self, capture, warmup_frames: int) -> None:
+        if warmup_frames < 0:
+            capture.release()
+            raise ValueError(f"warmup_frames must be >= 0, got {warmup_frames}")
         self._live = _LiveReader(capture, self.name)
         try:
             for _ in range(warmup_frames):
