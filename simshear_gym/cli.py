@@ -19,6 +19,10 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "compare our sim renders with the published Tactile Gym sim images"),
     (("evaluate", "collect-speed"), "simshear_gym.evaluate.collect_speed",
      "benchmark paired tuples per second of the collection"),
+    (("train", "translator"), "simshear_gym.train.translator",
+     "train the shPix2pix or pix2pix sim-to-real translator on paired sets"),
+    (("mg400-emulator",), "simshear_gym.real.mg400_emulator",
+     "run a loopback Dobot MG400 emulator (dashboard, motion, feedback ports) until Ctrl-C"),
     (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
 )

@@ -27,6 +27,9 @@ import numpy as np
 
 JOINT_NAMES: tuple[str, str, str, str] = ("J1", "J2", "J3", "J4")
 
+# Round-off allowance on limits, deg, so that a pose computed from joints exactly on a limit passes.
+_LIMIT_TOLERANCE_DEG = 1e-9
+
 
 class KinematicsError(ValueError):
     """Base class of kinematics errors (a ``ValueError``: the input is the problem)."""
@@ -113,7 +116,8 @@ class MG400Limits:
             if len(pair) != 2 or not all(math.isfinite(v) for v in pair) or pair[0] >= pair[1]:
                 raise ValueError(f"MG400Limits.{name} must be a finite (lower, upper) with lower < upper, got {pair!r}")
         if not (math.isfinite(self.j3_minus_j2_max_deg) and self.j3_minus_j2_max_deg > 0.0):
-            raise ValueError(f"MG400Limits.j3_minus_j2_max_deg must be finite and > 0, got {self.j3_minus_j2_max_deg!r}")
+            raise ValueError("MG400Limits.j3_minus_j2_max_deg must be finite and > 0, "
+                             f"got {self.j3_minus_j2_max_deg!r}")
         if not math.isfinite(self.j2_min_when_j3_nonpositive_deg):
             raise ValueError("MG400Limits.j2_min_when_j3_nonpositive_deg must be finite, "
                              f"got {self.j2_min_when_j3_nonpositive_deg!r}")
@@ -161,7 +165,10 @@ def forward(joints_deg: Sequence[float] | np.ndarray,
 
 def inverse(x_mm: float, y_mm: float, z_mm: float, r_deg: float,
             geometry: MG400Geometry = DEFAULT_GEOMETRY) -> np.ndarray:
-    """Closed-form inverse kinematics (the MG400 elbow-up branch); joint limits are *not* checked.
+    """Closed-form inverse kinematics; joint limits are *not* checked.
+
+    Of the two elbow solutions this returns the one with J2 = (direction to the wrist) - (elbow angle), the only
+    one inside the MG400's joint limits (checked by the FK/IK round-trip tests).
 
     Args:
         x_mm, y_mm, z_mm: flange position in the base frame, mm.
@@ -216,13 +223,13 @@ def check_joint_limits(joints_deg: Sequence[float] | np.ndarray, limits: MG400Li
     joints = _as_four(joints_deg, "joints_deg")
     for index, name in enumerate(JOINT_NAMES):
         lower, upper = limits.joint_range_deg(index)
-        if not lower <= joints[index] <= upper:
+        if not lower - _LIMIT_TOLERANCE_DEG <= joints[index] <= upper + _LIMIT_TOLERANCE_DEG:
             raise LimitError(name, joints[index], lower, upper)
     j2, j3 = joints[1], joints[2]
     coupling = limits.j3_minus_j2_max_deg
-    if abs(j3 - j2) > coupling:
+    if abs(j3 - j2) > coupling + _LIMIT_TOLERANCE_DEG:
         raise LimitError("J3-J2", j3 - j2, -coupling, coupling, note="(parallelogram coupling)")
-    if j3 <= 0.0 and j2 < limits.j2_min_when_j3_nonpositive_deg:
+    if j3 <= 0.0 and j2 < limits.j2_min_when_j3_nonpositive_deg - _LIMIT_TOLERANCE_DEG:
         raise LimitError("J2", j2, limits.j2_min_when_j3_nonpositive_deg, limits.j2_deg[1],
                          note=f"(coupled limit while J3 = {j3:.3f} deg <= 0)")
 

@@ -1,0 +1,846 @@
+"""A loopback MG400 emulator: the dashboard, motion and feedback ports, with fault injection.
+
+It listens on 127.0.0.1 only and speaks the protocol of :mod:`simshear_gym.real.mg400_protocol`:
+
+* Dashboard (29999): EnableRobot, DisableRobot, ClearError, Continue, ResetRobot, EmergencyStop, SpeedFactor,
+  User, Tool, RobotMode, GetPose, GetAngle, GetErrorID.
+* Motion (30003): MovJ, MovL, JointMovJ (queued, executed in order at ``joint_speed_deg_s`` /
+  ``linear_speed_mm_s`` scaled by SpeedFactor), Sync (answers when the queue is empty; -1 if the robot is then in
+  error mode), ServoP / ServoJ (replace the servo target, reached linearly over ``t``; refused while queued moves
+  run; a move queued during a servo motion starts when that motion ends).
+* Feedback (30004): a 1440-byte packet every ``feedback_period_s``.
+
+A target beyond the joint limits puts the robot in error mode with alarm 18 (joint limit), an unreachable one with
+alarm 23 (out of working area); the command is answered with ErrorID -1. Motion commands are answered -1 while the
+robot is disabled or in error mode. ClearError clears the alarms; EmergencyStop stops and disables. When the
+connections are dropped (fault injection), the emulated robot stops where it is.
+
+Faults (:class:`FaultConfig`): an alarm during motion, dropped connections after N commands, replies split across
+TCP segments, corrupt or partial feedback packets, slow replies.
+
+Command line (hooked up by the ``simshear`` CLI): ``simshear mg400-emulator --host 127.0.0.1 --dashboard-port ...``
+via :func:`add_arguments` and :func:`run`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import enum
+import ipaddress
+import logging
+import math
+import socket
+import struct
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from simshear_gym.real.mg400_protocol import (
+    ALARM_JOINT_LIMIT,
+    ALARM_OUT_OF_WORKSPACE,
+    DASHBOARD_PORT,
+    ERROR_FAILED,
+    ERROR_OK,
+    ERROR_PARAMETER_COUNT,
+    ERROR_UNKNOWN_COMMAND,
+    FEEDBACK_PACKET_BYTES,
+    FEEDBACK_PERIOD_S,
+    FEEDBACK_PORT,
+    MOTION_PORT,
+    CommandBuffer,
+    MG400Feedback,
+    ParsedCommand,
+    ProtocolError,
+    RobotMode,
+    format_reply,
+    pack_feedback,
+    parameter_range_error,
+    parameter_type_error,
+    parse_command,
+)
+from simshear_gym.sim.mg400_kinematics import (
+    LimitError,
+    MG400Geometry,
+    MG400Limits,
+    UnreachableError,
+    check_joint_limits,
+    check_pose_reachable,
+    forward,
+    wrap_deg,
+)
+
+logger = logging.getLogger(__name__)
+
+_SERVO_TIME_RANGE_S = (0.004, 3600.0)
+_POLL_S = 0.05  # how often blocked threads look at the stop flag
+
+
+class FeedbackFault(enum.Enum):
+    """Kinds of bad feedback packet the emulator can send."""
+
+    BAD_LENGTH = "bad-length"  # length field 1439
+    BAD_TEST_VALUE = "bad-test-value"  # test value 0
+    PARTIAL = "partial"  # only the first half of the packet
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Faults to inject (all off by default).
+
+    Attributes:
+        alarm_during_motion: alarm id raised once, ``alarm_after_s`` into the first motion that lasts that long.
+        alarm_after_s: when the alarm fires, s after the motion started.
+        drop_after_commands: close every connection (without replying) when this many commands have been
+            received in total; once.
+        split_replies_bytes: send each reply in chunks of this many bytes, ``split_delay_s`` apart.
+        split_delay_s: pause between reply chunks, s.
+        corrupt_feedback_every: every N-th feedback packet is bad, cycling through ``feedback_faults``.
+        feedback_faults: which bad packets to send.
+        reply_delay_s: delay before each reply, s.
+        slow_commands: command names (case-insensitive) that get ``reply_delay_s``; empty: all commands.
+    """
+
+    alarm_during_motion: int | None = None
+    alarm_after_s: float = 0.05
+    drop_after_commands: int | None = None
+    split_replies_bytes: int | None = None
+    split_delay_s: float = 0.002
+    corrupt_feedback_every: int | None = None
+    feedback_faults: tuple[FeedbackFault, ...] = tuple(FeedbackFault)
+    reply_delay_s: float = 0.0
+    slow_commands: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for name in ("drop_after_commands", "split_replies_bytes", "corrupt_feedback_every", "alarm_during_motion"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+                raise ValueError(f"FaultConfig.{name} must be None or an int >= 1, got {value!r}")
+        for name in ("alarm_after_s", "split_delay_s", "reply_delay_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"FaultConfig.{name} must be finite and >= 0 s, got {value!r}")
+        if not self.feedback_faults or not all(isinstance(f, FeedbackFault) for f in self.feedback_faults):
+            raise ValueError(f"FaultConfig.feedback_faults must be a non-empty tuple of FeedbackFault, "
+                             f"choices {[f.value for f in FeedbackFault]}, got {self.feedback_faults!r}")
+        object.__setattr__(self, "slow_commands", tuple(str(name).lower() for name in self.slow_commands))
+
+
+@dataclass(frozen=True)
+class EmulatorConfig:
+    """Emulator settings.
+
+    Attributes:
+        host: loopback IPv4 address to listen on (``127.0.0.1`` or ``localhost``; others are refused).
+        dashboard_port, motion_port, feedback_port: ports; 0 picks a free ephemeral port.
+        feedback_period_s: time between feedback packets (and simulation steps), s.
+        joint_speed_deg_s: joint speed of MovJ/JointMovJ at SpeedFactor 100, deg/s.
+        linear_speed_mm_s: Cartesian speed of MovL at SpeedFactor 100, mm/s.
+        rotation_speed_deg_s: R speed of MovL at SpeedFactor 100, deg/s.
+        initial_joints_deg: start joints (J1..J4), deg.
+        pose_value_count: numbers returned by GetPose/GetAngle (4 per the guide, 6 as field firmware does).
+        max_queue: queued moves accepted before answering -1.
+        faults: fault injection.
+        geometry, limits: the arm model.
+    """
+
+    host: str = "127.0.0.1"
+    dashboard_port: int = DASHBOARD_PORT
+    motion_port: int = MOTION_PORT
+    feedback_port: int = FEEDBACK_PORT
+    feedback_period_s: float = FEEDBACK_PERIOD_S
+    joint_speed_deg_s: float = 180.0
+    linear_speed_mm_s: float = 500.0
+    rotation_speed_deg_s: float = 360.0
+    initial_joints_deg: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    pose_value_count: int = 6
+    max_queue: int = 50
+    faults: FaultConfig = field(default_factory=FaultConfig)
+    geometry: MG400Geometry = field(default_factory=MG400Geometry)
+    limits: MG400Limits = field(default_factory=MG400Limits)
+
+    def __post_init__(self) -> None:
+        host = "127.0.0.1" if self.host == "localhost" else self.host
+        try:
+            address = ipaddress.ip_address(host)
+        except ValueError:
+            address = None
+        if address is None or address.version != 4 or not address.is_loopback:
+            raise ValueError(f"EmulatorConfig.host must be a loopback IPv4 address such as 127.0.0.1, "
+                             f"got {self.host!r}")
+        object.__setattr__(self, "host", host)
+        for name in ("dashboard_port", "motion_port", "feedback_port"):
+            port = getattr(self, name)
+            if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+                raise ValueError(f"EmulatorConfig.{name} must be an int in 0..65535 (0: ephemeral), got {port!r}")
+        for name in ("feedback_period_s", "joint_speed_deg_s", "linear_speed_mm_s", "rotation_speed_deg_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"EmulatorConfig.{name} must be finite and > 0, got {value!r}")
+        if not 4 <= self.pose_value_count <= 6:
+            raise ValueError(f"EmulatorConfig.pose_value_count must be 4..6, got {self.pose_value_count!r}")
+        if self.max_queue < 1:
+            raise ValueError(f"EmulatorConfig.max_queue must be >= 1, got {self.max_queue!r}")
+        if len(self.initial_joints_deg) != 4:
+            raise ValueError(f"EmulatorConfig.initial_joints_deg must have 4 values, got {self.initial_joints_deg!r}")
+        try:
+            check_joint_limits(self.initial_joints_deg, self.limits)
+        except LimitError as error:
+            raise ValueError(f"EmulatorConfig.initial_joints_deg is outside the limits: {error}") from error
+
+
+@dataclass(frozen=True)
+class _Queued:
+    """A move waiting in the queue: a Cartesian pose (MovJ/MovL) or joints (JointMovJ)."""
+
+    command: str
+    target: tuple[float, ...]
+    joint_target: bool
+    linear: bool
+
+
+@dataclass
+class _Motion:
+    """A move in progress: joint-space or Cartesian-linear interpolation over ``duration_s``."""
+
+    start_joints: np.ndarray
+    end_joints: np.ndarray
+    start_pose: np.ndarray
+    end_pose: np.ndarray
+    linear: bool
+    duration_s: float
+    servo: bool
+    elapsed_s: float = 0.0
+
+    def joints_at(self, fraction: float, geometry: MG400Geometry, limits: MG400Limits) -> np.ndarray:
+        if self.linear:
+            pose = self.start_pose + fraction * (self.end_pose - self.start_pose)
+            return check_pose_reachable(pose, geometry, limits)
+        joints = self.start_joints + fraction * (self.end_joints - self.start_joints)
+        check_joint_limits(joints, limits)
+        return joints
+
+
+Handler = Callable[[ParsedCommand], "tuple[int, Sequence[object]] | None"]
+
+
+class MG400Emulator:
+    """The emulated controller: servers, motion, feedback and faults, in threads (a context manager)."""
+
+    def __init__(self, config: EmulatorConfig | None = None) -> None:
+        self.config = config if config is not None else EmulatorConfig()
+        cfg = self.config
+        self._cond = threading.Condition()
+        self._joints = np.array(cfg.initial_joints_deg, dtype=float)
+        self._enabled = False
+        self._alarms: list[int] = []
+        self._speed_factor = 100
+        self._queue: deque[_Queued] = deque()
+        self._active: _Motion | None = None
+        self._alarm_fired = False
+        self._time_s = 0.0
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._servers: dict[str, socket.socket] = {}
+        self._clients_lock = threading.Lock()
+        self._clients: set[socket.socket] = set()
+        self._feedback_clients: list[socket.socket] = []
+        self._log: list[tuple[str, str]] = []
+        self._command_count = 0
+        self._dropped = False
+        self._drop_generation = 0
+        self._packets_sent = 0
+        self._handlers: dict[tuple[str, str], Handler] = {
+            ("dashboard", "enablerobot"): self._enable,
+            ("dashboard", "disablerobot"): self._disable,
+            ("dashboard", "clearerror"): self._clear_error,
+            ("dashboard", "continue"): lambda cmd: self._no_args(cmd, lambda: None),
+            ("dashboard", "resetrobot"): lambda cmd: self._no_args(cmd, self._halt),
+            ("dashboard", "emergencystop"): self._emergency_stop,
+            ("dashboard", "speedfactor"): self._set_speed_factor,
+            ("dashboard", "user"): self._index_setting,
+            ("dashboard", "tool"): self._index_setting,
+            ("dashboard", "robotmode"): lambda cmd: self._no_args(cmd, lambda: [int(self.robot_mode)]),
+            ("dashboard", "getpose"): lambda cmd: self._no_args(cmd, lambda: self._padded(self.pose)),
+            ("dashboard", "getangle"): lambda cmd: self._no_args(cmd, lambda: self._padded(self.joints_deg)),
+            ("dashboard", "geterrorid"): self._get_error_id,
+            ("motion", "movj"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=False),
+            ("motion", "movl"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=True),
+            ("motion", "jointmovj"): lambda cmd: self._queue_move(cmd, joint_target=True, linear=False),
+            ("motion", "servop"): lambda cmd: self._servo(cmd, joint_target=False),
+            ("motion", "servoj"): lambda cmd: self._servo(cmd, joint_target=True),
+            ("motion", "sync"): self._sync,
+        }
+
+    # -- lifecycle -----------------------------------------------------------------------------------------------
+
+    def start(self) -> MG400Emulator:
+        """Bind the three ports and start the server, motion and feedback threads."""
+        if self._servers:
+            raise RuntimeError("MG400Emulator already started")
+        cfg = self.config
+        self._stop.clear()
+        try:
+            for name, port in (("dashboard", cfg.dashboard_port), ("motion", cfg.motion_port),
+                               ("feedback", cfg.feedback_port)):
+                server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+                server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                self._servers[name] = server
+                server.bind((cfg.host, port))
+                server.listen(4)
+                server.settimeout(_POLL_S)
+        except OSError:
+            self.stop()
+            raise
+        for name, server in self._servers.items():
+            self._spawn(f"mg400-emu-accept-{name}", self._accept_loop, name, server)
+        self._spawn("mg400-emu-tick", self._tick_loop)
+        logger.info("MG400 emulator on %s: dashboard %d, motion %d, feedback %d", cfg.host, self.dashboard_port,
+                    self.motion_port, self.feedback_port)
+        return self
+
+    def stop(self) -> None:
+        """Stop all threads and close every socket (idempotent)."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        for server in self._servers.values():
+            server.close()
+        self._close_clients()
+        current = threading.current_thread()
+        for _ in range(3):  # accept threads may still have spawned a handler while stopping
+            with self._clients_lock:
+                threads = [t for t in self._threads if t.is_alive() and t is not current]
+            if not threads:
+                break
+            for thread in threads:
+                thread.join(timeout=2.0)
+        with self._clients_lock:
+            self._threads.clear()
+        self._servers.clear()
+
+    def __enter__(self) -> MG400Emulator:
+        return self.start()
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+
+    def _spawn(self, name: str, target: Callable[..., None], *args: object) -> None:
+        thread = threading.Thread(target=target, args=args, name=name, daemon=True)
+        with self._clients_lock:
+            self._threads.append(thread)
+        thread.start()
+
+    def _port(self, name: str) -> int:
+        if name not in self._servers:
+            raise RuntimeError("MG400Emulator is not started; call start() first")
+        return int(self._servers[name].getsockname()[1])
+
+    @property
+    def dashboard_port(self) -> int:
+        """The bound dashboard port."""
+        return self._port("dashboard")
+
+    @property
+    def motion_port(self) -> int:
+        """The bound motion port."""
+        return self._port("motion")
+
+    @property
+    def feedback_port(self) -> int:
+        """The bound feedback port."""
+        return self._port("feedback")
+
+    # -- state, for tests and tools ------------------------------------------------------------------------------
+
+    @property
+    def joints_deg(self) -> tuple[float, float, float, float]:
+        """Actual joints (J1..J4), deg."""
+        with self._cond:
+            return tuple(float(v) for v in self._joints)  # type: ignore[return-value]
+
+    @property
+    def pose(self) -> tuple[float, float, float, float]:
+        """Actual flange pose ``(x_mm, y_mm, z_mm, r_deg)``."""
+        return forward(self.joints_deg, self.config.geometry)
+
+    @property
+    def robot_mode(self) -> RobotMode:
+        """The current robot mode."""
+        with self._cond:
+            return self._mode()
+
+    @property
+    def alarms(self) -> tuple[int, ...]:
+        """Active controller alarm ids."""
+        with self._cond:
+            return tuple(self._alarms)
+
+    @property
+    def queue_length(self) -> int:
+        """Queued moves not yet finished (including the one running)."""
+        with self._cond:
+            return len(self._queue) + int(self._active is not None and not self._active.servo)
+
+    @property
+    def feedback_packets_sent(self) -> int:
+        """Feedback ticks so far (one packet, good or bad, to each connected feedback client per tick)."""
+        with self._cond:
+            return self._packets_sent
+
+    def received_commands(self, port: str | None = None) -> list[str]:
+        """Command texts received so far, oldest first; ``port`` "dashboard" or "motion" filters."""
+        with self._clients_lock:
+            return [text for name, text in self._log if port is None or name == port]
+
+    def drop_connections(self) -> None:
+        """Close every client connection now; the emulated robot stops where it is (servers keep listening)."""
+        logger.warning("MG400 emulator: dropping all connections")
+        with self._cond:
+            self._halt()
+            self._drop_generation += 1
+            self._cond.notify_all()
+        self._close_clients()
+
+    def _close_clients(self) -> None:
+        with self._clients_lock:
+            clients = list(self._clients)
+            self._clients.clear()
+            self._feedback_clients.clear()
+        for conn in clients:
+            try:
+                conn.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            conn.close()
+
+    # -- robot model (call with self._cond held) -----------------------------------------------------------------
+
+    def _mode(self) -> RobotMode:
+        if self._alarms:
+            return RobotMode.ERROR
+        if not self._enabled:
+            return RobotMode.DISABLED
+        if self._active is not None or self._queue:
+            return RobotMode.RUNNING
+        return RobotMode.ENABLED
+
+    def _halt(self) -> None:
+        self._queue.clear()
+        self._active = None
+
+    def _raise_alarm(self, alarm_id: int, reason: str) -> None:
+        logger.info("MG400 emulator alarm %d: %s", alarm_id, reason)
+        if alarm_id not in self._alarms:
+            self._alarms.append(alarm_id)
+        self._halt()
+        self._cond.notify_all()
+
+    def _speed(self, value: float) -> float:
+        return value * self._speed_factor / 100.0
+
+    def _start_motion(self, item: _Queued) -> _Motion:
+        geometry, start_joints = self.config.geometry, self._joints.copy()
+        start_pose = np.array(forward(start_joints, geometry))
+        if item.joint_target:
+            end_joints = np.array(item.target)
+            end_pose = np.array(forward(end_joints, geometry))
+        else:
+            end_pose = np.array(item.target)
+            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
+            end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+        if item.linear:
+            duration_s = max(float(np.linalg.norm(end_pose[:3] - start_pose[:3])) / self._speed(
+                self.config.linear_speed_mm_s), abs(end_pose[3] - start_pose[3]) / self._speed(
+                self.config.rotation_speed_deg_s))
+        else:
+            duration_s = float(np.max(np.abs(end_joints - start_joints))) / self._speed(self.config.joint_speed_deg_s)
+        return _Motion(start_joints, end_joints, start_pose, end_pose, item.linear, duration_s, servo=False)
+
+    def _step(self, dt_s: float) -> None:
+        with self._cond:
+            self._time_s += dt_s
+            if self._alarms or not self._enabled:
+                self._halt()
+            elif self._active is None and self._queue:
+                item = self._queue.popleft()
+                try:
+                    self._active = self._start_motion(item)
+                except UnreachableError as error:
+                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{item.command}: {error}")
+                except LimitError as error:
+                    self._raise_alarm(ALARM_JOINT_LIMIT, f"{item.command}: {error}")
+            motion = self._active
+            if motion is not None:
+                motion.elapsed_s += dt_s
+                fraction = 1.0 if motion.duration_s <= 0.0 else min(1.0, motion.elapsed_s / motion.duration_s)
+                try:
+                    self._joints = motion.joints_at(fraction, self.config.geometry, self.config.limits)
+                except UnreachableError as error:
+                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, str(error))
+                except LimitError as error:
+                    self._raise_alarm(ALARM_JOINT_LIMIT, str(error))
+                else:
+                    if fraction >= 1.0:
+                        self._joints = motion.end_joints.copy()
+                        self._active = None
+                    faults = self.config.faults
+                    if (faults.alarm_during_motion is not None and not self._alarm_fired
+                            and motion.elapsed_s >= faults.alarm_after_s):
+                        self._alarm_fired = True
+                        self._raise_alarm(faults.alarm_during_motion, "injected alarm during motion")
+            self._cond.notify_all()
+
+    def _feedback(self) -> MG400Feedback:
+        with self._cond:
+            target = self._joints if self._active is None else self._active.end_joints
+            return MG400Feedback(
+                robot_mode=int(self._mode()),
+                time_stamp_ms=int(self._time_s * 1000.0),
+                q_target_deg=tuple(target),
+                q_actual_deg=tuple(self._joints),
+                tool_vector_actual=forward(self._joints, self.config.geometry),
+                tool_vector_target=forward(target, self.config.geometry),
+                speed_scaling=self._speed_factor / 100.0,
+                enable_status=self._enabled,
+                error_status=bool(self._alarms),
+                run_queued_command=bool(self._queue) or (self._active is not None and not self._active.servo),
+            )
+
+    # -- command handlers (return (ErrorID, values) or None for no reply) ----------------------------------------
+
+    @staticmethod
+    def _numbers(cmd: ParsedCommand, count: int, keywords: tuple[str, ...] = ()
+                 ) -> tuple[int, list[float], dict[str, float]]:
+        """Parse ``count`` numeric parameters and optional keywords: (ErrorID, numbers, keywords)."""
+        if len(cmd.args) != count or any(key.lower() not in keywords for key, _ in cmd.keywords):
+            return ERROR_PARAMETER_COUNT, [], {}
+        numbers: list[float] = []
+        for index, text in enumerate(cmd.args):
+            try:
+                numbers.append(float(text))
+            except ValueError:
+                return parameter_type_error(index + 1), [], {}
+            if not math.isfinite(numbers[-1]):
+                return parameter_range_error(index + 1), [], {}
+        named: dict[str, float] = {}
+        for offset, (key, text) in enumerate(cmd.keywords):
+            try:
+                named[key.lower()] = float(text)
+            except ValueError:
+                return parameter_type_error(count + offset + 1), [], {}
+        return ERROR_OK, numbers, named
+
+    def _no_args(self, cmd: ParsedCommand, action: Callable[[], object]) -> tuple[int, Sequence[object]]:
+        if cmd.args or cmd.keywords:
+            return ERROR_PARAMETER_COUNT, ()
+        with self._cond:
+            values = action()
+            self._cond.notify_all()
+        return ERROR_OK, (values if values is not None else ())  # type: ignore[return-value]
+
+    def _padded(self, four: Sequence[float]) -> list[float]:
+        return [float(v) for v in four] + [0.0] * (self.config.pose_value_count - 4)
+
+    def _enable(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        def action() -> None:
+            self._enabled = True
+        return self._no_args(cmd, action)
+
+    def _disable(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        def action() -> None:
+            self._halt()
+            self._enabled = False
+        return self._no_args(cmd, action)
+
+    def _clear_error(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        def action() -> None:
+            self._alarms.clear()
+            self._halt()
+        return self._no_args(cmd, action)
+
+    def _emergency_stop(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        def action() -> None:
+            self._halt()
+            self._enabled = False
+        return self._no_args(cmd, action)
+
+    def _set_speed_factor(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        error_id, numbers, _ = self._numbers(cmd, 1)
+        if error_id != ERROR_OK:
+            return error_id, ()
+        if numbers[0] != int(numbers[0]) or not 1 <= numbers[0] <= 100:
+            return parameter_range_error(1), ()
+        with self._cond:
+            self._speed_factor = int(numbers[0])
+        return ERROR_OK, ()
+
+    def _index_setting(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        error_id, numbers, _ = self._numbers(cmd, 1)
+        if error_id != ERROR_OK:
+            return error_id, ()
+        if numbers[0] != int(numbers[0]) or not 0 <= numbers[0] <= 9:
+            return parameter_range_error(1), ()
+        return ERROR_OK, ()
+
+    def _get_error_id(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        if cmd.args or cmd.keywords:
+            return ERROR_PARAMETER_COUNT, ()
+        with self._cond:
+            controller = tuple(self._alarms)
+        return ERROR_OK, ((controller,) + ((),) * 6,)
+
+    def _check_target(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool) -> bool:
+        """Validate a target (lock held); on failure raise the alarm and return False."""
+        try:
+            if joint_target:
+                check_joint_limits(target, self.config.limits)
+            else:
+                check_pose_reachable(target, self.config.geometry, self.config.limits)
+        except UnreachableError as error:
+            self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{cmd.text}: {error}")
+            return False
+        except LimitError as error:
+            self._raise_alarm(ALARM_JOINT_LIMIT, f"{cmd.text}: {error}")
+            return False
+        return True
+
+    def _queue_move(self, cmd: ParsedCommand, joint_target: bool, linear: bool) -> tuple[int, Sequence[object]]:
+        error_id, target, _ = self._numbers(cmd, 4)
+        if error_id != ERROR_OK:
+            return error_id, ()
+        with self._cond:
+            if self._alarms or not self._enabled or len(self._queue) >= self.config.max_queue:
+                return ERROR_FAILED, ()
+            if not self._check_target(cmd, target, joint_target):
+                return ERROR_FAILED, ()
+            self._queue.append(_Queued(cmd.text, tuple(target), joint_target, linear))
+            self._cond.notify_all()
+        return ERROR_OK, ()
+
+    def _servo(self, cmd: ParsedCommand, joint_target: bool) -> tuple[int, Sequence[object]]:
+        error_id, target, named = self._numbers(cmd, 4, keywords=("t",))
+        if error_id != ERROR_OK:
+            return error_id, ()
+        duration_s = named.get("t", 0.1)
+        if not _SERVO_TIME_RANGE_S[0] <= duration_s <= _SERVO_TIME_RANGE_S[1]:
+            return parameter_range_error(5), ()
+        with self._cond:
+            busy = bool(self._queue) or (self._active is not None and not self._active.servo)
+            if self._alarms or not self._enabled or busy:
+                return ERROR_FAILED, ()
+            if not self._check_target(cmd, target, joint_target):
+                return ERROR_FAILED, ()
+            geometry = self.config.geometry
+            start_joints = self._joints.copy()
+            start_pose = np.array(forward(start_joints, geometry))
+            if joint_target:
+                end_joints = np.array(target)
+                end_pose = np.array(forward(end_joints, geometry))
+            else:
+                end_pose = np.array(target)
+                end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
+                end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+            self._active = _Motion(start_joints, end_joints, start_pose, end_pose, linear=not joint_target,
+                                   duration_s=duration_s, servo=True)
+            self._cond.notify_all()
+        return ERROR_OK, ()
+
+    def _sync(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]] | None:
+        if cmd.args or cmd.keywords:
+            return ERROR_PARAMETER_COUNT, ()
+        with self._cond:
+            generation = self._drop_generation
+            while self._queue or (self._active is not None and not self._active.servo):
+                if self._stop.is_set() or self._drop_generation != generation:
+                    return None
+                self._cond.wait(_POLL_S)
+            return (ERROR_FAILED if self._alarms else ERROR_OK), ()
+
+    # -- networking ----------------------------------------------------------------------------------------------
+
+    def _accept_loop(self, name: str, server: socket.socket) -> None:
+        while not self._stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except socket.timeout:
+                continue
+            except OSError:
+                return  # server closed
+            # Set up before registering: a drop or stop may close the socket as soon as it is registered.
+            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            conn.settimeout(1.0 if name == "feedback" else _POLL_S)
+            with self._clients_lock:
+                if self._stop.is_set():
+                    conn.close()
+                    return
+                self._clients.add(conn)
+                if name == "feedback":
+                    self._feedback_clients.append(conn)
+            if name != "feedback":
+                self._spawn(f"mg400-emu-{name}-client", self._serve_commands, name, conn)
+
+    def _record(self, port: str, text: str) -> bool:
+        """Log a received command; True when the drop fault fires now."""
+        limit = self.config.faults.drop_after_commands
+        with self._clients_lock:
+            self._log.append((port, text))
+            self._command_count += 1
+            if limit is not None and not self._dropped and self._command_count >= limit:
+                self._dropped = True
+                return True
+        return False
+
+    def _serve_commands(self, port: str, conn: socket.socket) -> None:
+        buffer = CommandBuffer()
+        faults = self.config.faults
+        try:
+            while not self._stop.is_set():
+                try:
+                    data = conn.recv(4096)
+                except socket.timeout:
+                    continue
+                if not data:
+                    return
+                for text in buffer.feed(data):
+                    if self._record(port, text):
+                        self.drop_connections()
+                        return
+                    reply = self._reply(port, text)
+                    if reply is None:
+                        return
+                    name = text.split("(", 1)[0].strip().lower()
+                    if faults.reply_delay_s > 0.0 and (not faults.slow_commands or name in faults.slow_commands):
+                        if self._stop.wait(faults.reply_delay_s):
+                            return
+                    self._send_reply(conn, reply)
+        except (OSError, ProtocolError) as error:
+            logger.debug("MG400 emulator %s connection ended: %s", port, error)
+        finally:
+            with self._clients_lock:
+                self._clients.discard(conn)
+            conn.close()
+
+    def _reply(self, port: str, text: str) -> str | None:
+        try:
+            cmd = parse_command(text)
+        except ProtocolError:
+            return format_reply(ERROR_UNKNOWN_COMMAND, (), text)
+        handler = self._handlers.get((port, cmd.name.lower()))
+        if handler is None:
+            return format_reply(ERROR_UNKNOWN_COMMAND, (), cmd.text)
+        result = handler(cmd)
+        if result is None:
+            return None
+        error_id, values = result
+        return format_reply(error_id, values, cmd.text)  # type: ignore[arg-type]
+
+    def _send_reply(self, conn: socket.socket, reply: str) -> None:
+        data = reply.encode("ascii")
+        chunk = self.config.faults.split_replies_bytes
+        if chunk is None:
+            conn.sendall(data)
+            return
+        for start in range(0, len(data), chunk):
+            conn.sendall(data[start:start + chunk])
+            if start + chunk < len(data):
+                self._stop.wait(self.config.faults.split_delay_s)
+
+    def _bad_packet(self, packet: bytes, fault: FeedbackFault) -> bytes:
+        if fault is FeedbackFault.PARTIAL:
+            return packet[: FEEDBACK_PACKET_BYTES // 2]
+        corrupt = bytearray(packet)
+        if fault is FeedbackFault.BAD_LENGTH:
+            struct.pack_into("<H", corrupt, 0, FEEDBACK_PACKET_BYTES - 1)
+        else:
+            struct.pack_into("<Q", corrupt, 48, 0)
+        return bytes(corrupt)
+
+    def _tick_loop(self) -> None:
+        period_s = self.config.feedback_period_s
+        faults = self.config.faults
+        last = time.monotonic()
+        next_tick = last
+        tick = 0
+        while not self._stop.is_set():
+            now = time.monotonic()
+            self._step(now - last)
+            last = now
+            tick += 1
+            packet = pack_feedback(self._feedback())
+            every = faults.corrupt_feedback_every
+            if every is not None and tick % every == 0:
+                kinds = faults.feedback_faults
+                packet = self._bad_packet(packet, kinds[(tick // every - 1) % len(kinds)])
+            with self._clients_lock:
+                clients = list(self._feedback_clients)
+            for conn in clients:
+                try:
+                    conn.sendall(packet)
+                except OSError:
+                    with self._clients_lock:
+                        if conn in self._feedback_clients:
+                            self._feedback_clients.remove(conn)
+                        self._clients.discard(conn)
+                    conn.close()
+            with self._cond:
+                self._packets_sent += 1
+            next_tick += period_s
+            delay_s = next_tick - time.monotonic()
+            if delay_s < 0.0:
+                next_tick = time.monotonic()
+                delay_s = 0.0
+            self._stop.wait(delay_s)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Command line
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``simshear mg400-emulator``."""
+    parser.add_argument("--host", default="127.0.0.1", help="loopback address to listen on (default 127.0.0.1)")
+    parser.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT, help="dashboard port (0: any free)")
+    parser.add_argument("--motion-port", type=int, default=MOTION_PORT, help="motion port (0: any free)")
+    parser.add_argument("--feedback-port", type=int, default=FEEDBACK_PORT, help="feedback port (0: any free)")
+    parser.add_argument("--pose-values", type=int, default=6, choices=(4, 5, 6),
+                        help="numbers returned by GetPose/GetAngle (default 6, as field firmware)")
+    faults = parser.add_argument_group("fault injection")
+    faults.add_argument("--alarm-during-motion", type=int, default=None, metavar="ALARM_ID",
+                        help="raise this alarm once, --alarm-after-s into a motion")
+    faults.add_argument("--alarm-after-s", type=float, default=0.05, help="seconds into the motion (default 0.05)")
+    faults.add_argument("--drop-after-commands", type=int, default=None, metavar="N",
+                        help="drop every connection when N commands have been received")
+    faults.add_argument("--split-replies-bytes", type=int, default=None, metavar="N",
+                        help="send replies in N-byte TCP segments")
+    faults.add_argument("--corrupt-feedback-every", type=int, default=None, metavar="N",
+                        help="make every N-th feedback packet bad (length, test value, partial in turn)")
+    faults.add_argument("--reply-delay-s", type=float, default=0.0, help="delay every reply by this many seconds")
+    faults.add_argument("--slow-commands", nargs="*", default=(), metavar="NAME",
+                        help="only these commands get --reply-delay-s (default: all)")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the emulator until Ctrl-C; returns 0."""
+    config = EmulatorConfig(
+        host=args.host, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
+        feedback_port=args.feedback_port, pose_value_count=args.pose_values,
+        faults=FaultConfig(alarm_during_motion=args.alarm_during_motion, alarm_after_s=args.alarm_after_s,
+                           drop_after_commands=args.drop_after_commands,
+                           split_replies_bytes=args.split_replies_bytes,
+                           corrupt_feedback_every=args.corrupt_feedback_every, reply_delay_s=args.reply_delay_s,
+                           slow_commands=tuple(args.slow_commands)),
+    )
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    with MG400Emulator(config) as emulator:
+        logger.info("MG400 emulator running on %s (dashboard %d, motion %d, feedback %d); Ctrl-C to stop",
+                    config.host, emulator.dashboard_port, emulator.motion_port, emulator.feedback_port)
+        try:
+            while True:
+                time.sleep(0.5)
+        except KeyboardInterrupt:
+            logger.info("MG400 emulator stopping")
+    return 0
