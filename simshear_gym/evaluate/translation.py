@@ -1,0 +1,181 @@
+"""Sim-to-real translation measured on the **real** validation images (the paper's Table 1 and more).
+
+For each tactip331 validation set (surface/edge x shear/tap, 2000 rows each) the val rows are rendered with our
+simulated TacTip (the same renderer as the paired training sets), their shear vectors computed, and each model
+translates them; the generated images are compared with the real images of the same contacts:
+
+- MAPE: mean |generated - real| with both images in [0, 1];
+- SSIM: ``skimage.metrics.structural_similarity`` with ``data_range=1``, averaged over images.
+
+Reference rows: ``nearest-label retrieval`` (the real training image whose labels are closest, labels scaled by
+their ranges, the edge angle as sin/cos), and each model fed the **published** Tactile Gym sim images of the same
+rows instead of ours. ``simshear evaluate translation --model shpix2pix=PATH --model pix2pix=PATH`` writes
+``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simshear_gym.data.labels import CONTACT_TYPES
+from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
+from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.io import write_json
+
+KINDS = ("shear", "tap")
+
+
+def mape(generated: np.ndarray, real: np.ndarray) -> np.ndarray:
+    """Per-image mean absolute error of uint8 (N, H, W) stacks, on the [0, 1] scale."""
+    return np.abs(generated.astype(np.float32) - real.astype(np.float32)).mean(axis=(1, 2)) / 255.0
+
+
+def ssim(generated: np.ndarray, real: np.ndarray) -> np.ndarray:
+    """Per-image SSIM (scikit-image, data_range 1) of uint8 (N, H, W) stacks."""
+    from skimage.metrics import structural_similarity
+
+    return np.array([structural_similarity(g.astype(np.float32) / 255.0, r.astype(np.float32) / 255.0,
+                                           data_range=1.0) for g, r in zip(generated, real)])
+
+
+def label_features(tactile_set: TactileSet, contact: str) -> np.ndarray:
+    """Labels scaled by their ranges for nearest-label retrieval (edge angle as sin, cos)."""
+    poses, shear = tactile_set.poses(), tactile_set.shear_sensor()
+    if contact == "surface":
+        pose_features = [poses[:, 2] / 3.0, poses[:, 3] / 30.0, poses[:, 4] / 30.0]
+    else:
+        angle = np.deg2rad(poses[:, 5])
+        pose_features = [poses[:, 1] / 12.0, poses[:, 2] / 2.0, np.sin(angle) / 2, np.cos(angle) / 2]
+    shear_features = [shear[:, j] / 10.0 for j in (0, 1, 3, 4, 5)]
+    return np.stack(pose_features + shear_features, axis=1)
+
+
+def nearest_label_images(train: TactileSet, val: TactileSet, contact: str) -> np.ndarray:
+    """For every val row, the real training image whose labels are closest."""
+    train_features, val_features = label_features(train, contact), label_features(val, contact)
+    nearest = np.empty(len(val), dtype=np.int64)
+    for start in range(0, len(val), 500):
+        distance = ((val_features[start:start + 500, None] - train_features[None]) ** 2).sum(-1)
+        nearest[start:start + 500] = distance.argmin(1)
+    return train.load_images()[nearest]
+
+
+def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -> np.ndarray:
+    return np.concatenate([translator(sim[i:i + batch], shear[i:i + batch]) for i in range(0, len(sim), batch)])
+
+
+def parse_models(specs: list[str]) -> dict[str, dict[str, Path]]:
+    """``NAME=PATH`` (one model for all contacts) or ``NAME:CONTACT=PATH`` -> {name: {contact: path}}."""
+    models: dict[str, dict[str, Path]] = {}
+    for spec in specs:
+        if "=" not in spec:
+            raise ValueError(f"--model {spec!r}: expected NAME=PATH or NAME:CONTACT=PATH")
+        key, path = spec.split("=", 1)
+        name, _, contact = key.partition(":")
+        if contact and contact not in CONTACT_TYPES:
+            raise ValueError(f"--model {spec!r}: contact must be one of {CONTACT_TYPES}")
+        for each in ([contact] if contact else CONTACT_TYPES):
+            models.setdefault(name, {})[each] = Path(path)
+    return models
+
+
+def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = None, workers: int = 2,
+             published_input: bool = True) -> tuple[dict, dict]:
+    """Figures per set and method; also returns image stacks for the figure."""
+    from simshear_gym.data.collect import replay_shear
+    from simshear_gym.models.translator import Translator
+    from simshear_gym.sim.replay import render_poses
+    from simshear_gym.sim.shear import ShearTrackerConfig
+
+    translators = {(name, contact): Translator.load(path) for name, per in models.items()
+                   for contact, path in per.items()}
+    results: dict = {}
+    stacks: dict = {}
+    for contact in CONTACT_TYPES:
+        for kind in KINDS:
+            val = read_set(real_set_dir(root, contact, kind, "val"))
+            select = slice(0, rows)
+            poses, moves = val.poses()[select], val.moves()[select]
+            real = val.load_images()[select]
+            sim = render_poses(contact, poses, workers=workers)
+            shear = replay_shear(poses, moves, ShearTrackerConfig())
+            published = read_set(published_sim_set_dir(root, contact, kind, "val")).load_images()[select]
+            generated = {"nearest-label retrieval": nearest_label_images(
+                read_set(real_set_dir(root, contact, kind, "train")), val, contact)[select]}
+            for name in models:
+                translator = translators[(name, contact)]
+                generated[name] = translate(translator, sim, shear)
+                if published_input:
+                    generated[f"{name} (published sim input)"] = translate(translator, published, shear)
+            set_name = f"{contact}_{kind}"
+            results[set_name] = {method: {"mape": float(mape(images, real).mean()),
+                                          "ssim": float(ssim(images, real).mean())}
+                                 for method, images in generated.items()}
+            stacks[set_name] = {"sim": sim, **{m: g for m, g in generated.items() if "(" not in m}, "real": real}
+    return results, stacks
+
+
+def figure(stacks: dict, path: Path, per_set: int = 3) -> None:
+    """Rows of (sim | models... | real) for a few contacts of each set, like the paper's figure."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [(set_name, i) for set_name in stacks for i in np.linspace(0, len(stacks[set_name]["sim"]) - 1,
+                                                                       per_set).astype(int)]
+    columns = list(next(iter(stacks.values())).keys())
+    fig, axes = plt.subplots(len(rows), len(columns), figsize=(1.6 * len(columns), 1.6 * len(rows)))
+    for r, (set_name, i) in enumerate(rows):
+        for c, column in enumerate(columns):
+            image = stacks[set_name][column][i]
+            axes[r, c].imshow(np.clip(image.astype(np.float32) * (4 if column == "sim" else 1), 0, 255),
+                              cmap="gray", vmin=0, vmax=255)
+            axes[r, c].set_xticks([]), axes[r, c].set_yticks([])
+            if r == 0:
+                axes[r, c].set_title(column, fontsize=7)
+            if c == 0:
+                axes[r, c].set_ylabel(set_name.replace("_", " "), fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", action="append", default=[], metavar="NAME[:CONTACT]=PATH",
+                        help="a translator to evaluate; repeat for several (default: the shipped ones)")
+    parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
+    parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of each val set (default all)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--name", default="translation", help="base name of the json and png written")
+
+
+def run(args: argparse.Namespace) -> int:
+    from simshear_gym.models.translator import shipped_models
+
+    specs = args.model or [f"{name}:{contact}={path}" for (name, contact), path in shipped_models().items()]
+    models = parse_models(specs)
+    start = time.perf_counter()
+    results, stacks = evaluate(data_root(args.data), models, args.rows, args.workers)
+    png = args.out / f"{args.name}.png"
+    figure(stacks, png)
+    command = "simshear evaluate translation " + " ".join(f"--model {s}" for s in args.model)
+    if args.rows:
+        command += f" --rows {args.rows}"
+    write_json(args.out / f"{args.name}.json", {
+        "command": command.strip(), "rows_per_set": args.rows or "all (2000)",
+        "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
+        "models": {name: {c: str(p) for c, p in per.items()} for name, per in models.items()},
+        "sets": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),
+    })
+    for set_name, methods in results.items():
+        for method, figures in methods.items():
+            print(f"{set_name:14s} {method:40s} MAPE {figures['mape']:.4f}  SSIM {figures['ssim']:.3f}")
+    print(f"wrote {args.out / (args.name + '.json')} and {png}")
+    return 0

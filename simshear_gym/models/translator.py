@@ -1,0 +1,119 @@
+"""Translator: (sim depth image, shear vector) -> real-looking TacTip image, with shipped weights.
+
+Conventions shared by training and inference live here: the sim input is ``uint8 / SIM_SCALE`` (the sim images
+hold penetration at 17.6 grey levels per mm, so a 3.6 mm contact maps to 1), the shear vector is the
+sensor-frame shear (x, y, z mm, Rx, Ry, Rz deg, :data:`simshear_gym.data.labels.SHEAR_COLUMNS`) divided by
+:data:`SHEAR_SCALE`, and the output is the real image in [0, 1], returned as uint8.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simshear_gym.models.unet import UNetConfig, UNetGenerator
+
+SIM_SCALE = 64.0
+SHEAR_SCALE = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)  # mm, mm, mm, deg, deg, deg
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+
+
+def normalise_sim(sim_uint8: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """uint8 (B, H, W) or (B, 1, H, W) -> float32 (B, 1, H, W)."""
+    sim = torch.as_tensor(sim_uint8)
+    if sim.dim() == 3:
+        sim = sim.unsqueeze(1)
+    return sim.to(torch.float32) / SIM_SCALE
+
+
+def normalise_shear(shear_sensor: np.ndarray | torch.Tensor) -> torch.Tensor:
+    """(B, 6) sensor-frame shear (mm, deg) -> float32 (B, 6), about [-1, 1] over the data's ranges."""
+    shear = torch.as_tensor(np.asarray(shear_sensor, dtype=np.float32))
+    return shear / torch.from_numpy(SHEAR_SCALE)
+
+
+def save_generator(path: str | os.PathLike, generator: UNetGenerator, card: dict | None = None,
+                   half: bool = True) -> Path:
+    """Write a generator's weights (fp16 by default) with its config, atomically."""
+    from simshear_gym.io import atomic_write
+
+    state = {k: (v.half() if half and v.is_floating_point() else v) for k, v in generator.state_dict().items()}
+    payload = {"config": asdict(generator.config), "state_dict": state, "card": card or {}}
+    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+
+
+def load_generator(path: str | os.PathLike) -> tuple[UNetGenerator, dict]:
+    """Load a generator written by :func:`save_generator` (or a training checkpoint's ``generator`` entry)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"translator weights {path} not found")
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    if "generator" in payload:  # a training checkpoint
+        payload = payload["generator"]
+    try:
+        generator = UNetGenerator(UNetConfig(**payload["config"]))
+        generator.load_state_dict({k: v.float() if v.is_floating_point() else v
+                                   for k, v in payload["state_dict"].items()})
+    except (KeyError, TypeError, RuntimeError) as error:
+        raise ValueError(f"{path}: not a simshear translator file ({error})") from None
+    return generator.eval(), payload.get("card", {})
+
+
+class Translator:
+    """Batched inference of a trained generator.
+
+    ``translator(sim_uint8, shear_sensor)``: sim uint8 (B, H, W) or (B, 1, H, W), shear (B, 6) in the sensor
+    frame (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
+    """
+
+    def __init__(self, generator: UNetGenerator, card: dict | None = None) -> None:
+        self.generator = generator.eval()
+        self.card = card or {}
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Translator":
+        return cls(*load_generator(path))
+
+    @property
+    def image_size_px(self) -> int:
+        return self.generator.config.image_size_px
+
+    @torch.inference_mode()
+    def __call__(self, sim_uint8: np.ndarray, shear_sensor: np.ndarray | None = None) -> np.ndarray:
+        sim = normalise_sim(sim_uint8)
+        shear = None
+        if self.generator.config.shear_dim:
+            if shear_sensor is None:
+                raise ValueError("this translator is shear-conditioned (shPix2pix): pass shear_sensor (B, 6)")
+            shear = normalise_shear(shear_sensor)
+        out = self.generator(sim, shear)
+        return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
+
+
+def shipped_models() -> dict[tuple[str, str], Path]:
+    """Shipped weights: ``weights/<arch>_<contact>.pt`` (one per contact type) or ``weights/<arch>.pt`` (both).
+
+    Returns ``{(arch, contact): path}``.
+    """
+    from simshear_gym.data.labels import CONTACT_TYPES
+
+    found: dict[tuple[str, str], Path] = {}
+    for path in sorted(WEIGHTS_DIR.glob("*.pt")):
+        arch, _, contact = path.stem.partition("_")
+        for each in ([contact] if contact in CONTACT_TYPES else CONTACT_TYPES if not contact else []):
+            found[(arch, each)] = path
+    return found
+
+
+def load_shipped(arch: str = "shpix2pix", contact: str = "surface") -> Translator:
+    """The shipped translator of an architecture and contact type."""
+    models = shipped_models()
+    if (arch, contact) not in models:
+        raise FileNotFoundError(
+            f"no shipped {arch} translator for {contact!r} contacts in {WEIGHTS_DIR}; shipped: {sorted(models)}"
+        )
+    return Translator.load(models[(arch, contact)])

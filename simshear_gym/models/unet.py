@@ -1,0 +1,157 @@
+"""U-Net generator of pix2pix, with optional shear conditioning at the bottleneck (shPix2pix).
+
+Tensors: input ``sim`` float (B, 1, H, W) in [0, 1] (the sim depth image, scaled by :data:`SIM_SCALE`), ``shear``
+float (B, S) normalised shear vector (see :func:`simshear_gym.models.translator.normalise_shear`); output float
+(B, 1, H, W) in [0, 1] (the real TacTip image). H = W = 2**k for any k >= ``depth``.
+
+Architecture: ``depth`` encoder levels (4x4 conv, stride 2; batch norm after the first; LeakyReLU 0.2), the
+bottleneck, and mirrored decoder levels (4x4 transposed conv, batch norm, ReLU, dropout on the deepest
+levels) that concatenate the encoder's skip features. With ``shear_dim > 0`` the bottleneck is flattened,
+concatenated with the shear vector, passed through a fully connected layer and ReLU, and reshaped back
+(SimShear's shPix2pix); with ``shear_dim = 0`` it is the plain pix2pix U-Net.
+
+Optionally (``template=True``) a learned image of the sensor at rest is stacked onto the input: the marker
+layout is the same in every image, and a U-Net with mostly-black sim inputs otherwise has to rebuild it from
+nothing at every pixel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    """Generator settings.
+
+    Attributes:
+        image_size_px: H = W of inputs and outputs (a power of two, >= 2**depth).
+        depth: number of down-sampling levels; the bottleneck is ``image_size_px / 2**depth`` pixels square.
+        base_channels: channels of the first level; doubled per level up to ``max_channels``.
+        max_channels: cap on the channels of deep levels.
+        shear_dim: length of the shear vector fed at the bottleneck (0 = pix2pix, no shear).
+        dropout: dropout probability on the ``dropout_levels`` deepest decoder levels.
+        dropout_levels: how many of the deepest decoder levels use dropout.
+        template: stack a learned at-rest sensor image onto the input.
+    """
+
+    image_size_px: int = 128
+    depth: int = 7
+    base_channels: int = 32
+    max_channels: int = 256
+    shear_dim: int = 6
+    dropout: float = 0.0
+    dropout_levels: int = 3
+    template: bool = True
+
+    def __post_init__(self) -> None:
+        size = self.image_size_px
+        if size < 2 or size & (size - 1):
+            raise ValueError(f"image_size_px must be a power of two, got {size}")
+        if not 1 <= self.depth or size >> self.depth < 1:
+            raise ValueError(f"depth {self.depth} needs image_size_px >= 2**depth = {2 ** self.depth}, got {size}")
+        if self.base_channels < 1 or self.max_channels < self.base_channels:
+            raise ValueError(f"need 1 <= base_channels <= max_channels, got {self.base_channels}, {self.max_channels}")
+        if self.shear_dim < 0:
+            raise ValueError(f"shear_dim must be >= 0, got {self.shear_dim}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+
+    def channels(self) -> list[int]:
+        return [min(self.base_channels * 2 ** level, self.max_channels) for level in range(self.depth)]
+
+    @property
+    def bottleneck_px(self) -> int:
+        return self.image_size_px >> self.depth
+
+
+class UNetGenerator(nn.Module):
+    """pix2pix U-Net; shPix2pix when ``config.shear_dim > 0`` (see module docstring for shapes)."""
+
+    def __init__(self, config: UNetConfig = UNetConfig()) -> None:
+        super().__init__()
+        self.config = config
+        channels = config.channels()
+        in_channels = 2 if config.template else 1
+        if config.template:
+            self.template = nn.Parameter(torch.zeros(1, 1, config.image_size_px, config.image_size_px))
+        self.encoder = nn.ModuleList()
+        previous = in_channels
+        for level, out in enumerate(channels):
+            layers: list[nn.Module] = [nn.Conv2d(previous, out, 4, stride=2, padding=1, bias=level == 0)]
+            if level > 0 and level < config.depth - 1:
+                layers.append(nn.BatchNorm2d(out))
+            layers.append(nn.LeakyReLU(0.2))
+            self.encoder.append(nn.Sequential(*layers))
+            previous = out
+        if config.shear_dim:
+            flat = channels[-1] * config.bottleneck_px ** 2
+            self.bottleneck = nn.Sequential(nn.Linear(flat + config.shear_dim, flat), nn.ReLU())
+        self.decoder = nn.ModuleList()
+        for level in reversed(range(config.depth)):
+            deepest = level == config.depth - 1
+            in_ch = channels[level] if deepest else 2 * channels[level]
+            out = channels[level - 1] if level > 0 else 1
+            layers = [nn.ConvTranspose2d(in_ch, out, 4, stride=2, padding=1, bias=level == 0)]
+            if level > 0:
+                layers += [nn.BatchNorm2d(out), nn.ReLU()]
+                if config.dropout and config.depth - 1 - level < config.dropout_levels:
+                    layers.append(nn.Dropout(config.dropout))
+            self.decoder.append(nn.Sequential(*layers))
+
+    def forward(self, sim: torch.Tensor, shear: torch.Tensor | None = None) -> torch.Tensor:
+        config = self.config
+        if sim.dim() != 4 or sim.shape[1:] != (1, config.image_size_px, config.image_size_px):
+            raise ValueError(
+                f"sim must be (B, 1, {config.image_size_px}, {config.image_size_px}), got {tuple(sim.shape)}"
+            )
+        x = torch.cat([sim, self.template.expand(sim.shape[0], -1, -1, -1)], dim=1) if config.template else sim
+        skips = []
+        for layer in self.encoder:
+            x = layer(x)
+            skips.append(x)
+        if config.shear_dim:
+            if shear is None or shear.shape != (sim.shape[0], config.shear_dim):
+                got = None if shear is None else tuple(shear.shape)
+                raise ValueError(f"shear must be (B, {config.shear_dim}) for shPix2pix, got {got}")
+            flat = torch.cat([x.flatten(1), shear.to(x.dtype)], dim=1)
+            x = self.bottleneck(flat).view_as(x)
+        for index, layer in enumerate(self.decoder):
+            if index > 0:
+                x = torch.cat([x, skips[-1 - index]], dim=1)
+            x = layer(x)
+        return torch.sigmoid(x)
+
+
+@dataclass(frozen=True)
+class PatchDiscriminatorConfig:
+    """PatchGAN on (condition, image) pairs: 4x4 convs with ``channels``, spectral norm, LeakyReLU."""
+
+    channels: tuple[int, ...] = (32, 64, 128, 256)
+
+    def __post_init__(self) -> None:
+        if not self.channels or min(self.channels) < 1:
+            raise ValueError(f"channels must be positive, got {self.channels}")
+
+
+class PatchDiscriminator(nn.Module):
+    """Scores overlapping patches of (sim, image) pairs: input two (B, 1, H, W), output (B, 1, h, w) logits."""
+
+    def __init__(self, config: PatchDiscriminatorConfig = PatchDiscriminatorConfig()) -> None:
+        super().__init__()
+        self.config = config
+        layers: list[nn.Module] = []
+        previous = 2
+        for index, out in enumerate(config.channels):
+            stride = 2 if index < len(config.channels) - 1 else 1
+            layers += [nn.utils.parametrizations.spectral_norm(nn.Conv2d(previous, out, 4, stride, 1)),
+                       nn.LeakyReLU(0.2)]
+            previous = out
+        layers.append(nn.utils.parametrizations.spectral_norm(nn.Conv2d(previous, 1, 4, 1, 1)))
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, sim: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([sim, image], dim=1))

@@ -1,0 +1,329 @@
+"""Train the sim-to-real translator: shPix2pix (shear at the bottleneck) or the pix2pix baseline.
+
+``simshear train translator --arch shpix2pix --paired DIR [DIR ...] --out RUN_DIR`` trains on paired sets
+(:mod:`simshear_gym.data.collect`). A share of the training rows (``--holdout``) is held out for early stopping
+on L1, so the real validation sets stay unseen until ``simshear evaluate translation``. Objective: ``l1_weight *
+L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained).
+
+Run directory: ``config.json``, ``history.json`` (per epoch: wall time, train and holdout L1), tensorboard logs
+under ``tb/`` (scalars, image grids sim | generated | real), ``checkpoint.pt`` (written atomically after every
+epoch and at the time budget; ``--resume`` continues from it) and ``best.pt`` (the generator with the lowest
+holdout L1).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from simshear_gym.data.collect import load_paired
+from simshear_gym.data.labels import SHEAR_COLUMNS
+from simshear_gym.io import atomic_write, write_json
+from simshear_gym.models.translator import normalise_shear, normalise_sim, save_generator
+from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetConfig, UNetGenerator
+
+ARCHS = ("shpix2pix", "pix2pix")
+
+
+@dataclass(frozen=True)
+class TranslatorTrainConfig:
+    """Everything a translator training run depends on (saved as ``config.json`` beside its outputs)."""
+
+    arch: str = "shpix2pix"
+    paired_dirs: tuple[str, ...] = ()
+    image_size_px: int = 128
+    base_channels: int = 16
+    max_channels: int = 128
+    template: bool = True
+    epochs: int = 100
+    batch_size: int = 16
+    lr: float = 2e-4
+    l1_weight: float = 100.0
+    gan_weight: float = 0.0
+    holdout: float = 0.05
+    patience_epochs: int = 8
+    max_minutes: float | None = None
+    seed: int = 0
+    threads: int = 2
+    extra: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.arch not in ARCHS:
+            raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
+        if not self.paired_dirs:
+            raise ValueError("paired_dirs: give at least one paired set directory")
+        if self.epochs < 1 or self.batch_size < 2:
+            raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
+        if not 0.0 < self.holdout < 0.5:
+            raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
+        if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0:
+            raise ValueError("lr must be > 0 and the loss weights >= 0")
+
+    def generator_config(self) -> UNetConfig:
+        depth = int(math.log2(self.image_size_px))
+        return UNetConfig(image_size_px=self.image_size_px, depth=depth, base_channels=self.base_channels,
+                          max_channels=self.max_channels, shear_dim=6 if self.arch == "shpix2pix" else 0,
+                          template=self.template)
+
+
+@dataclass(frozen=True, eq=False)
+class PairedTensors:
+    """In-memory pairs: sim uint8 (N, H, W), shear float32 (N, 6) sensor frame, real uint8 (N, H, W)."""
+
+    sim: torch.Tensor
+    shear: torch.Tensor
+    real: torch.Tensor
+
+    def __len__(self) -> int:
+        return len(self.sim)
+
+    def subset(self, index: np.ndarray) -> "PairedTensors":
+        index = torch.as_tensor(index)
+        return PairedTensors(self.sim[index], self.shear[index], self.real[index])
+
+    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Model-ready float tensors of the rows ``index``."""
+        index = torch.as_tensor(index)
+        real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
+        return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real
+
+
+def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None) -> PairedTensors:
+    """Load replayed paired sets (sim render, shear, real image) into memory."""
+    sims, shears, reals = [], [], []
+    for directory in paired_dirs:
+        paired, real = load_paired(directory, data)
+        if real is None:
+            raise ValueError(f"{directory}: a random-contact set has no real images; translators train on replays")
+        sims.append(paired.load_images())
+        shears.append(paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32))
+        reals.append(real.load_images())
+        if sims[-1].shape != reals[-1].shape:
+            raise ValueError(f"{directory}: sim images {sims[-1].shape[1:]} and real images "
+                             f"{reals[-1].shape[1:]} differ in size")
+    return PairedTensors(torch.from_numpy(np.concatenate(sims)), torch.from_numpy(np.concatenate(shears)),
+                         torch.from_numpy(np.concatenate(reals)))
+
+
+class TranslatorTrainer:
+    """Owns the models, optimisers and run directory of one training run."""
+
+    def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors) -> None:
+        self.config = config
+        self.run_dir = Path(run_dir)
+        torch.manual_seed(config.seed)
+        rng = np.random.default_rng(config.seed)
+        order = rng.permutation(len(pairs))
+        n_holdout = max(1, int(round(config.holdout * len(pairs))))
+        self.train_pairs, self.holdout_pairs = pairs.subset(order[n_holdout:]), pairs.subset(order[:n_holdout])
+        self.generator = UNetGenerator(config.generator_config())
+        self.discriminator = PatchDiscriminator(PatchDiscriminatorConfig()) if config.gan_weight > 0 else None
+        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=config.lr, betas=(0.5, 0.999))
+        self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=config.lr, betas=(0.5, 0.999))
+                      if self.discriminator is not None else None)
+        self.epoch = 0
+        self.step = 0
+        self.best_holdout_l1 = float("inf")
+        self.epochs_since_best = 0
+        self.elapsed_s = 0.0
+        self.history: list[dict] = []
+        self.batch_rng = np.random.default_rng(config.seed + 1)
+
+    # ------------------------------------------------------------------------------------------- persistence
+    def state(self) -> dict:
+        return {
+            "config": asdict(self.config), "epoch": self.epoch, "step": self.step,
+            "best_holdout_l1": self.best_holdout_l1, "epochs_since_best": self.epochs_since_best,
+            "elapsed_s": self.elapsed_s, "history": self.history,
+            "generator": {"config": asdict(self.generator.config), "state_dict": self.generator.state_dict()},
+            "opt_g": self.opt_g.state_dict(),
+            "discriminator": self.discriminator.state_dict() if self.discriminator is not None else None,
+            "opt_d": self.opt_d.state_dict() if self.opt_d is not None else None,
+            "batch_rng": self.batch_rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+        }
+
+    def save_checkpoint(self) -> None:
+        atomic_write(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(self.state(), tmp))
+        write_json(self.run_dir / "history.json", {"config": asdict(self.config), "epochs": self.history})
+
+    def resume(self) -> bool:
+        """Continue from ``checkpoint.pt`` if there is one; returns whether it did."""
+        path = self.run_dir / "checkpoint.pt"
+        if not path.is_file():
+            return False
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        saved = {k: v for k, v in state["config"].items() if k not in ("epochs", "max_minutes", "patience_epochs")}
+        mine = {k: v for k, v in asdict(self.config).items() if k not in ("epochs", "max_minutes", "patience_epochs")}
+        saved["paired_dirs"] = tuple(saved["paired_dirs"])
+        if saved != mine:
+            changed = sorted(k for k in mine if saved.get(k) != mine[k])
+            raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+        self.generator.load_state_dict(state["generator"]["state_dict"])
+        self.opt_g.load_state_dict(state["opt_g"])
+        if self.discriminator is not None:
+            self.discriminator.load_state_dict(state["discriminator"])
+            self.opt_d.load_state_dict(state["opt_d"])
+        self.epoch, self.step = state["epoch"], state["step"]
+        self.best_holdout_l1, self.epochs_since_best = state["best_holdout_l1"], state["epochs_since_best"]
+        self.elapsed_s, self.history = state["elapsed_s"], state["history"]
+        self.batch_rng.bit_generator.state = state["batch_rng"]
+        torch.set_rng_state(state["torch_rng"])
+        return True
+
+    # ---------------------------------------------------------------------------------------------- training
+    def holdout_l1(self) -> float:
+        self.generator.eval()
+        total = 0.0
+        with torch.inference_mode():
+            for start in range(0, len(self.holdout_pairs), 64):
+                sim, shear, real = self.holdout_pairs.batch(np.arange(start, min(start + 64, len(self.holdout_pairs))))
+                total += (self.generator(sim, shear if self.generator.config.shear_dim else None) - real
+                          ).abs().mean(dim=(1, 2, 3)).sum().item()
+        self.generator.train()
+        return total / len(self.holdout_pairs)
+
+    def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor) -> dict[str, float]:
+        config = self.config
+        shear_in = shear if self.generator.config.shear_dim else None
+        fake = self.generator(sim, shear_in)
+        losses = {}
+        if self.discriminator is not None:
+            self.opt_d.zero_grad(set_to_none=True)
+            d_real, d_fake = self.discriminator(sim, real), self.discriminator(sim, fake.detach())
+            loss_d = 0.5 * ((d_real - 1) ** 2).mean() + 0.5 * (d_fake ** 2).mean()
+            loss_d.backward()
+            self.opt_d.step()
+            losses["d"] = loss_d.item()
+        self.opt_g.zero_grad(set_to_none=True)
+        l1 = (fake - real).abs().mean()
+        loss = config.l1_weight * l1
+        if self.discriminator is not None:
+            gan = ((self.discriminator(sim, fake) - 1) ** 2).mean()
+            loss = loss + config.gan_weight * gan
+            losses["g_gan"] = gan.item()
+        loss.backward()
+        self.opt_g.step()
+        losses["l1"] = l1.item()
+        return losses
+
+    def fit(self, progress: bool = True) -> dict:
+        """Train until the epochs, the patience or the time budget run out; returns a summary."""
+        from torch.utils.tensorboard import SummaryWriter
+        from tqdm import tqdm
+
+        config = self.config
+        torch.set_num_threads(config.threads)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(self.run_dir / "config.json", asdict(config))
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        budget_s = config.max_minutes * 60.0 if config.max_minutes else float("inf")
+        stop_reason = "epochs"
+        self.generator.train()
+        try:
+            while self.epoch < config.epochs:
+                started = time.perf_counter() - self.elapsed_s
+                order = self.batch_rng.permutation(len(self.train_pairs))
+                batches = [order[i:i + config.batch_size] for i in range(0, len(order) - 1, config.batch_size)]
+                running = []
+                out_of_time = False
+                for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}", disable=not progress,
+                                  leave=False):
+                    if len(index) < 2:
+                        continue
+                    losses = self.train_step(*self.train_pairs.batch(index))
+                    running.append(losses["l1"])
+                    self.step += 1
+                    if self.step % 20 == 0:
+                        for name, value in losses.items():
+                            writer.add_scalar(f"train/{name}", value, self.step)
+                    self.elapsed_s = time.perf_counter() - started
+                    if self.elapsed_s > budget_s:
+                        out_of_time = True
+                        break
+                self.epoch += 0 if out_of_time else 1
+                holdout = self.holdout_l1()
+                self.elapsed_s = time.perf_counter() - started
+                record = {"epoch": self.epoch, "partial_epoch": out_of_time, "step": self.step,
+                          "elapsed_s": round(self.elapsed_s, 1), "train_l1": float(np.mean(running)) if running else None,
+                          "holdout_l1": holdout}
+                self.history.append(record)
+                writer.add_scalar("holdout/l1", holdout, self.step)
+                writer.add_scalar("holdout/l1_vs_minutes", holdout, int(self.elapsed_s / 60))
+                self._log_images(writer)
+                if holdout < self.best_holdout_l1:
+                    self.best_holdout_l1, self.epochs_since_best = holdout, 0
+                    save_generator(self.run_dir / "best.pt", self.generator, half=False,
+                                   card={"holdout_l1": holdout, "epoch": self.epoch, "elapsed_s": self.elapsed_s})
+                else:
+                    self.epochs_since_best += 1
+                self.save_checkpoint()
+                if out_of_time:
+                    stop_reason = "time budget"
+                    break
+                if self.epochs_since_best >= config.patience_epochs:
+                    stop_reason = "early stopping"
+                    break
+        finally:
+            writer.close()
+        return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
+                "best_holdout_l1": self.best_holdout_l1, "stopped_by": stop_reason}
+
+    def _log_images(self, writer) -> None:
+        sim, shear, real = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
+        self.generator.eval()
+        with torch.inference_mode():
+            fake = self.generator(sim, shear if self.generator.config.shear_dim else None)
+        self.generator.train()
+        grid = torch.cat([torch.cat([(s * 4).clamp(0, 1), f, r], dim=2) for s, f, r in zip(sim, fake, real)], dim=2)
+        writer.add_image("holdout/sim_generated_real", grid, self.step)
+
+
+# --------------------------------------------------------------------------------------------- command line
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--arch", choices=ARCHS, default="shpix2pix")
+    parser.add_argument("--paired", nargs="+", required=True, help="paired set directories (simshear collect)")
+    parser.add_argument("--out", type=Path, required=True, help="run directory")
+    parser.add_argument("--data", default=None, help="data root of the real images")
+    defaults = TranslatorTrainConfig(paired_dirs=("x",))
+    for name in ("image_size_px", "base_channels", "max_channels", "epochs", "batch_size", "lr", "l1_weight",
+                 "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
+        value = getattr(defaults, name)
+        parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
+                            default=value, help=f"default {value}")
+    parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--no-template", action="store_true", help="no learned at-rest template input")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = TranslatorTrainConfig(
+        arch=args.arch, paired_dirs=tuple(str(d) for d in args.paired), image_size_px=args.image_size_px,
+        base_channels=args.base_channels, max_channels=args.max_channels, template=not args.no_template,
+        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, l1_weight=args.l1_weight,
+        gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
+        max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+    )
+    pairs = load_pairs(config.paired_dirs, args.data)
+    trainer = TranslatorTrainer(config, args.out, pairs)
+    if args.resume and trainer.resume():
+        print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
+    elif (args.out / "checkpoint.pt").exists():
+        raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
+    summary = trainer.fit()
+    print(json.dumps(summary))
+    if args.export:
+        from simshear_gym.models.translator import load_generator
+
+        generator, card = load_generator(args.out / "best.pt")
+        save_generator(args.export, generator, card={**card, "train_config": asdict(config)})
+        print(f"exported {args.export}")
+    return 0

@@ -1,0 +1,120 @@
+"""Translator models: shapes for every size, shear conditioning, a tiny training run, resume, weights files."""
+
+import numpy as np
+import pytest
+import torch
+
+from simshear_gym.models.translator import Translator, load_generator, save_generator
+from simshear_gym.models.unet import PatchDiscriminator, UNetConfig, UNetGenerator
+from simshear_gym.train.translator import PairedTensors, TranslatorTrainConfig, TranslatorTrainer
+
+
+@pytest.mark.parametrize("size, depth", [(64, 6), (128, 7), (256, 8), (128, 5)])
+@pytest.mark.parametrize("shear_dim", [0, 6])
+def test_generator_shapes(size, depth, shear_dim):
+    generator = UNetGenerator(UNetConfig(image_size_px=size, depth=depth, base_channels=4, max_channels=16,
+                                         shear_dim=shear_dim)).eval()
+    sim = torch.rand(2, 1, size, size)
+    out = generator(sim, torch.rand(2, 6) if shear_dim else None)
+    assert out.shape == (2, 1, size, size) and 0.0 <= out.min() and out.max() <= 1.0
+    logits = PatchDiscriminator()(sim, out)
+    assert logits.shape[0] == 2 and logits.shape[1] == 1
+
+
+def test_generator_rejects_wrong_inputs():
+    generator = UNetGenerator(UNetConfig(image_size_px=64, depth=6, base_channels=4, max_channels=8))
+    with pytest.raises(ValueError, match=r"sim must be \(B, 1, 64, 64\)"):
+        generator(torch.rand(2, 1, 32, 32), torch.rand(2, 6))
+    with pytest.raises(ValueError, match=r"shear must be \(B, 6\)"):
+        generator(torch.rand(2, 1, 64, 64))
+    with pytest.raises(ValueError, match="power of two"):
+        UNetConfig(image_size_px=100)
+
+
+def toy_pairs(n=48, size=32, seed=0):
+    """Real image = a bright square whose position follows the shear: learnable only with the shear."""
+    rng = np.random.default_rng(seed)
+    shear = rng.uniform(-5, 5, (n, 6)).astype(np.float32)
+    sim = np.zeros((n, size, size), np.uint8)
+    sim[:, 12:20, 12:20] = 40
+    real = np.zeros((n, size, size), np.uint8)
+    for i, (dx, dy) in enumerate(shear[:, :2]):
+        x, y = int(12 + dx), int(12 + dy)
+        real[i, y:y + 8, x:x + 8] = 255
+    return PairedTensors(torch.from_numpy(sim), torch.from_numpy(shear), torch.from_numpy(real))
+
+
+def tiny_config(**overrides):
+    settings = dict(paired_dirs=("toy",), image_size_px=32, base_channels=4, max_channels=16, epochs=3,
+                    batch_size=8, lr=2e-3, holdout=0.2, threads=1)
+    settings.update(overrides)
+    return TranslatorTrainConfig(**settings)
+
+
+@pytest.mark.parametrize("gan_weight", [0.0, 1.0])
+def test_tiny_training_run_end_to_end(tmp_path, gan_weight):
+    trainer = TranslatorTrainer(tiny_config(gan_weight=gan_weight), tmp_path / "run", toy_pairs())
+    before = trainer.holdout_l1()
+    summary = trainer.fit(progress=False)
+    assert summary["epochs"] == 3 and summary["best_holdout_l1"] < before
+    for name in ("config.json", "history.json", "checkpoint.pt", "best.pt"):
+        assert (tmp_path / "run" / name).is_file()
+    assert any((tmp_path / "run" / "tb").iterdir())
+    translator = Translator.load(tmp_path / "run" / "best.pt")
+    out = translator(np.zeros((3, 32, 32), np.uint8), np.zeros((3, 6), np.float32))
+    assert out.shape == (3, 32, 32) and out.dtype == np.uint8
+
+
+def test_shear_changes_trained_shpix2pix_output(tmp_path):
+    """On data where the real image follows the shear, a trained shPix2pix moves its output with the shear."""
+    trainer = TranslatorTrainer(tiny_config(epochs=10), tmp_path / "run", toy_pairs(n=192))
+    trainer.fit(progress=False)
+    translator = Translator(trainer.generator)
+    sim = toy_pairs(n=2).sim.numpy()
+    left = translator(sim, np.array([[-4.0, 0, 0, 0, 0, 0]] * 2, np.float32)).astype(float)
+    right = translator(sim, np.array([[4.0, 0, 0, 0, 0, 0]] * 2, np.float32)).astype(float)
+    columns = np.arange(32)
+    centre_left = (left.sum(axis=1) * columns).sum(axis=1) / left.sum(axis=(1, 2))
+    centre_right = (right.sum(axis=1) * columns).sum(axis=1) / right.sum(axis=(1, 2))
+    assert (centre_right - centre_left > 2.0).all()  # the square moved right with +x shear
+
+
+def test_resume_continues_where_it_stopped(tmp_path):
+    pairs = toy_pairs()
+    straight = TranslatorTrainer(tiny_config(epochs=4), tmp_path / "straight", pairs)
+    straight.fit(progress=False)
+    first = TranslatorTrainer(tiny_config(epochs=2), tmp_path / "split", pairs)
+    first.fit(progress=False)
+    second = TranslatorTrainer(tiny_config(epochs=4), tmp_path / "split", pairs)
+    assert second.resume() and second.epoch == 2
+    second.fit(progress=False)
+    assert second.epoch == 4 and len(second.history) == 4
+    for key, value in straight.generator.state_dict().items():
+        torch.testing.assert_close(second.generator.state_dict()[key], value, rtol=1e-4, atol=1e-5)
+
+
+def test_resume_refuses_other_settings(tmp_path):
+    TranslatorTrainer(tiny_config(epochs=1), tmp_path / "run", toy_pairs()).fit(progress=False)
+    other = TranslatorTrainer(tiny_config(lr=1e-4), tmp_path / "run", toy_pairs())
+    with pytest.raises(ValueError, match=r"other settings \(\['lr'\]\)"):
+        other.resume()
+
+
+def test_time_budget_stops_and_checkpoints(tmp_path):
+    trainer = TranslatorTrainer(tiny_config(epochs=50, max_minutes=1e-4), tmp_path / "run", toy_pairs())
+    summary = trainer.fit(progress=False)
+    assert summary["stopped_by"] == "time budget" and (tmp_path / "run" / "checkpoint.pt").is_file()
+
+
+def test_fp16_weights_round_trip(tmp_path):
+    generator = UNetGenerator(UNetConfig(image_size_px=64, depth=6, base_channels=4, max_channels=8)).eval()
+    save_generator(tmp_path / "g.pt", generator, card={"note": "x"})
+    loaded, card = load_generator(tmp_path / "g.pt")
+    assert card == {"note": "x"}
+    sim, shear = torch.rand(2, 1, 64, 64), torch.rand(2, 6)
+    torch.testing.assert_close(loaded(sim, shear), generator(sim, shear), atol=5e-3, rtol=0)
+    (tmp_path / "bad.pt").write_bytes(b"nonsense")
+    with pytest.raises(Exception):
+        load_generator(tmp_path / "bad.pt")
+    with pytest.raises(FileNotFoundError, match="not found"):
+        load_generator(tmp_path / "missing.pt")
