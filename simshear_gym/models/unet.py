@@ -10,9 +10,12 @@ levels) that concatenate the encoder's skip features. With ``shear_dim > 0`` the
 concatenated with the shear vector, passed through a fully connected layer and ReLU, and reshaped back
 (SimShear's shPix2pix); with ``shear_dim = 0`` it is the plain pix2pix U-Net.
 
-Optionally (``template=True``) a learned image of the sensor at rest is stacked onto the input: the marker
-layout is the same in every image, and a U-Net with mostly-black sim inputs otherwise has to rebuild it from
-nothing at every pixel.
+Optionally (``template=True``) a learned image of the sensor at rest is stacked onto the input and a learned
+per-pixel logit is added to the output. The marker layout is the same in every image, and a U-Net with
+mostly-black sim inputs otherwise has to rebuild it from nothing at every pixel; with the template the encoder
+sees where the markers are (convolutions alone cannot know position) and the decoder only learns how the image
+deviates from the sensor at rest. :meth:`UNetGenerator.init_template` sets both from the mean real training
+image and zeroes the last layer, so an untrained generator already outputs the mean image.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ class UNetConfig:
         shear_dim: length of the shear vector fed at the bottleneck (0 = pix2pix, no shear).
         dropout: dropout probability on the ``dropout_levels`` deepest decoder levels.
         dropout_levels: how many of the deepest decoder levels use dropout.
-        template: stack a learned at-rest sensor image onto the input.
+        template: stack a learned at-rest sensor image onto the input and add a learned logit to the output.
     """
 
     image_size_px: int = 128
@@ -78,6 +81,7 @@ class UNetGenerator(nn.Module):
         in_channels = 2 if config.template else 1
         if config.template:
             self.template = nn.Parameter(torch.zeros(1, 1, config.image_size_px, config.image_size_px))
+            self.output_logit = nn.Parameter(torch.zeros(1, 1, config.image_size_px, config.image_size_px))
         self.encoder = nn.ModuleList()
         previous = in_channels
         for level, out in enumerate(channels):
@@ -123,7 +127,22 @@ class UNetGenerator(nn.Module):
             if index > 0:
                 x = torch.cat([x, skips[-1 - index]], dim=1)
             x = layer(x)
+        if config.template:
+            x = x + self.output_logit
         return torch.sigmoid(x)
+
+    @torch.no_grad()
+    def init_template(self, mean_real: torch.Tensor) -> None:
+        """Start from the sensor at rest: ``mean_real`` (H, W) in [0, 1], the mean real training image."""
+        if not self.config.template:
+            raise ValueError("init_template needs a generator built with template=True")
+        mean = mean_real.to(torch.float32).clamp(0.02, 0.98).view_as(self.template)
+        self.template.copy_(mean)
+        self.output_logit.copy_(torch.log(mean / (1.0 - mean)))
+        last = self.decoder[-1][0]
+        last.weight.zero_()
+        if last.bias is not None:
+            last.bias.zero_()
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,7 @@ class TranslatorTrainConfig:
     template: bool = True
     epochs: int = 100
     batch_size: int = 16
-    lr: float = 2e-4
+    lr: float = 2e-3
     l1_weight: float = 100.0
     gan_weight: float = 0.0
     holdout: float = 0.05
@@ -125,6 +125,8 @@ class TranslatorTrainer:
         n_holdout = max(1, int(round(config.holdout * len(pairs))))
         self.train_pairs, self.holdout_pairs = pairs.subset(order[n_holdout:]), pairs.subset(order[:n_holdout])
         self.generator = UNetGenerator(config.generator_config())
+        if config.template:
+            self.generator.init_template(self.train_pairs.real.to(torch.float32).mean(0) / 255.0)
         self.discriminator = PatchDiscriminator(PatchDiscriminatorConfig()) if config.gan_weight > 0 else None
         self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=config.lr, betas=(0.5, 0.999))
         self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=config.lr, betas=(0.5, 0.999))
@@ -321,9 +323,15 @@ def run(args: argparse.Namespace) -> int:
     summary = trainer.fit()
     print(json.dumps(summary))
     if args.export:
-        from simshear_gym.models.translator import load_generator
-
-        generator, card = load_generator(args.out / "best.pt")
-        save_generator(args.export, generator, card={**card, "train_config": asdict(config)})
+        export_run(args.out, args.export)
         print(f"exported {args.export}")
     return 0
+
+
+def export_run(run_dir: Path, path: Path, card: dict | None = None) -> Path:
+    """Ship a run's best generator as fp16 weights, with its training config and ``card`` in the file."""
+    from simshear_gym.models.translator import load_generator
+
+    generator, best = load_generator(Path(run_dir) / "best.pt")
+    config = json.loads((Path(run_dir) / "config.json").read_text())
+    return save_generator(path, generator, card={"best": best, "train_config": config, **(card or {})})
