@@ -29,6 +29,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "quality against training time of translator runs"),
     (("mg400-emulator",), "simshear_gym.real.mg400_emulator",
      "run a loopback Dobot MG400 emulator (dashboard, motion, feedback ports) until Ctrl-C"),
+    (("train", "export-translator"), "simshear_gym.train.export_translator",
+     "ship a translator run as fp16 weights with a check figure"),
     (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
 )

@@ -45,7 +45,7 @@ class TranslatorTrainConfig:
     template: bool = True
     epochs: int = 100
     batch_size: int = 16
-    lr: float = 2e-3
+    lr: float = 1e-3
     l1_weight: float = 100.0
     gan_weight: float = 0.0
     holdout: float = 0.05

@@ -1,0 +1,53 @@
+"""Ship a translator run: ``simshear train export-translator --run RUN --contact C --to WEIGHTS.pt``.
+
+Writes the run's best generator as fp16 weights and records a check figure in the file: the MAPE of the
+exported model on the first ``--check-rows`` rows of the real ``<contact>_shear`` validation set, which the tests
+reproduce (``tests/test_shipped_translator.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from pathlib import Path
+
+
+def check_figure(weights: Path, contact: str, rows: int, data: str | None = None) -> dict:
+    from simshear_gym.data.collect import replay_shear
+    from simshear_gym.data.paths import data_root, real_set_dir
+    from simshear_gym.data.tactile_set import read_set
+    from simshear_gym.evaluate.translation import mape
+    from simshear_gym.models.translator import Translator
+    from simshear_gym.sim.replay import render_poses
+    from simshear_gym.sim.shear import ShearTrackerConfig
+
+    val = read_set(real_set_dir(data_root(data), contact, "shear", "val"))
+    poses, moves = val.poses()[:rows], val.moves()[:rows]
+    generated = Translator.load(weights)(render_poses(contact, poses), replay_shear(poses, moves, ShearTrackerConfig()))
+    return {"kind": "shear", "rows": rows, "mape": float(mape(generated, val.load_images()[:rows]).mean())}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", type=Path, required=True, help="translator run directory (best.pt, config.json)")
+    parser.add_argument("--contact", choices=("surface", "edge"), required=True)
+    parser.add_argument("--to", type=Path, required=True, help="weights file to write")
+    parser.add_argument("--train-command", required=True, help="the exact command that trained the run")
+    parser.add_argument("--check-rows", type=int, default=16)
+    parser.add_argument("--data", default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from simshear_gym.models.translator import save_generator, load_generator
+    from simshear_gym.train.translator import export_run
+
+    export_run(args.run, args.to, card={"train_command": args.train_command, "contact": args.contact})
+    check = check_figure(args.to, args.contact, args.check_rows, args.data)
+    generator, card = load_generator(args.to)
+    save_generator(args.to, generator, card={**card, "check": check})
+    torch.load(args.to, map_location="cpu", weights_only=True)  # readable as written
+    print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.1f} MiB); check: {check}")
+    print("command:", " ".join(shlex.quote(a) for a in ["simshear", "train", "export-translator", "--run", str(args.run),
+                                                       "--contact", args.contact, "--to", str(args.to)]))
+    return 0
