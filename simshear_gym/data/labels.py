@@ -117,6 +117,7 @@ def mount_rz_deg(obj_pose: str) -> float:
     return float(values[5])
 
 
-def wrap_deg(angle_deg: np.ndarray) -> np.ndarray:
-    """Wrap angles to [-180, 180) deg."""
-    return (np.asarray(angle_deg, dtype=np.float64) + 180.0) % 360.0 - 180.0
+def wrap_deg(angle_deg: float | np.ndarray) -> float | np.ndarray:
+    """Wrap angles to [-180, 180) deg: a float for a scalar, an array for an array."""
+    wrapped = (np.asarray(angle_deg, dtype=np.float64) + 180.0) % 360.0 - 180.0
+    return float(wrapped) if wrapped.ndim == 0 else wrapped

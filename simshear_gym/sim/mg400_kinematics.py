@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simshear_gym.data.labels import wrap_deg
+
 JOINT_NAMES: tuple[str, str, str, str] = ("J1", "J2", "J3", "J4")
 
 # Round-off allowance on limits, deg, so that a pose computed from joints exactly on a limit passes.
@@ -138,11 +140,6 @@ def _as_four(values: Sequence[float] | np.ndarray, what: str) -> np.ndarray:
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{what} must be finite, got {array.tolist()}")
     return array
-
-
-def wrap_deg(angle_deg: float) -> float:
-    """Wrap an angle to ``[-180, 180)`` deg."""
-    return float((angle_deg + 180.0) % 360.0 - 180.0)
 
 
 def forward(joints_deg: Sequence[float] | np.ndarray,
