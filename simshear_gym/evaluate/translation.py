@@ -95,7 +95,10 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
                    for contact, path in per.items()}
     results: dict = {}
     stacks: dict = {}
-    for contact in CONTACT_TYPES:
+    contacts = [c for c in CONTACT_TYPES if all(c in per for per in models.values())]
+    if not contacts:
+        raise ValueError(f"no contact type has weights for every model: {models}")
+    for contact in contacts:
         for kind in KINDS:
             val = read_set(real_set_dir(root, contact, kind, "val"))
             select = slice(0, rows)
