@@ -33,7 +33,9 @@ def write_translator_card(weights: Path, train_command: str, translation_results
         f"batch {config.get('batch_size')}, seed {config.get('seed')}, {config.get('threads')} CPU thread(s).",
         f"- Training: {best.get('epoch')} epochs, best holdout MAPE {best.get('holdout_l1', float('nan')):.4f} at "
         f"{best.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU (budget {config.get('max_minutes')} min).",
-        f"- Exact command: `{train_command}`",
+        f"- Exact commands: `simshear collect --replay-all --out runs/paired`, then `{train_command}`, then "
+        f"`simshear train export-translator --run {config.get('paired_dirs') and train_command.split('--out ')[1].split()[0]} "
+        f"--contact {contact} --to simshear_gym/models/weights/{weights.name} --train-command '...'`",
         "",
         "## Metrics on the real validation images (2000 per set)",
         "",
