@@ -17,6 +17,7 @@ def write_translator_card(weights: Path, train_command: str, translation_results
     best = card.get("best", {})
     results = json.loads(Path(translation_results).read_text())
     params = sum(v.numel() for v in payload["state_dict"].values())
+    run_dir = train_command.split("--out ", 1)[1].split()[0] if "--out " in train_command else "RUN"
     lines = [
         f"# {arch} translator, {contact} contacts",
         "",
@@ -34,7 +35,7 @@ def write_translator_card(weights: Path, train_command: str, translation_results
         f"- Training: {best.get('epoch')} epochs, best holdout MAPE {best.get('holdout_l1', float('nan')):.4f} at "
         f"{best.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU (budget {config.get('max_minutes')} min).",
         f"- Exact commands: `simshear collect --replay-all --out runs/paired`, then `{train_command}`, then "
-        f"`simshear train export-translator --run {config.get('paired_dirs') and train_command.split('--out ')[1].split()[0]} "
+        f"`simshear train export-translator --run {run_dir} "
         f"--contact {contact} --to simshear_gym/models/weights/{weights.name} --train-command '...'`",
         "",
         "## Metrics on the real validation images (2000 per set)",
