@@ -1,6 +1,5 @@
 """The shipped translator weights load, are small, and reproduce their stored check figure on real rows."""
 
-import numpy as np
 import pytest
 
 from simshear_gym.data.collect import replay_shear

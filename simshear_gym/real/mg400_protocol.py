@@ -120,29 +120,51 @@ def parse_command(text: str) -> ParsedCommand:
     return ParsedCommand(name=match.group(1), args=tuple(args), keywords=tuple(keywords), text=stripped)
 
 
-class CommandBuffer:
-    """Splits a received byte stream into command texts at ``)`` (commands may share or straddle segments)."""
+class _DelimitedBuffer:
+    """Splits a received byte stream into texts ending at ``delimiter`` (texts may share or straddle segments)."""
+
+    delimiter: bytes = b";"
+    keep_delimiter: bool = False
+    skip_between: bytes = b""  # bytes dropped between texts
+    what: str = "text"
 
     def __init__(self, max_pending_bytes: int = 65536) -> None:
         self._pending = b""
         self._max_pending_bytes = max_pending_bytes
 
     def feed(self, data: bytes) -> list[str]:
-        """Add received bytes; return the complete command texts (stripped), oldest first."""
+        """Add received bytes; return the complete texts (stripped), oldest first."""
         self._pending += data
-        commands: list[str] = []
+        texts: list[str] = []
         while True:
-            end = self._pending.find(b")")
+            end = self._pending.find(self.delimiter)
             if end < 0:
                 break
-            chunk, self._pending = self._pending[: end + 1], self._pending[end + 1:]
+            cut = end + len(self.delimiter)
+            chunk = self._pending[:cut] if self.keep_delimiter else self._pending[:end]
+            self._pending = self._pending[cut:]
             text = chunk.decode("ascii", errors="replace").strip()
             if text:
-                commands.append(text)
-        self._pending = self._pending.lstrip(b" \r\n\t;")
+                texts.append(text)
+        self._pending = self._pending.lstrip(self.skip_between)
         if len(self._pending) > self._max_pending_bytes:
-            raise ProtocolError(f"more than {self._max_pending_bytes} bytes received without a ')'")
-        return commands
+            raise ProtocolError(
+                f"more than {self._max_pending_bytes} bytes received without a {self.delimiter.decode()!r}"
+            )
+        return texts
+
+    @property
+    def pending_bytes(self) -> int:
+        """Bytes received that do not yet form a complete text."""
+        return len(self._pending)
+
+
+class CommandBuffer(_DelimitedBuffer):
+    """Splits a received byte stream into command texts at ``)``, keeping the ``)``."""
+
+    delimiter = b")"
+    keep_delimiter = True
+    skip_between = b" \r\n\t;"
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -294,33 +316,10 @@ def format_reply(error_id: int, values: Sequence[Value], command: str, decimals:
     return f"{int(error_id)},{{{','.join(one(v) for v in values)}}},{command};"
 
 
-class ReplyBuffer:
-    """Splits a received byte stream into replies at ``;`` (replies may be split across or merged in segments)."""
+class ReplyBuffer(_DelimitedBuffer):
+    """Splits a received byte stream into replies at ``;`` (without the ``;``)."""
 
-    def __init__(self, max_pending_bytes: int = 65536) -> None:
-        self._pending = b""
-        self._max_pending_bytes = max_pending_bytes
-
-    def feed(self, data: bytes) -> list[str]:
-        """Add received bytes; return complete reply texts (without ``;``, stripped), oldest first."""
-        self._pending += data
-        replies: list[str] = []
-        while True:
-            end = self._pending.find(b";")
-            if end < 0:
-                break
-            chunk, self._pending = self._pending[:end], self._pending[end + 1:]
-            text = chunk.decode("ascii", errors="replace").strip()
-            if text:
-                replies.append(text)
-        if len(self._pending) > self._max_pending_bytes:
-            raise ProtocolError(f"more than {self._max_pending_bytes} bytes received without a ';'")
-        return replies
-
-    @property
-    def pending_bytes(self) -> int:
-        """Bytes received that do not yet form a complete reply."""
-        return len(self._pending)
+    delimiter = b";"
 
 
 # ----------------------------------------------------------------------------------------------------------------

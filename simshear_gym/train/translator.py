@@ -17,12 +17,11 @@ import argparse
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
-from torch import nn
 
 from simshear_gym.data.collect import load_paired
 from simshear_gym.data.labels import SHEAR_COLUMNS
@@ -53,7 +52,6 @@ class TranslatorTrainConfig:
     max_minutes: float | None = None
     seed: int = 0
     threads: int = 2
-    extra: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
