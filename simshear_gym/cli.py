@@ -31,6 +31,10 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "run a loopback Dobot MG400 emulator (dashboard, motion, feedback ports) until Ctrl-C"),
     (("train", "export-translator"), "simshear_gym.train.export_translator",
      "ship a translator run as fp16 weights with a check figure"),
+    (("train", "posenet"), "simshear_gym.train.posenet",
+     "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
+    (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",
+     "pose-and-shear GDNN errors on the real validation images, against chance"),
     (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
 )

@@ -1,0 +1,186 @@
+"""Pose-and-shear GDNNs measured on the **real** validation images of a contact type's shear set.
+
+``simshear evaluate posenet --model NAME=PATH [--model NAME=PATH ...] --contact surface|edge`` runs each GDNN
+(``best.pt`` of ``simshear train posenet``) on ``tactip331/real/<task>/shear/csv_val`` and reports per variable:
+
+- ``mae``: mean |predicted mean - truth| in mm / deg (a periodic angle's error wrapped to [-180, 180));
+- ``chance_mae``: the same for always predicting the range centre (for a periodic angle: predicting 0);
+- ``within_1_std`` / ``within_2_std``: share of rows whose error is at most 1 / 2 predicted std;
+
+and ``mean_nll``: the Gaussian NLL per row over the encoded components (nats), as in training. Writes
+``results/posenet.json`` (with the command) and ``results/posenet.png`` (predicted against true per variable).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simshear_gym.data.labels import POSE_COLUMNS, SHEAR_COLUMNS
+from simshear_gym.data.paths import data_root, real_set_dir
+from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.io import write_json
+
+CONTACTS = ("surface", "edge")
+
+
+def wrap_deg(angle: np.ndarray) -> np.ndarray:
+    """Angles (deg) wrapped to [-180, 180)."""
+    return np.remainder(np.asarray(angle, dtype=np.float64) + 180.0, 360.0) - 180.0
+
+
+def errors(predicted: np.ndarray, truth: np.ndarray, variables) -> np.ndarray:
+    """(N, V) signed errors predicted - truth in the variables' units, periodic ones wrapped."""
+    error = np.asarray(predicted, np.float64) - np.asarray(truth, np.float64)
+    for index, spec in enumerate(variables.variables):
+        if spec.periodic:
+            error[:, index] = wrap_deg(error[:, index])
+    return error
+
+
+def chance_mae(truth: np.ndarray, variables) -> np.ndarray:
+    """(V,) MAE of always predicting the range centre (0 for a periodic angle)."""
+    guess = np.array([0.0 if spec.periodic else spec.centre for spec in variables.variables])
+    return np.abs(errors(np.broadcast_to(guess, truth.shape), truth, variables)).mean(axis=0)
+
+
+def metrics(mean_encoded, std_encoded, truth: np.ndarray, variables) -> dict:
+    """Figures of the module docstring from network outputs (N, D) and labels (N, V) in the variables' units."""
+    import torch
+
+    from simshear_gym.models.gdnn import gaussian_nll
+
+    mean_encoded, std_encoded = torch.as_tensor(mean_encoded), torch.as_tensor(std_encoded)
+    mean, std = (t.numpy() for t in variables.decode(mean_encoded, std_encoded))
+    nll = gaussian_nll(mean_encoded, std_encoded, variables.encode(truth), reduction="none")
+    absolute = np.abs(errors(mean, truth, variables))
+    chance = chance_mae(truth, variables)
+    per_variable = {
+        spec.name: {"unit": spec.unit, "mae": float(absolute[:, i].mean()), "chance_mae": float(chance[i]),
+                    "within_1_std": float((absolute[:, i] <= std[:, i]).mean()),
+                    "within_2_std": float((absolute[:, i] <= 2 * std[:, i]).mean())}
+        for i, spec in enumerate(variables.variables)
+    }
+    return {"rows": int(len(truth)), "mean_nll": float(nll.mean()), "variables": per_variable}
+
+
+def truth_labels(val: TactileSet, variables) -> np.ndarray:
+    """(N, V) labels of a real set: ``pose_*`` from its poses, ``shear_sensor_*`` from its moves and Rz."""
+    from simshear_gym.train.posenet import label_matrix
+
+    table = dict(zip(POSE_COLUMNS, val.poses().T))
+    table.update(zip(SHEAR_COLUMNS, val.shear_sensor().T))
+    return label_matrix(table, variables)
+
+
+def predict(model, images_uint8: np.ndarray, batch: int = 64):
+    """GDNN outputs (mean, std), each float (N, D), of uint8 (N, H, W) images (resized to the model's size)."""
+    import torch
+
+    from simshear_gym.train.posenet import resize_images, to_input
+
+    images = resize_images(images_uint8, model.config.image_size_px)
+    means, stds = [], []
+    model.eval()
+    with torch.inference_mode():
+        for start in range(0, len(images), batch):
+            mean, std = model(to_input(torch.from_numpy(images[start:start + batch])))
+            means.append(mean)
+            stds.append(std)
+    return torch.cat(means), torch.cat(stds)
+
+
+def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None) -> tuple[dict, dict]:
+    """Figures per model; also (truth, predicted means, stds) per model for the figure."""
+    from simshear_gym.models.posenet_io import load_posenet
+
+    val = read_set(real_set_dir(root, contact, "shear", "val"))
+    select = slice(0, rows)
+    images = val.load_images()[select]
+    results, arrays = {}, {}
+    for name, path in models.items():
+        model, card = load_posenet(path)
+        variables = model.variables
+        if variables.name != contact:
+            raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")
+        truth = truth_labels(val, variables)[select]
+        mean_encoded, std_encoded = predict(model, images)
+        results[name] = {"path": str(path), "card": card, **metrics(mean_encoded, std_encoded, truth, variables)}
+        mean, std = (t.numpy() for t in variables.decode(mean_encoded, std_encoded))
+        arrays[name] = (variables, truth, mean, std)
+    return results, arrays
+
+
+def figure(arrays: dict, path: Path) -> None:
+    """One row per model, one panel per variable: predicted mean against truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(arrays)
+    n_variables = max(variables.dim for variables, *_ in arrays.values())
+    fig, axes = plt.subplots(len(names), n_variables, figsize=(2.2 * n_variables, 2.2 * len(names)), squeeze=False)
+    for r, name in enumerate(names):
+        variables, truth, mean, _ = arrays[name]
+        for c, spec in enumerate(variables.variables):
+            axis = axes[r, c]
+            axis.scatter(truth[:, c], mean[:, c], s=2, alpha=0.4)
+            axis.plot([spec.low, spec.high], [spec.low, spec.high], "k--", lw=0.6)
+            axis.set_title(f"{name}: {spec.name}" if c == 0 else spec.name, fontsize=7)
+            axis.tick_params(labelsize=6)
+            if r == len(names) - 1:
+                axis.set_xlabel("true", fontsize=7)
+            if c == 0:
+                axis.set_ylabel("predicted", fontsize=7)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def parse_models(specs: list[str]) -> dict[str, Path]:
+    """``NAME=PATH`` -> {name: path}."""
+    models: dict[str, Path] = {}
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise ValueError(f"--model {spec!r}: expected NAME=PATH")
+        models[name] = Path(path)
+    return models
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--model", action="append", required=True, metavar="NAME=PATH",
+                        help="a posenet best.pt to evaluate; repeat for several")
+    parser.add_argument("--contact", choices=CONTACTS, required=True)
+    parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
+    parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of the val set (default all)")
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--name", default="posenet", help="base name of the json and png written")
+
+
+def run(args: argparse.Namespace) -> int:
+    models = parse_models(args.model)
+    start = time.perf_counter()
+    results, arrays = evaluate(data_root(args.data), models, args.contact, args.rows)
+    png = args.out / f"{args.name}.png"
+    figure(arrays, png)
+    command = (f"simshear evaluate posenet --contact {args.contact} "
+               + " ".join(f"--model {s}" for s in args.model) + (f" --rows {args.rows}" if args.rows else ""))
+    write_json(args.out / f"{args.name}.json", {
+        "command": command, "set": f"real {args.contact}_shear csv_val",
+        "metrics": "MAE in mm/deg (angles wrapped); chance = always the range centre (0 for a periodic angle); "
+                   "within_k_std = share of |error| <= k predicted std; mean_nll = Gaussian NLL per row (nats)",
+        "models": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),
+    })
+    for name, result in results.items():
+        print(f"{name}: mean NLL {result['mean_nll']:.3f} over {result['rows']} rows")
+        for variable, figures in result["variables"].items():
+            print(f"  {variable:16s} MAE {figures['mae']:7.3f} (chance {figures['chance_mae']:7.3f})  "
+                  f"within 1/2 std {figures['within_1_std']:.2f}/{figures['within_2_std']:.2f}")
+    print(f"wrote {args.out / (args.name + '.json')} and {png}")
+    return 0

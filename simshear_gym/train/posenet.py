@@ -1,0 +1,363 @@
+"""Train the pose-and-shear GDNN (:mod:`simshear_gym.models.gdnn`) on one of four image sources.
+
+``simshear train posenet --source SOURCE --contact surface|edge --paired DIR [DIR ...] --out RUN_DIR`` trains
+on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their columns (each variable's
+``OutputSpec.column``), images from the source:
+
+- ``real``: the real images the paired sets replay (the real-to-real reference);
+- ``sim``: the paired sets' own sim renders;
+- ``shpix2pix`` / ``pix2pix``: the sim renders (and shear) through the shipped translator of that architecture
+  and contact type, generated once at the start and kept in memory.
+
+Images enter the network as uint8 / 255. Augmentation: every training image is shifted by a random offset of up
+to ``shift`` (a share of the image size, default 2.5 %) in x and y, edges repeated. A share of the rows
+(``--holdout``) is held out for early stopping on the Gaussian NLL; the real validation set stays unseen until
+``simshear evaluate posenet``.
+
+Run directory: ``config.json``, ``history.json`` (per epoch: wall time, train and holdout NLL), tensorboard logs
+under ``tb/``, ``checkpoint.pt`` (written atomically after every epoch; ``--resume`` continues from it) and
+``best.pt`` (the GDNN with the lowest holdout NLL; :func:`simshear_gym.models.posenet_io.load_posenet`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from simshear_gym.io import atomic_write, write_json
+from simshear_gym.models.gdnn import GDNN, GDNNConfig, VariableSet, gaussian_nll, variable_set
+from simshear_gym.models.posenet_io import save_posenet
+
+SOURCES = ("real", "sim", "shpix2pix", "pix2pix")
+CONTACTS = ("surface", "edge")
+_RESUME_FREE = ("epochs", "max_minutes", "patience_epochs", "threads")
+
+
+@dataclass(frozen=True)
+class PosenetTrainConfig:
+    """Everything a posenet training run depends on (saved as ``config.json`` beside its outputs)."""
+
+    source: str = "real"
+    contact: str = "surface"
+    paired_dirs: tuple[str, ...] = ()
+    image_size_px: int = 128
+    conv_channels: tuple[int, ...] = (16, 32, 64, 128)
+    conv_kernels: tuple[int, ...] = (11, 9, 7, 5)
+    dense: tuple[int, ...] = (512, 512)
+    dropout: float = 0.1
+    shift: float = 0.025
+    epochs: int = 50
+    batch_size: int = 64
+    lr: float = 1e-3
+    holdout: float = 0.1
+    patience_epochs: int = 8
+    max_minutes: float | None = None
+    seed: int = 0
+    threads: int = 2
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
+        if self.contact not in CONTACTS:
+            raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        if not self.paired_dirs:
+            raise ValueError("paired_dirs: give at least one paired set directory")
+        if self.epochs < 1 or self.batch_size < 2:
+            raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
+        if not 0.0 < self.holdout < 0.5:
+            raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
+        if not 0.0 <= self.shift < 0.5:
+            raise ValueError(f"shift must be in [0, 0.5) of the image size, got {self.shift}")
+        if self.lr <= 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+        self.gdnn_config()  # validates the architecture
+
+    def gdnn_config(self) -> GDNNConfig:
+        return GDNNConfig(image_size_px=self.image_size_px, conv_channels=self.conv_channels,
+                          conv_kernels=self.conv_kernels, dense=self.dense, dropout=self.dropout,
+                          variables=self.contact)
+
+
+# ------------------------------------------------------------------------------------------------------ data
+def label_matrix(table: Mapping[str, np.ndarray], variables: VariableSet) -> np.ndarray:
+    """(N, V) float32 label values in the variables' units, from ``table[spec.column]`` (a DataFrame or dict)."""
+    missing = [spec.column for spec in variables.variables if spec.column not in table]
+    if missing:
+        raise ValueError(f"labels for {variables.name} need the columns {list(variables.columns)}; missing {missing}")
+    return np.stack([np.asarray(table[spec.column], dtype=np.float32) for spec in variables.variables], axis=1)
+
+
+def resize_images(images: np.ndarray, size_px: int) -> np.ndarray:
+    """uint8 (N, H, W) -> uint8 (N, size, size) (area interpolation); unchanged if already that size."""
+    if images.shape[1:] == (size_px, size_px):
+        return images
+    import cv2
+
+    return np.stack([cv2.resize(image, (size_px, size_px), interpolation=cv2.INTER_AREA) for image in images])
+
+
+@dataclass(frozen=True, eq=False)
+class LabelledImages:
+    """In-memory training rows: images uint8 (N, H, W), labels float32 (N, V) in the variables' units."""
+
+    images: torch.Tensor
+    labels: torch.Tensor
+
+    def __post_init__(self) -> None:
+        if self.images.dim() != 3 or self.labels.dim() != 2 or len(self.images) != len(self.labels):
+            raise ValueError(f"need images (N, H, W) and labels (N, V), got {tuple(self.images.shape)} and "
+                             f"{tuple(self.labels.shape)}")
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def subset(self, index: np.ndarray) -> "LabelledImages":
+        index = torch.as_tensor(index)
+        return LabelledImages(self.images[index], self.labels[index])
+
+
+def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
+                image_size_px: int = 128, batch: int = 64) -> LabelledImages:
+    """Images of ``source`` (see module docstring) and labels of the paired sets' rows."""
+    from simshear_gym.data.collect import load_paired
+    from simshear_gym.data.labels import SHEAR_COLUMNS
+
+    if source not in SOURCES:
+        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    variables = variable_set(contact)
+    translator = None
+    if source in ("shpix2pix", "pix2pix"):
+        from simshear_gym.models.translator import load_shipped
+
+        translator = load_shipped(source, contact)
+    images, labels = [], []
+    for directory in paired_dirs:
+        paired, real = load_paired(directory, data)
+        if paired.meta.get("contact") not in (None, contact):
+            raise ValueError(f"{directory}: a {paired.meta['contact']!r} paired set, but --contact {contact}")
+        if source == "real":
+            if real is None:
+                raise ValueError(f"{directory}: a random-contact set has no real images; use --source sim or a "
+                                 "translator source, or a replayed set")
+            stack = real.load_images()
+        else:
+            stack = paired.load_images()
+            if translator is not None:
+                shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
+                stack = np.concatenate([translator(stack[i:i + batch], shear[i:i + batch])
+                                        for i in range(0, len(stack), batch)])
+        images.append(resize_images(stack, image_size_px))
+        labels.append(label_matrix(paired.targets, variables))
+    return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
+
+
+def to_input(images_uint8: torch.Tensor) -> torch.Tensor:
+    """uint8 (B, H, W) -> float32 (B, 1, H, W) in [0, 1]: the GDNN input contract."""
+    return images_uint8.unsqueeze(1).to(torch.float32) / 255.0
+
+
+def random_shift(images: torch.Tensor, max_share: float, generator: torch.Generator) -> torch.Tensor:
+    """Shift each image of (B, 1, H, W) by up to ``max_share`` of its size in x and y, edge pixels repeated."""
+    if max_share <= 0:
+        return images
+    batch = images.shape[0]
+    offset = (torch.rand(batch, 2, generator=generator) * 2 - 1) * (2 * max_share)  # grid units span 2
+    theta = torch.zeros(batch, 2, 3)
+    theta[:, 0, 0] = theta[:, 1, 1] = 1.0
+    theta[:, :, 2] = offset
+    grid = F.affine_grid(theta, list(images.shape), align_corners=False)
+    return F.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=False)
+
+
+# -------------------------------------------------------------------------------------------------- training
+class PosenetTrainer:
+    """Owns the model, optimiser and run directory of one posenet training run."""
+
+    def __init__(self, config: PosenetTrainConfig, run_dir: Path, data: LabelledImages) -> None:
+        self.config = config
+        self.run_dir = Path(run_dir)
+        torch.manual_seed(config.seed)
+        data = LabelledImages(torch.as_tensor(resize_images(data.images.numpy(), config.image_size_px)),
+                              data.labels)
+        order = np.random.default_rng(config.seed).permutation(len(data))
+        n_holdout = max(1, int(round(config.holdout * len(data))))
+        if len(data) - n_holdout < 2:
+            raise ValueError(f"{len(data)} rows are too few to hold out {n_holdout} and train")
+        self.train_data, self.holdout_data = data.subset(order[n_holdout:]), data.subset(order[:n_holdout])
+        self.model = GDNN(config.gdnn_config())
+        self.variables = self.model.variables
+        self.optimiser = torch.optim.Adam(self.model.parameters(), lr=config.lr)
+        self.epoch = 0
+        self.step = 0
+        self.best_holdout_nll = float("inf")
+        self.epochs_since_best = 0
+        self.elapsed_s = 0.0
+        self.history: list[dict] = []
+        self.batch_rng = np.random.default_rng(config.seed + 1)
+        self.shift_rng = torch.Generator().manual_seed(config.seed + 2)
+
+    # ------------------------------------------------------------------------------------------- persistence
+    def state(self) -> dict:
+        return {
+            "config": asdict(self.config), "epoch": self.epoch, "step": self.step,
+            "best_holdout_nll": self.best_holdout_nll, "epochs_since_best": self.epochs_since_best,
+            "elapsed_s": self.elapsed_s, "history": self.history,
+            "model": {"config": asdict(self.model.config), "state_dict": self.model.state_dict()},
+            "optimiser": self.optimiser.state_dict(),
+            "batch_rng": self.batch_rng.bit_generator.state, "shift_rng": self.shift_rng.get_state(),
+            "torch_rng": torch.get_rng_state(),
+        }
+
+    def save_checkpoint(self) -> None:
+        atomic_write(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(self.state(), tmp))
+        write_json(self.run_dir / "history.json", {"config": asdict(self.config), "epochs": self.history})
+
+    def resume(self) -> bool:
+        """Continue from ``checkpoint.pt`` if there is one; returns whether it did."""
+        path = self.run_dir / "checkpoint.pt"
+        if not path.is_file():
+            return False
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        saved = {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()
+                 if k not in _RESUME_FREE}
+        mine = {k: v for k, v in asdict(self.config).items() if k not in _RESUME_FREE}
+        if saved != mine:
+            changed = sorted(k for k in mine if saved.get(k) != mine[k])
+            raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+        self.model.load_state_dict(state["model"]["state_dict"])
+        self.optimiser.load_state_dict(state["optimiser"])
+        self.epoch, self.step = state["epoch"], state["step"]
+        self.best_holdout_nll, self.epochs_since_best = state["best_holdout_nll"], state["epochs_since_best"]
+        self.elapsed_s, self.history = state["elapsed_s"], state["history"]
+        self.batch_rng.bit_generator.state = state["batch_rng"]
+        self.shift_rng.set_state(state["shift_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        return True
+
+    # ---------------------------------------------------------------------------------------------- training
+    def holdout_nll(self) -> float:
+        """Mean Gaussian NLL (nats per row, over the encoded components) of the held-out rows, unaugmented."""
+        self.model.eval()
+        total = 0.0
+        with torch.inference_mode():
+            for start in range(0, len(self.holdout_data), 64):
+                part = self.holdout_data.subset(np.arange(start, min(start + 64, len(self.holdout_data))))
+                mean, std = self.model(to_input(part.images))
+                total += gaussian_nll(mean, std, self.variables.encode(part.labels), reduction="none").sum().item()
+        self.model.train()
+        return total / len(self.holdout_data)
+
+    def train_step(self, images: torch.Tensor, target: torch.Tensor) -> float:
+        mean, std = self.model(images)
+        loss = gaussian_nll(mean, std, target)
+        self.optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        self.optimiser.step()
+        return loss.item()
+
+    def fit(self, progress: bool = True) -> dict:
+        """Train until the epochs, the patience or the time budget run out; returns a summary."""
+        from torch.utils.tensorboard import SummaryWriter
+        from tqdm import tqdm
+
+        config = self.config
+        torch.set_num_threads(config.threads)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(self.run_dir / "config.json", asdict(config))
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        budget_s = config.max_minutes * 60.0 if config.max_minutes else float("inf")
+        stop_reason = "epochs"
+        self.model.train()
+        try:
+            while self.epoch < config.epochs:
+                started = time.perf_counter() - self.elapsed_s
+                order = self.batch_rng.permutation(len(self.train_data))
+                batches = [order[i:i + config.batch_size] for i in range(0, len(order), config.batch_size)]
+                running = []
+                out_of_time = False
+                for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}", disable=not progress,
+                                  leave=False):
+                    if len(index) < 2:  # batch norm needs two rows
+                        continue
+                    part = self.train_data.subset(index)
+                    images = random_shift(to_input(part.images), config.shift, self.shift_rng)
+                    running.append(self.train_step(images, self.variables.encode(part.labels)))
+                    self.step += 1
+                    if self.step % 20 == 0:
+                        writer.add_scalar("train/nll", running[-1], self.step)
+                    self.elapsed_s = time.perf_counter() - started
+                    if self.elapsed_s > budget_s:
+                        out_of_time = True
+                        break
+                self.epoch += 0 if out_of_time else 1
+                holdout = self.holdout_nll()
+                self.elapsed_s = time.perf_counter() - started
+                record = {"epoch": self.epoch, "partial_epoch": out_of_time, "step": self.step,
+                          "elapsed_s": round(self.elapsed_s, 1),
+                          "train_nll": float(np.mean(running)) if running else None, "holdout_nll": holdout}
+                self.history.append(record)
+                writer.add_scalar("holdout/nll", holdout, self.step)
+                if holdout < self.best_holdout_nll:
+                    self.best_holdout_nll, self.epochs_since_best = holdout, 0
+                    save_posenet(self.run_dir / "best.pt", self.model,
+                                 card={"holdout_nll": holdout, "epoch": self.epoch, "elapsed_s": self.elapsed_s,
+                                       "source": config.source, "contact": config.contact})
+                else:
+                    self.epochs_since_best += 1
+                self.save_checkpoint()
+                if out_of_time:
+                    stop_reason = "time budget"
+                    break
+                if self.epochs_since_best >= config.patience_epochs:
+                    stop_reason = "early stopping"
+                    break
+        finally:
+            writer.close()
+        return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
+                "best_holdout_nll": self.best_holdout_nll, "stopped_by": stop_reason}
+
+
+# --------------------------------------------------------------------------------------------- command line
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--source", choices=SOURCES, required=True,
+                        help="training images: the real ones, our sim renders, or sim through a shipped translator")
+    parser.add_argument("--contact", choices=CONTACTS, required=True, help="contact type (selects the variables)")
+    parser.add_argument("--paired", nargs="+", required=True,
+                        help="paired set directories, e.g. runs/paired/surface_shear/csv_train")
+    parser.add_argument("--out", type=Path, required=True, help="run directory")
+    parser.add_argument("--data", default=None, help="data root of the real images")
+    defaults = PosenetTrainConfig(paired_dirs=("x",))
+    for name in ("image_size_px", "epochs", "batch_size", "lr", "holdout", "patience_epochs", "shift", "seed",
+                 "threads"):
+        value = getattr(defaults, name)
+        parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
+                            default=value, help=f"default {value}")
+    parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = PosenetTrainConfig(
+        source=args.source, contact=args.contact, paired_dirs=tuple(str(d) for d in args.paired),
+        image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+        holdout=args.holdout, patience_epochs=args.patience_epochs, shift=args.shift,
+        max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+    )
+    if (args.out / "checkpoint.pt").exists() and not args.resume:
+        raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
+    torch.set_num_threads(config.threads)
+    data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px)
+    trainer = PosenetTrainer(config, args.out, data)
+    if args.resume and trainer.resume():
+        print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
+    summary = trainer.fit()
+    print(json.dumps(summary))
+    return 0

@@ -1,0 +1,159 @@
+"""Posenet: data loading from sets on disk, a tiny training run, resume, weights files, evaluation metrics."""
+
+import json
+from argparse import Namespace
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+
+from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS, SHEAR_COLUMNS
+from simshear_gym.data.tactile_set import image_name, write_image, write_targets
+from simshear_gym.evaluate import posenet as evaluate_posenet
+from simshear_gym.models.gdnn import variable_set
+from simshear_gym.models.posenet_io import load_posenet
+from simshear_gym.train.posenet import (
+    LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_shift,
+)
+
+SIZE = 16
+
+
+def toy_labelled(n=48, seed=0):
+    """Surface labels; the image is a bright blob whose position and size follow z, rx, ry."""
+    rng = np.random.default_rng(seed)
+    variables = variable_set("surface")
+    labels = np.stack([rng.uniform(s.low, s.high, n) for s in variables.variables], axis=1).astype(np.float32)
+    images = np.zeros((n, SIZE, SIZE), np.uint8)
+    for i, (z, rx, ry) in enumerate(labels[:, :3]):
+        x, y, r = int(8 + ry / 4), int(8 + rx / 4), int(z)
+        images[i, max(y - r, 0):y + r, max(x - r, 0):x + r] = 255
+    return LabelledImages(torch.from_numpy(images), torch.from_numpy(labels))
+
+
+def tiny_config(**overrides):
+    settings = dict(paired_dirs=("toy",), image_size_px=SIZE, conv_channels=(4, 8), conv_kernels=(3, 3),
+                    dense=(16,), epochs=3, batch_size=8, lr=3e-3, holdout=0.2, threads=1)
+    settings.update(overrides)
+    return PosenetTrainConfig(**settings)
+
+
+def test_tiny_training_run_resume_and_weights(tmp_path):
+    run_dir = tmp_path / "run"
+    trainer = PosenetTrainer(tiny_config(), run_dir, toy_labelled())
+    before = trainer.holdout_nll()
+    summary = trainer.fit(progress=False)
+    assert summary["epochs"] == 3 and summary["best_holdout_nll"] < before
+    for name in ("config.json", "history.json", "checkpoint.pt", "best.pt"):
+        assert (run_dir / name).is_file()
+    history = json.loads((run_dir / "history.json").read_text())["epochs"]
+    assert [h["epoch"] for h in history] == [1, 2, 3]
+    assert all({"elapsed_s", "train_nll", "holdout_nll"} <= set(h) for h in history)
+
+    resumed = PosenetTrainer(tiny_config(epochs=4), run_dir, toy_labelled())
+    assert resumed.resume() and resumed.epoch == 3 and len(resumed.history) == 3
+    assert resumed.fit(progress=False)["epochs"] == 4
+    with pytest.raises(ValueError, match="other settings"):
+        PosenetTrainer(tiny_config(lr=1e-2), run_dir, toy_labelled()).resume()
+
+    model, card = load_posenet(run_dir / "best.pt")
+    assert card["contact"] == "surface" and card["source"] == "real"
+    mean, std = model(torch.rand(2, 1, SIZE, SIZE))
+    assert mean.shape == std.shape == (2, 6) and (std > 0).all()
+
+
+def test_random_shift_keeps_shape_and_is_identity_at_zero():
+    images = torch.rand(4, 1, SIZE, SIZE)
+    generator = torch.Generator().manual_seed(0)
+    assert torch.equal(random_shift(images, 0.0, generator), images)
+    shifted = random_shift(images, 0.1, generator)
+    assert shifted.shape == images.shape and not torch.allclose(shifted, images)
+
+
+def test_config_and_labels_reject_bad_input():
+    with pytest.raises(ValueError, match="source must be one of"):
+        tiny_config(source="cyclegan")
+    with pytest.raises(ValueError, match="missing"):
+        label_matrix(pd.DataFrame({"pose_3": [1.0]}), variable_set("surface"))
+
+
+def _write_set(directory, images, targets, meta):
+    (directory / "images").mkdir(parents=True)
+    for name, image in zip(targets["sensor_image"], images):
+        write_image(directory / "images", name, image)
+    write_targets(directory, targets, meta)
+
+
+def test_load_source_real_and_sim_from_sets_on_disk(tmp_path):
+    n, rng = 6, np.random.default_rng(1)
+    poses = np.zeros((n, 6))
+    poses[:, 2], poses[:, 3] = rng.uniform(2, 5, n), rng.uniform(-10, 10, n)
+    moves = rng.uniform(-3, 3, (n, 6))
+    names = [image_name(i) for i in range(n)]
+    real_targets = pd.DataFrame({"sensor_image": names[::-1], **dict(zip(POSE_COLUMNS, poses[::-1].T)),
+                                 **dict(zip(MOVE_COLUMNS, moves[::-1].T))})
+    real_images = np.stack([np.full((SIZE, SIZE), 200 + i, np.uint8) for i in range(n)])[::-1]
+    _write_set(tmp_path / "real", real_images, real_targets, {})
+    paired_targets = pd.DataFrame({"sensor_image": names, "real_image": names,
+                                   **dict(zip(POSE_COLUMNS, poses.T)), **dict(zip(MOVE_COLUMNS, moves.T)),
+                                   **dict(zip(SHEAR_COLUMNS, moves.T))})
+    sim_images = np.stack([np.full((SIZE, SIZE), i, np.uint8) for i in range(n)])
+    _write_set(tmp_path / "paired", sim_images, paired_targets,
+               {"contact": "surface", "real_set": str(tmp_path / "real"), "real_set_relative_to_data_root": False})
+
+    real = load_source("real", "surface", [str(tmp_path / "paired")], image_size_px=SIZE)
+    sim = load_source("sim", "surface", [str(tmp_path / "paired")], image_size_px=SIZE)
+    assert real.images[:, 0, 0].tolist() == [200 + i for i in range(n)]  # real rows reordered to the paired ones
+    assert sim.images[:, 0, 0].tolist() == list(range(n))
+    np.testing.assert_allclose(real.labels[:, 0], poses[:, 2], rtol=1e-6)
+    np.testing.assert_allclose(sim.labels[:, 3], moves[:, 0], rtol=1e-6)
+    with pytest.raises(ValueError, match="'surface' paired set"):
+        load_source("sim", "edge", [str(tmp_path / "paired")], image_size_px=SIZE)
+
+
+@pytest.mark.parametrize("contact", ["surface", "edge"])
+def test_metrics_of_a_perfect_and_of_a_constant_predictor(contact):
+    variables = variable_set(contact)
+    rng = np.random.default_rng(0)
+    truth = np.stack([rng.uniform(s.low, s.high, 50) for s in variables.variables], axis=1)
+    encoded = variables.encode(truth)
+    perfect = evaluate_posenet.metrics(encoded, torch.full_like(encoded, 0.05), truth, variables)
+    for figures in perfect["variables"].values():
+        assert figures["mae"] < 1e-3 and figures["within_1_std"] == 1.0 and figures["chance_mae"] > 0
+    centre = np.array([0.0 if s.periodic else s.centre for s in variables.variables])
+    constant = variables.encode(np.broadcast_to(centre, truth.shape).copy())
+    guess = evaluate_posenet.metrics(constant, torch.full_like(constant, 0.05), truth, variables)
+    for figures in guess["variables"].values():
+        assert figures["mae"] == pytest.approx(figures["chance_mae"], abs=1e-3)
+    assert guess["mean_nll"] > perfect["mean_nll"]
+
+
+def test_periodic_errors_wrap():
+    variables = variable_set("edge")
+    predicted, truth = np.zeros((1, variables.dim)), np.zeros((1, variables.dim))
+    predicted[0, 2], truth[0, 2] = 179.0, -179.0
+    assert evaluate_posenet.errors(predicted, truth, variables)[0, 2] == pytest.approx(-2.0)
+
+
+def test_evaluate_command_on_a_fake_val_set(tmp_path):
+    n = 8
+    root = tmp_path / "data"
+    val_dir = root / "tactip331" / "real" / "surface_3d" / "shear" / "csv_val"
+    toy = toy_labelled(n, seed=3)
+    poses = np.zeros((n, 6))
+    poses[:, 2:5] = toy.labels[:, :3].numpy()
+    moves = np.zeros((n, 6))
+    targets = pd.DataFrame({"sensor_image": [image_name(i) for i in range(n)], **dict(zip(POSE_COLUMNS, poses.T)),
+                            **dict(zip(MOVE_COLUMNS, moves.T))})
+    _write_set(val_dir, toy.images.numpy(), targets, {})
+    run_dir = tmp_path / "run"
+    PosenetTrainer(tiny_config(epochs=1), run_dir, toy_labelled()).fit(progress=False)
+    out = tmp_path / "results"
+    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}"], contact="surface", data=root, rows=5, out=out,
+                     name="posenet")
+    assert evaluate_posenet.run(args) == 0
+    result = json.loads((out / "posenet.json").read_text())
+    assert "--contact surface" in result["command"] and (out / "posenet.png").is_file()
+    figures = result["models"]["tiny"]
+    assert figures["rows"] == 5 and set(figures["variables"]) == set(variable_set("surface").names)
