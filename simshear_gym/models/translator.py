@@ -9,13 +9,13 @@ sensor-frame shear (x, y, z mm, Rx, Ry, Rz deg, :data:`simshear_gym.data.labels.
 from __future__ import annotations
 
 import os
-from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
+from simshear_gym.models.weights_io import load_model, save_model
 
 SIM_SCALE = 64.0
 SHEAR_SCALE = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)  # mm, mm, mm, deg, deg, deg
@@ -39,28 +39,13 @@ def normalise_shear(shear_sensor: np.ndarray | torch.Tensor) -> torch.Tensor:
 def save_generator(path: str | os.PathLike, generator: UNetGenerator, card: dict | None = None,
                    half: bool = True) -> Path:
     """Write a generator's weights (fp16 by default) with its config, atomically."""
-    from simshear_gym.io import atomic_write
-
-    state = {k: (v.half() if half and v.is_floating_point() else v) for k, v in generator.state_dict().items()}
-    payload = {"config": asdict(generator.config), "state_dict": state, "card": card or {}}
-    return atomic_write(path, lambda tmp: torch.save(payload, tmp))
+    return save_model(path, generator, card, half=half)
 
 
 def load_generator(path: str | os.PathLike) -> tuple[UNetGenerator, dict]:
     """Load a generator written by :func:`save_generator` (or a training checkpoint's ``generator`` entry)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"translator weights {path} not found")
-    payload = torch.load(path, map_location="cpu", weights_only=True)
-    if "generator" in payload:  # a training checkpoint
-        payload = payload["generator"]
-    try:
-        generator = UNetGenerator(UNetConfig(**payload["config"]))
-        generator.load_state_dict({k: v.float() if v.is_floating_point() else v
-                                   for k, v in payload["state_dict"].items()})
-    except (KeyError, TypeError, RuntimeError) as error:
-        raise ValueError(f"{path}: not a simshear translator file ({error})") from None
-    return generator.eval(), payload.get("card", {})
+    return load_model(path, lambda settings: UNetGenerator(UNetConfig(**settings)), "translator",
+                      checkpoint_entry="generator")
 
 
 class Translator:

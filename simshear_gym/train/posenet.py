@@ -32,9 +32,10 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from simshear_gym.io import atomic_write, write_json
+from simshear_gym.io import write_json
 from simshear_gym.models.gdnn import GDNN, GDNNConfig, VariableSet, gaussian_nll, variable_set
 from simshear_gym.models.posenet_io import save_posenet
+from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
 
 SOURCES = ("real", "sim", "shpix2pix", "pix2pix")
 CONTACTS = ("surface", "edge")
@@ -187,11 +188,8 @@ class PosenetTrainer:
         torch.manual_seed(config.seed)
         data = LabelledImages(torch.as_tensor(resize_images(data.images.numpy(), config.image_size_px)),
                               data.labels)
-        order = np.random.default_rng(config.seed).permutation(len(data))
-        n_holdout = max(1, int(round(config.holdout * len(data))))
-        if len(data) - n_holdout < 2:
-            raise ValueError(f"{len(data)} rows are too few to hold out {n_holdout} and train")
-        self.train_data, self.holdout_data = data.subset(order[n_holdout:]), data.subset(order[:n_holdout])
+        train_rows, holdout_rows = split_holdout(len(data), config.holdout, config.seed)
+        self.train_data, self.holdout_data = data.subset(train_rows), data.subset(holdout_rows)
         self.model = GDNN(config.gdnn_config())
         self.variables = self.model.variables
         self.optimiser = torch.optim.Adam(self.model.parameters(), lr=config.lr)
@@ -217,8 +215,7 @@ class PosenetTrainer:
         }
 
     def save_checkpoint(self) -> None:
-        atomic_write(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(self.state(), tmp))
-        write_json(self.run_dir / "history.json", {"config": asdict(self.config), "epochs": self.history})
+        save_checkpoint(self.run_dir, self.state(), self.config, self.history)
 
     def resume(self) -> bool:
         """Continue from ``checkpoint.pt`` if there is one; returns whether it did."""
@@ -226,12 +223,7 @@ class PosenetTrainer:
         if not path.is_file():
             return False
         state = torch.load(path, map_location="cpu", weights_only=False)
-        saved = {k: tuple(v) if isinstance(v, list) else v for k, v in state["config"].items()
-                 if k not in _RESUME_FREE}
-        mine = {k: v for k, v in asdict(self.config).items() if k not in _RESUME_FREE}
-        if saved != mine:
-            changed = sorted(k for k in mine if saved.get(k) != mine[k])
-            raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+        check_same_settings(path, state["config"], self.config, _RESUME_FREE)
         self.model.load_state_dict(state["model"]["state_dict"])
         self.optimiser.load_state_dict(state["optimiser"])
         self.epoch, self.step = state["epoch"], state["step"]

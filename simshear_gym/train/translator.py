@@ -25,11 +25,13 @@ import torch
 
 from simshear_gym.data.collect import load_paired
 from simshear_gym.data.labels import SHEAR_COLUMNS
-from simshear_gym.io import atomic_write, write_json
+from simshear_gym.io import write_json
 from simshear_gym.models.translator import normalise_shear, normalise_sim, save_generator
 from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetConfig, UNetGenerator
+from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
 
 ARCHS = ("shpix2pix", "pix2pix")
+_RESUME_FREE = ("epochs", "max_minutes", "patience_epochs")  # settings a resumed run may change
 
 
 @dataclass(frozen=True)
@@ -118,10 +120,8 @@ class TranslatorTrainer:
         self.config = config
         self.run_dir = Path(run_dir)
         torch.manual_seed(config.seed)
-        rng = np.random.default_rng(config.seed)
-        order = rng.permutation(len(pairs))
-        n_holdout = max(1, int(round(config.holdout * len(pairs))))
-        self.train_pairs, self.holdout_pairs = pairs.subset(order[n_holdout:]), pairs.subset(order[:n_holdout])
+        train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
+        self.train_pairs, self.holdout_pairs = pairs.subset(train_rows), pairs.subset(holdout_rows)
         self.generator = UNetGenerator(config.generator_config())
         if config.template:
             self.generator.init_template(self.train_pairs.real.to(torch.float32).mean(0) / 255.0)
@@ -151,8 +151,7 @@ class TranslatorTrainer:
         }
 
     def save_checkpoint(self) -> None:
-        atomic_write(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(self.state(), tmp))
-        write_json(self.run_dir / "history.json", {"config": asdict(self.config), "epochs": self.history})
+        save_checkpoint(self.run_dir, self.state(), self.config, self.history)
 
     def resume(self) -> bool:
         """Continue from ``checkpoint.pt`` if there is one; returns whether it did."""
@@ -160,12 +159,7 @@ class TranslatorTrainer:
         if not path.is_file():
             return False
         state = torch.load(path, map_location="cpu", weights_only=False)
-        saved = {k: v for k, v in state["config"].items() if k not in ("epochs", "max_minutes", "patience_epochs")}
-        mine = {k: v for k, v in asdict(self.config).items() if k not in ("epochs", "max_minutes", "patience_epochs")}
-        saved["paired_dirs"] = tuple(saved["paired_dirs"])
-        if saved != mine:
-            changed = sorted(k for k in mine if saved.get(k) != mine[k])
-            raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+        check_same_settings(path, state["config"], self.config, _RESUME_FREE)
         self.generator.load_state_dict(state["generator"]["state_dict"])
         self.opt_g.load_state_dict(state["opt_g"])
         if self.discriminator is not None:

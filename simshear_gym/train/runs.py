@@ -1,0 +1,35 @@
+"""What every training run in ``train/`` shares: the holdout split, the resume settings check, the checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from simshear_gym.io import atomic_write, write_json
+
+
+def split_holdout(n_rows: int, share: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(train rows, holdout rows): a seeded permutation, ``share`` of the rows (at least one) held out."""
+    order = np.random.default_rng(seed).permutation(n_rows)
+    n_holdout = max(1, int(round(share * n_rows)))
+    if n_rows - n_holdout < 2:
+        raise ValueError(f"{n_rows} rows are too few to hold out {n_holdout} and train")
+    return order[n_holdout:], order[:n_holdout]
+
+
+def check_same_settings(path: Path, saved_config: dict, config, free: tuple[str, ...]) -> None:
+    """Refuse to resume ``path`` when its run's settings differ from ``config`` outside the ``free`` ones."""
+    saved = {k: tuple(v) if isinstance(v, list) else v for k, v in saved_config.items() if k not in free}
+    mine = {k: v for k, v in asdict(config).items() if k not in free}
+    if saved != mine:
+        changed = sorted(k for k in mine if saved.get(k) != mine[k])
+        raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+
+
+def save_checkpoint(run_dir: Path, state: dict, config, history: list[dict]) -> None:
+    """Write ``checkpoint.pt`` and ``history.json`` atomically."""
+    atomic_write(Path(run_dir) / "checkpoint.pt", lambda tmp: torch.save(state, tmp))
+    write_json(Path(run_dir) / "history.json", {"config": asdict(config), "epochs": history})
