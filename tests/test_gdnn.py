@@ -12,6 +12,7 @@ from simshear_gym.models.gdnn import (
     VARIABLE_SETS,
     GDNNConfig,
     OutputSpec,
+    beta_nll,
     decode,
     gaussian_nll,
     variable_set,
@@ -54,12 +55,12 @@ def test_config_validation():
     with pytest.raises(ValueError, match="multiple of 2\\*\\*4"):
         GDNNConfig(image_size_px=100)
     with pytest.raises(ValueError, match="same non-zero length"):
-        GDNNConfig(conv_kernels=(11, 9))
+        GDNNConfig(conv_kernels=(5, 3))
     with pytest.raises(ValueError, match="unknown variable set"):
         GDNNConfig(variables="cylinder")
     with pytest.raises(ValueError, match=r"image must be \(B, 1, 64, 64\)"):
         GDNN(GDNNConfig(image_size_px=64))(torch.rand(2, 1, 32, 32))
-    assert GDNNConfig(image_size_px=64).flat_features == 128 * 4 * 4
+    assert GDNNConfig(image_size_px=64, conv_channels=(16, 32, 64, 128)).flat_features == 128 * 4 * 4
 
 
 @pytest.mark.parametrize("name", sorted(VARIABLE_SETS))
@@ -165,3 +166,30 @@ def test_tiny_fit_reduces_nll():
         optimiser.step()
     after = nll()
     assert after < before - 1.0, (before, after)
+
+
+def test_beta_nll_weights_and_limits():
+    torch.manual_seed(1)
+    mean, target = torch.randn(6, 3, requires_grad=True), torch.randn(6, 3)
+    std = (torch.rand(6, 3) + 0.2).requires_grad_()
+    # beta = 0 is the plain NLL.
+    assert beta_nll(mean, std, target, 0.0).item() == pytest.approx(gaussian_nll(mean, std, target).item(), rel=1e-6)
+    # beta = 1: the mean's gradient is the squared error's, whatever the std.
+    beta_nll(mean, std, target, 1.0).backward()
+    assert torch.allclose(mean.grad, (mean - target).detach() / 6, atol=1e-6)
+    # The std's optimum is unchanged: at std = |error| the gradient of each component vanishes for any beta.
+    std_at_error = (mean - target).abs().detach().clamp_min(1e-3).requires_grad_()
+    beta_nll(mean.detach(), std_at_error, target, 0.5).backward()
+    assert std_at_error.grad.abs().max().item() < 1e-5
+    with pytest.raises(ValueError, match="beta"):
+        beta_nll(mean, std, target, 1.5)
+
+
+def test_untrained_network_predicts_centre_and_initial_std():
+    torch.manual_seed(0)
+    model = GDNN(tiny_config(initial_std=0.5, dropout=0.0)).eval()
+    mean, std = model(torch.rand(8, 1, 32, 32))
+    assert mean.abs().max().item() < 0.5
+    assert std.mean().item() == pytest.approx(0.5, abs=0.1)
+    with pytest.raises(ValueError, match="initial_std"):
+        tiny_config(initial_std=0.005)

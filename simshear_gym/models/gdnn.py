@@ -208,16 +208,20 @@ class GDNNConfig:
         dropout: dropout probability after each dense layer.
         variables: name of the variable set in :data:`VARIABLE_SETS`.
         min_std: lower bound of the predicted std, in normalised units.
+        initial_std: the std the untrained network predicts (normalised units; the std head's bias), with the
+            mean head initialised near zero (the range centre): training starts from "centre, +-half a range"
+            instead of a random overconfident guess, whose NLL would be in the thousands.
     """
 
-    image_size_px: int = 128
-    conv_channels: tuple[int, ...] = (16, 32, 64, 128)
-    conv_kernels: tuple[int, ...] = (11, 9, 7, 5)
+    image_size_px: int = 64
+    conv_channels: tuple[int, ...] = (16, 32, 32, 64)
+    conv_kernels: tuple[int, ...] = (5, 3, 3, 3)
     batch_norm: bool = True
-    dense: tuple[int, ...] = (512, 512)
+    dense: tuple[int, ...] = (256,)
     dropout: float = 0.1
     variables: str = "surface"
     min_std: float = 0.01
+    initial_std: float = 0.5
 
     def __post_init__(self) -> None:
         levels = len(self.conv_channels)
@@ -235,6 +239,8 @@ class GDNNConfig:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
         if not self.min_std > 0.0:
             raise ValueError(f"min_std must be > 0, got {self.min_std}")
+        if not self.initial_std > self.min_std:
+            raise ValueError(f"initial_std must be > min_std = {self.min_std}, got {self.initial_std}")
         variable_set(self.variables)
 
     @property
@@ -271,6 +277,13 @@ class GDNN(nn.Module):
         self.dense = nn.Sequential(*dense)
         self.mean_head = nn.Linear(previous, self.variables.encoded_dim)
         self.std_head = nn.Linear(previous, self.variables.encoded_dim)
+        with torch.no_grad():
+            for head in (self.mean_head, self.std_head):
+                head.weight.mul_(0.1)
+            self.mean_head.bias.zero_()
+            # softplus^-1(initial_std - min_std)
+            excess = torch.tensor(config.initial_std - config.min_std)
+            self.std_head.bias.fill_(float(excess + torch.log(-torch.expm1(-excess))))
 
     def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         size = self.config.image_size_px
@@ -290,6 +303,26 @@ def decode(mean: torch.Tensor, std: torch.Tensor,
     """(mean, std) (B, D) in normalised units -> (mean (B, V), std (B, V)) in mm / deg; see module docstring."""
     chosen = variable_set(variables) if isinstance(variables, str) else variables
     return chosen.decode(mean, std)
+
+
+def beta_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor, beta: float = 0.5) -> torch.Tensor:
+    """The training loss: the Gaussian NLL with each component weighted by ``std ** (2 beta)`` (not differentiated).
+
+    beta-NLL (Seitzer et al., ICLR 2022, "On the pitfalls of heteroscedastic uncertainty estimation"): with the
+    plain NLL (beta = 0) the mean's gradient scales with ``1 / std^2``, so components the network is unsure of
+    barely learn and the std inflates to cover them; beta = 1 gives the mean the plain squared-error gradient.
+    The optimum of the std is the same for any beta (the weight is constant for the gradient), so the predicted
+    std stays a calibrated std. Returns the batch mean of the per-sample weighted sums (a scalar).
+    """
+    if not mean.shape == std.shape == target.shape or mean.dim() != 2:
+        raise ValueError(f"mean, std and target must all be (B, D), got {tuple(mean.shape)}, "
+                         f"{tuple(std.shape)}, {tuple(target.shape)}")
+    if not 0.0 <= beta <= 1.0:
+        raise ValueError(f"beta must be in [0, 1], got {beta}")
+    per_component = _LOG_SQRT_2PI + torch.log(std) + 0.5 * ((target - mean) / std) ** 2
+    if beta:
+        per_component = per_component * std.detach() ** (2.0 * beta)
+    return per_component.sum(dim=1).mean()
 
 
 def gaussian_nll(mean: torch.Tensor, std: torch.Tensor, target: torch.Tensor,
