@@ -1,0 +1,170 @@
+"""Co-lift scene: friction alone holds every object while the tip follows the plate, and drops it when the tip
+lets go; images agree with the physics depth; masses matter; runs repeat bit for bit."""
+
+import numpy as np
+import pytest
+
+from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig, upright_plate
+from simshear_gym.sim.objects import OBJECTS, object_spec, spawn_object
+from simshear_gym.sim.transforms import invert
+from simshear_gym.sim.world import World
+
+NAMES = sorted(OBJECTS)
+T_WORLD_PLATE = upright_plate([0.0, 0.0, 300.0])
+
+
+def _translation(x=0.0, y=0.0, z=0.0):
+    transform = np.eye(4)
+    transform[:3, 3] = [x, y, z]
+    return transform
+
+
+def leader_path_mm(t_s: float) -> np.ndarray:
+    """World offset of the plate: a 30 mm lift over 1 s, then a horizontal circle of radius 20 mm in 2 s."""
+    if t_s < 1.0:
+        return np.array([0.0, 0.0, 30.0 * t_s])
+    angle = 2.0 * np.pi * (t_s - 1.0) / 2.0
+    return np.array([20.0 * (np.cos(angle) - 1.0), 20.0 * np.sin(angle), 30.0])
+
+
+def follow(scene: CoLiftScene, T_plate_sensor: np.ndarray, duration_s: float, record: bool = False):
+    """Move the plate along the leader path with the tip following it rigidly; returns per-step records."""
+    period = scene.config.control_period_s
+    rows = []
+    for k in range(1, round(duration_s / period) + 1):
+        T_world_plate = _translation(*leader_path_mm(k * period)) @ T_WORLD_PLATE
+        scene.step(T_world_plate, T_world_plate @ T_plate_sensor)
+        rows.append((scene.object_slip_mm(), scene.contact_depth_mm(), scene.object_pose() if record else None))
+    return rows
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_object_is_held_by_friction_while_the_tip_follows(name):
+    with CoLiftScene(CoLiftSceneConfig(object_name=name)) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        depth0 = scene.contact_depth_mm()
+        assert scene.touching() == (True, True)
+        assert 1.5 < depth0 <= 3.05  # 3 mm squeeze; a soft object gives part of it to the plate side
+        T_world_object0 = scene.object_pose()
+        rows = follow(scene, invert(T_WORLD_PLATE) @ T_world_sensor, duration_s=3.0)
+        slips, depths = np.array([r[0] for r in rows]), np.array([r[1] for r in rows])
+        assert not scene.dropped()
+        assert slips.max() < 2.0, f"{name} slipped {slips.max():.2f} mm relative to the plate"
+        assert np.abs(depths - depth0).max() < 0.5
+        # it really travelled with the plate: up 30 mm and round the circle back to its start
+        travelled = scene.object_pose()[:3, 3] - T_world_object0[:3, 3]
+        assert travelled == pytest.approx([0.0, 0.0, 30.0], abs=2.0)
+        error = scene.pose_target_sensor()
+        assert np.abs(error[:3]).max() < 0.1 and np.abs(error[3:]).max() < 0.1  # the tip is where it was sent
+        assert scene.render_tactile().max() > 0
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_object_drops_when_the_tip_lets_go(name):
+    with CoLiftScene(CoLiftSceneConfig(object_name=name)) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        z0 = scene.object_pose()[2, 3]
+        assert not scene.dropped()
+        for k in range(1, 16):  # back off 15 mm along the optical axis in 0.75 s, plate still
+            scene.step(T_WORLD_PLATE, T_world_sensor @ _translation(z=-min(k * 2.0, 15.0)))
+        assert scene.dropped()
+        assert scene.object_pose()[2, 3] < z0 - 50.0  # it fell
+        assert scene.touching() == (False, False)
+        assert scene.contact_depth_mm() == 0.0
+        assert scene.render_tactile().max() == 0  # the tip's own sphere never shows in its image
+
+
+def test_a_weak_grip_or_a_heavy_object_slips_out():
+    """What holds the object is friction from the squeeze: too little squeeze or too much mass drops it."""
+    period = CoLiftSceneConfig().control_period_s
+
+    def dropped_after_lift(config: CoLiftSceneConfig, squeeze_mm: float) -> bool:
+        with CoLiftScene(config) as scene:
+            T_plate_sensor = invert(T_WORLD_PLATE) @ scene.reset(T_WORLD_PLATE, squeeze_mm)
+            for k in range(1, 21):
+                T_world_plate = _translation(z=30.0 * k * period) @ T_WORLD_PLATE
+                scene.step(T_world_plate, T_world_plate @ T_plate_sensor)
+            return scene.dropped()
+
+    assert not dropped_after_lift(CoLiftSceneConfig(object_name="prism", mass_kg=0.15), 3.0)
+    assert dropped_after_lift(CoLiftSceneConfig(object_name="prism", mass_kg=0.5), 3.0)
+    assert dropped_after_lift(CoLiftSceneConfig(object_name="prism"), 0.2)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_image_shows_the_physics_depth(name):
+    config = CoLiftSceneConfig(object_name=name)
+    with CoLiftScene(config) as scene:
+        scene.reset(T_WORLD_PLATE)
+        image = scene.render_tactile()
+        assert image.shape == (128, 128) and image.dtype == np.uint8
+        image_depth_mm = image.max() * config.tactip.full_scale_mm / 255.0
+        assert image_depth_mm == pytest.approx(scene.contact_depth_mm(), abs=0.3)
+        assert scene.render_tactile(64).shape == (64, 64)
+
+
+def test_masses_are_configurable():
+    assert {spec.mass_kg for spec in OBJECTS.values()} == {0.03}
+    with World() as world:
+        body = spawn_object(world, object_spec("egg", mass_kg=0.045), np.eye(4))
+        assert world.client.getDynamicsInfo(body, -1)[0] == pytest.approx(0.045)
+    with CoLiftScene(CoLiftSceneConfig(object_name="ducky", mass_kg=0.02)) as scene:
+        scene.reset(T_WORLD_PLATE)
+        assert scene.world.client.getDynamicsInfo(scene._object, -1)[0] == pytest.approx(0.02)
+    with pytest.raises(ValueError, match="mass_kg"):
+        CoLiftSceneConfig(mass_kg=0.0)
+
+
+def test_bad_names_and_inputs_raise_clear_errors():
+    with pytest.raises(ValueError, match=r"unknown object 'teapot'.*\['brain', 'ducky', 'egg', 'prism'\]"):
+        CoLiftSceneConfig(object_name="teapot")
+    with pytest.raises(ValueError, match="unknown object 'teapot'"):
+        object_spec("teapot")
+    with pytest.raises(ValueError, match="squeeze_mm"):
+        CoLiftSceneConfig(squeeze_mm=-1.0)
+    with pytest.raises(ValueError, match="substeps"):
+        CoLiftSceneConfig(substeps=0)
+    with CoLiftScene() as scene:
+        with pytest.raises(RuntimeError, match="reset"):
+            scene.step(T_WORLD_PLATE, T_WORLD_PLATE)
+        with pytest.raises(ValueError, match="T_world_plate must be a 4x4 rigid transform"):
+            scene.reset(np.zeros((4, 4)))
+        with pytest.raises(ValueError, match="squeeze_mm"):
+            scene.reset(T_WORLD_PLATE, squeeze_mm=25.0)
+
+
+def test_shear_is_the_sensor_motion_relative_to_the_object():
+    with CoLiftScene(CoLiftSceneConfig(object_name="prism")) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        assert np.allclose(scene.shear_sensor(), 0.0)
+        T_plate_sensor = invert(T_WORLD_PLATE) @ T_world_sensor
+        follow(scene, T_plate_sensor, duration_s=1.0)  # carried together: no shear
+        assert np.abs(scene.shear_sensor()[:3]).max() < 0.1 and np.abs(scene.shear_sensor()[3:]).max() < 0.5
+
+        T_world_plate = _translation(*leader_path_mm(1.0)) @ T_WORLD_PLATE
+        T_world_sensor = T_world_plate @ T_plate_sensor
+        T_object_sensor0 = invert(scene.object_pose()) @ scene.sensor_pose()
+        shear0 = scene.shear_sensor()
+        # the tip alone slides 2 mm along its own +x: it drags the prism, which rolls about its vertical
+        # axis against the plate, so the sensor moves less than 2 mm over the object
+        for k in range(1, 11):
+            scene.step(T_world_plate, T_world_sensor @ _translation(x=0.2 * k))
+        assert not scene.dropped()
+        T_object_sensor = invert(scene.object_pose()) @ scene.sensor_pose()
+        moved_sensor_mm = (invert(T_object_sensor0) @ T_object_sensor)[:3, 3]  # in the sensor's earlier axes
+        shear = scene.shear_sensor() - shear0
+        assert 0.05 < shear[0] < 2.0
+        assert shear[:3] == pytest.approx(moved_sensor_mm, abs=0.02)
+
+
+def test_same_inputs_give_the_same_run():
+    def run(scene: CoLiftScene):
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        rows = follow(scene, invert(T_WORLD_PLATE) @ T_world_sensor, duration_s=1.5, record=True)
+        return np.stack([r[2] for r in rows]), scene.render_tactile(), scene.shear_sensor()
+
+    config = CoLiftSceneConfig(object_name="ducky")
+    with CoLiftScene(config) as first, CoLiftScene(config) as second:
+        a, b, c = run(first), run(second), run(first)  # a fresh scene, and the first scene reset again
+    for x, y in ((a, b), (a, c)):
+        assert all(np.array_equal(u, v) for u, v in zip(x, y))
