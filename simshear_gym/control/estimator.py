@@ -1,0 +1,118 @@
+"""Tactile state estimator: GDNN reading of one tactile image, fused over time by the Bayesian filter.
+
+The follower never sees ground truth: each step it reads the image with a GDNN
+(:mod:`simshear_gym.models.gdnn`) and fuses the reading with its belief, predicted forward by the move it commanded
+(:mod:`simshear_gym.models.bayes_filter`). State (the layout of the envs' ``true_pose_shear``)::
+
+    (depth mm, shear x mm, shear y mm, shear Rz deg)        sensor frame; depth in the labels' convention
+
+Motion model, per step: the follower's commanded move ``(dx, dy, dz mm, dRz deg)`` in the sensor frame changes the
+state by ``(+dz, +dx, +dy, +dRz)`` (shear is the sensor's displacement from where it touched the contact). What the
+follower does not command, the leader's motion of the contact, is the process noise: ``process_std`` per step
+should cover the contact's travel in one step (about 0.4 mm at 4 mm/s and 10 Hz).
+
+The GDNN may predict more variables than the state (a ``surface`` network also gives the tilt Rx, Ry); the
+estimator takes the four it needs by name. Variables a network cannot read (its std near the range's) still enter
+with their large std, so the filter then follows the commanded motion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+STATE_VARIABLES = ("z_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
+"""The estimated state, in order (GDNN variable names): depth, shear x, shear y, shear Rz."""
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Estimator settings.
+
+    Attributes:
+        posenet: a GDNN weights file (``best.pt`` of ``simshear train posenet``); None: the shipped ``surface`` one.
+        process_std_mm: per-step std of the contact's unknown motion, for depth and shear x, y (mm).
+        process_std_deg: the same for shear Rz (deg).
+        filtered: fuse over time with the Bayesian filter; False: the raw GDNN reading each step.
+        threads: torch threads for the GDNN (None: leave torch's setting).
+    """
+
+    posenet: str | None = None
+    process_std_mm: float = 0.4
+    process_std_deg: float = 0.8
+    filtered: bool = True
+    threads: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (self.process_std_mm > 0 and self.process_std_deg > 0):
+            raise ValueError(f"process stds must be > 0, got {self.process_std_mm} mm, {self.process_std_deg} deg")
+
+
+class TactileEstimator:
+    """Image -> (mean (4,), std (4,)) of :data:`STATE_VARIABLES`; call :meth:`reset` at each episode start."""
+
+    def __init__(self, config: EstimatorConfig = EstimatorConfig()) -> None:
+        import torch
+
+        from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
+        from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
+
+        if config.threads:
+            torch.set_num_threads(config.threads)
+        self.config = config
+        path = Path(config.posenet) if config.posenet else shipped_posenet_path("surface")
+        self.model, self.card = load_posenet(path)
+        names = self.model.variables.names
+        missing = [name for name in STATE_VARIABLES if name not in names]
+        if missing:
+            raise ValueError(f"{path}: the GDNN predicts {names}, the estimator needs {STATE_VARIABLES} "
+                             f"(missing {missing})")
+        self._index = [names.index(name) for name in STATE_VARIABLES]
+        specs = [self.model.variables.variables[i] for i in self._index]
+        process = (config.process_std_mm,) * 3 + (config.process_std_deg,)
+        self._filter = DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
+            specs, process, prior_std=(math.inf,) * 4))
+        self._size = self.model.config.image_size_px
+        self._started = False
+
+    def reset(self) -> None:
+        """Forget the belief: the next reading starts it afresh."""
+        self._started = False
+
+    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The GDNN's reading of one image, uint8 (H, W) or (1, H, W): (mean (4,), std (4,)) of the state."""
+        import cv2
+        import torch
+
+        image = np.asarray(tactile)
+        if image.ndim == 3 and image.shape[0] == 1:
+            image = image[0]
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise ValueError(f"tactile must be a uint8 (H, W) or (1, H, W) image, got {image.dtype} {image.shape}")
+        if image.shape != (self._size, self._size):
+            image = cv2.resize(image, (self._size, self._size), interpolation=cv2.INTER_AREA)
+        with torch.inference_mode():
+            mean, std = self.model(torch.from_numpy(image)[None, None].to(torch.float32) / 255.0)
+            mean, std = self.model.decode(mean, std)
+        return mean[0, self._index].numpy().astype(np.float64), std[0, self._index].numpy().astype(np.float64)
+
+    def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Fuse one image; ``commanded_move`` (dx, dy, dz mm, dRz deg) is the move sent since the last image.
+
+        Returns the state estimate (mean (4,), std (4,)).
+        """
+        reading_mean, reading_std = self.read(tactile)
+        if not self.config.filtered:
+            return reading_mean, reading_std
+        if not self._started:
+            self._filter.reset(reading_mean, np.diag(reading_std ** 2))
+            self._started = True
+            return self._filter.mean, self._filter.std
+        delta = None
+        if commanded_move is not None:
+            dx, dy, dz, drz = np.asarray(commanded_move, dtype=np.float64)
+            delta = np.array([dz, dx, dy, drz])
+        return self._filter.step(delta, reading_mean, reading_std)

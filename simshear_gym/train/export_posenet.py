@@ -1,0 +1,105 @@
+"""Ship a posenet run: ``simshear train export-posenet --run RUN --contact C --to WEIGHTS.pt --train-command ...``.
+
+Copies the run's best GDNN into a weights file with a card (training command, run config, best holdout NLL, and a
+check figure: the per-variable MAE on the first ``--check-rows`` rows of the real ``<contact>_shear`` validation
+set, which ``tests/test_shipped_posenet.py`` reproduces), and writes the Markdown model card beside it from the
+``simshear evaluate posenet`` results of that run (``--results``, the model named ``--result-name``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+
+
+def check_figure(weights: Path, contact: str, rows: int, data: str | None = None) -> dict:
+    """Per-variable MAE (mm / deg) of a weights file on the first ``rows`` real validation rows."""
+    import numpy as np
+
+    from simshear_gym.data.paths import data_root, real_set_dir
+    from simshear_gym.data.tactile_set import read_set
+    from simshear_gym.evaluate.posenet import errors, predict, truth_labels
+    from simshear_gym.models.posenet_io import load_posenet
+
+    model, _ = load_posenet(weights)
+    val = read_set(real_set_dir(data_root(data), contact, "shear", "val"))
+    truth = truth_labels(val, model.variables)[:rows]
+    mean, std = model.variables.decode(*predict(model, val.load_images()[:rows]))
+    mae = np.abs(errors(mean.numpy(), truth, model.variables)).mean(axis=0)
+    return {"kind": "shear", "rows": rows, "mae": {name: float(v) for name, v in zip(model.variables.names, mae)}}
+
+
+def write_card(weights: Path, card: dict, results: dict | None, result_name: str, date: str) -> Path:
+    """``<weights>.md``: data, exact commands, metrics, date."""
+    config = card.get("train_config", {})
+    params = card.get("parameters")
+    lines = [
+        f"# Pose-and-shear GDNN, {card['contact']} contacts",
+        "",
+        f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp32, {params / 1e6:.2f} M parameters)",
+        f"- Date: {date}",
+        f"- Architecture: GDNN, {config.get('image_size_px')} px input, conv channels {config.get('conv_channels')} "
+        f"kernels {config.get('conv_kernels')}, dense {config.get('dense')}; outputs mean and std per variable "
+        f"({', '.join(card.get('variables', []))}).",
+        f"- Data: images from source `{config.get('source')}` of the paired sets {config.get('paired_dirs')} "
+        "(our sim renders of the real tactip331 training rows; `shpix2pix` = translated by the shipped shPix2pix of "
+        f"this contact type); {100 * config.get('holdout', 0):.0f} % of them held out for early stopping. The real "
+        "validation images were not used in training or selection.",
+        f"- Objective: beta-NLL (beta {config.get('beta')}); Adam lr {config.get('lr')}, batch "
+        f"{config.get('batch_size')}, shift augmentation {config.get('shift')}, seed {config.get('seed')}, "
+        f"{config.get('threads')} CPU thread(s).",
+        f"- Training: best holdout NLL {card.get('holdout_nll', float('nan')):.3f} at epoch {card.get('epoch')}, "
+        f"{card.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU.",
+        f"- Exact commands: `simshear collect --replay-all --out runs/paired`, then `{card.get('train_command')}`, "
+        f"then `simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`.",
+    ]
+    if results is not None and result_name in results.get("models", {}):
+        figures = results["models"][result_name]
+        lines += ["", "## Metrics on the real validation images", "",
+                  f"From `{results.get('command')}` ({figures['rows']} rows of {results.get('set')}; model "
+                  f"`{result_name}`), mean NLL {figures['mean_nll']:.3f}:", "",
+                  "| variable | MAE | chance MAE | within 1 std | within 2 std |", "|---|---|---|---|---|"]
+        for name, row in figures["variables"].items():
+            lines.append(f"| {name} ({row['unit']}) | {row['mae']:.3f} | {row['chance_mae']:.3f} | "
+                         f"{row['within_1_std']:.2f} | {row['within_2_std']:.2f} |")
+    check = card.get("check")
+    if check:
+        lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real "
+                      f"`{card['contact']}_shear` validation set: "
+                      + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())]
+    path = weights.with_suffix(".md")
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", type=Path, required=True, help="posenet run directory (best.pt, config.json)")
+    parser.add_argument("--contact", choices=("surface", "edge"), required=True)
+    parser.add_argument("--to", type=Path, required=True, help="weights file to write")
+    parser.add_argument("--train-command", required=True, help="the exact command that trained the run")
+    parser.add_argument("--results", type=Path, default=None, help="results json of simshear evaluate posenet")
+    parser.add_argument("--result-name", default="shpix2pix", help="the model's name in --results")
+    parser.add_argument("--check-rows", type=int, default=64)
+    parser.add_argument("--data", default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    from simshear_gym.models.posenet_io import load_posenet, save_posenet
+
+    model, best_card = load_posenet(args.run / "best.pt")
+    if model.variables.name != args.contact:
+        raise ValueError(f"{args.run / 'best.pt'}: predicts the {model.variables.name!r} variables, not "
+                         f"{args.contact!r}")
+    config = json.loads((args.run / "config.json").read_text())
+    card = {**best_card, "contact": args.contact, "train_command": args.train_command, "train_config": config,
+            "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters())}
+    args.to.parent.mkdir(parents=True, exist_ok=True)
+    save_posenet(args.to, model, card)
+    card["check"] = check_figure(args.to, args.contact, args.check_rows, args.data)
+    save_posenet(args.to, model, card)
+    results = json.loads(args.results.read_text()) if args.results else None
+    md = write_card(args.to, card, results, args.result_name, datetime.date.today().isoformat())
+    print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.2f} MiB) and {md}; check: {card['check']}")
+    return 0

@@ -1,0 +1,72 @@
+"""Servo control: the PI law on a moving contact, anti-windup, and the estimator + law on images."""
+
+import numpy as np
+import pytest
+import torch
+
+from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
+from simshear_gym.control.servo import SERVO_GAINS, PIGains, PILaw, ServoController
+from simshear_gym.models.gdnn import GDNN, GDNNConfig
+from simshear_gym.models.posenet_io import save_posenet
+
+torch.set_num_threads(1)
+SCALE = np.array([1.0, 1.0, 1.0, 2.0])
+
+
+def test_pi_law_removes_the_lag_behind_a_ramp():
+    """The contact drifts 0.3 mm per step in x; the law's moves keep the sensor on its target with no lag."""
+    law = PILaw(reference_depth_mm=4.0, action_scale=SCALE, gains=PIGains(kp=(1, 1, 1, 1), ki=(0.5, 0.5, 0.5, 0.5)))
+    offset = 0.0  # sensor displacement from its target = shear x
+    history = []
+    for _ in range(60):
+        action = law(np.array([4.0, offset, 0.0, 0.0]))
+        offset += action[0] * SCALE[0] - 0.3  # our move, minus the contact's drift
+        history.append(offset)
+    assert abs(history[-1]) < 1e-3
+    proportional = PILaw(4.0, SCALE, PIGains(kp=(1, 1, 1, 1), ki=(0, 0, 0, 0)))
+    offset = 0.0
+    for _ in range(60):
+        offset += proportional(np.array([4.0, offset, 0.0, 0.0]))[0] - 0.3
+    assert offset == pytest.approx(-0.3, abs=1e-3)  # a P law keeps one step's drift behind
+
+
+def test_pi_law_depth_sign_saturation_and_anti_windup():
+    law = PILaw(4.0, SCALE, PIGains(kp=(1, 1, 1, 1), ki=(0.5, 0.5, 0.5, 0.5), integral_limit=1.0))
+    action = law(np.array([3.0, 0.0, 0.0, 0.0]))  # 1 mm too shallow: push in (+z)
+    assert action[2] > 0 and np.all(np.abs(action) <= 1)
+    for _ in range(200):  # a stuck, large error saturates; the integral stays bounded
+        law(np.array([4.0, 50.0, 0.0, 0.0]))
+    assert np.abs(law._integral[0] * 0.5) <= 1.0 + 1e-9
+    with pytest.raises(ValueError, match="4 finite values"):
+        law(np.array([np.nan, 0, 0, 0]))
+    with pytest.raises(ValueError, match="kp and ki need 4"):
+        PIGains(kp=(1, 1, 1))
+
+
+@pytest.fixture(scope="module")
+def tiny_posenet(tmp_path_factory):
+    torch.manual_seed(0)
+    return save_posenet(tmp_path_factory.mktemp("gdnn") / "gdnn.pt", GDNN(GDNNConfig(variables="surface")).eval())
+
+
+def test_estimator_reads_filters_and_rejects_bad_images(tiny_posenet):
+    estimator = TactileEstimator(EstimatorConfig(posenet=str(tiny_posenet)))
+    image = np.zeros((1, 128, 128), np.uint8)
+    mean, std = estimator(image)
+    assert mean.shape == std.shape == (len(STATE_VARIABLES),) and np.all(std > 0)
+    _, filtered_std = estimator(image, commanded_move=np.zeros(4))
+    assert np.all(filtered_std < std)  # a second consistent reading narrows the belief
+    with pytest.raises(ValueError, match="uint8"):
+        estimator(np.zeros((128, 128), np.float32))
+
+
+def test_servo_controller_gives_bounded_actions(tiny_posenet):
+    controller = ServoController(4.0, SCALE, SERVO_GAINS, EstimatorConfig(posenet=str(tiny_posenet)))
+    controller.reset()
+    for _ in range(3):
+        action = controller({"tactile": np.random.default_rng(0).integers(0, 255, (1, 128, 128), dtype=np.uint8)})
+        assert action.shape == (4,) and action.dtype == np.float32 and np.all(np.abs(action) <= 1)
+    assert action[3] == 0.0  # Rz is not controlled by default
+    assert controller.last_estimate is not None
+    with pytest.raises(ValueError, match="tactile"):
+        controller({"tcp_pose": np.zeros(4)})
