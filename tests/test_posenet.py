@@ -150,10 +150,25 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     run_dir = tmp_path / "run"
     PosenetTrainer(tiny_config(epochs=1), run_dir, toy_labelled()).fit(progress=False)
     out = tmp_path / "results"
-    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}"], contact="surface", data=root, rows=5, out=out,
-                     name="posenet")
+    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}", f"real={tmp_path / 'r{contact}n' / 'best.pt'}"],
+                     contact=["surface"], data=root, rows=5, out=out, name="posenet")
+    (tmp_path / "rsurfacen").mkdir()
+    (tmp_path / "rsurfacen" / "best.pt").write_bytes((run_dir / "best.pt").read_bytes())
     assert evaluate_posenet.run(args) == 0
     result = json.loads((out / "posenet.json").read_text())
-    assert "--contact surface" in result["command"] and (out / "posenet.png").is_file()
-    figures = result["models"]["tiny"]
+    assert "--contact surface" in result["command"] and (out / "posenet_surface.png").is_file()
+    figures = result["contacts"]["surface"]["models"]["tiny"]
     assert figures["rows"] == 5 and set(figures["variables"]) == set(variable_set("surface").names)
+
+
+def test_acceptance_compares_only_variables_the_reference_reads():
+    def model(maes, chances):
+        return {"variables": {f"v{i}": {"mae": m, "chance_mae": c} for i, (m, c) in enumerate(zip(maes, chances))}}
+
+    models = {"real": model([0.1, 2.0], [1.0, 2.0]), "shpix2pix": model([0.11, 5.0], [1.0, 2.0])}
+    result = evaluate_posenet.acceptance(models)
+    assert result["met"] and result["variables"]["v0"]["reference_reads"]
+    assert not result["variables"]["v1"]["reference_reads"]  # at chance: not compared
+    models["shpix2pix"] = model([0.13, 2.0], [1.0, 2.0])
+    assert not evaluate_posenet.acceptance(models)["met"]
+    assert evaluate_posenet.acceptance({"real": models["real"]}) == {}
