@@ -33,10 +33,22 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "ship a translator run as fp16 weights with a check figure"),
     (("train", "posenet"), "simshear_gym.train.posenet",
      "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
+    (("train", "export-posenet"), "simshear_gym.train.export_posenet",
+     "ship a posenet run's best GDNN with its model card"),
     (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",
      "pose-and-shear GDNN errors on the real validation images, against chance"),
+    (("evaluate", "filter"), "simshear_gym.evaluate.posenet_filter",
+     "the Bayesian filter against raw GDNN readings on simulated, translated contact sequences"),
     (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
+    (("evaluate", "oracle"), "simshear_gym.evaluate.oracle",
+     "contact error of the oracle controller on every SimShearTracking-v0 trajectory"),
+    (("evaluate", "env-speed"), "simshear_gym.evaluate.env_speed",
+     "steps per second of SimShearTracking-v0 (real images), one process and vectorised"),
+    (("rollout",), "simshear_gym.real.rollout",
+     "run the servo controller or an SB3 policy on the real (or emulated) MG400 with the TacTip, logging every step"),
+    (("evaluate", "real-cycle"), "simshear_gym.evaluate.real_cycle",
+     "compute per control cycle of the real path: preprocess, estimator, filter, servo law, ServoP to the emulator"),
 )
 
 

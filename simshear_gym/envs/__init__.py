@@ -1,0 +1,29 @@
+"""Gymnasium envs. ``import simshear_gym.envs`` registers them (string entry points: nothing heavy is imported
+until ``gymnasium.make``):
+
+- ``SimShearTracking-v0`` (:class:`simshear_gym.envs.tracking.SimShearTrackingEnv`), 500 steps per episode;
+  ``gymnasium.make_vec`` builds :class:`simshear_gym.envs.vector.SimShearVectorEnv` (sub-envs stepped in worker
+  processes, their images translated in batches) unless ``vectorization_mode`` is ``"sync"`` or ``"async"``.
+- ``SimShearCoLift-v0`` (:class:`simshear_gym.envs.colift.SimShearCoLiftEnv`), 500 steps per episode; the same
+  batched vector env.
+"""
+
+from gymnasium.envs.registration import register, registry
+
+ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0")
+
+if "SimShearTracking-v0" not in registry:
+    register(
+        id="SimShearTracking-v0",
+        entry_point="simshear_gym.envs.tracking:SimShearTrackingEnv",
+        vector_entry_point="simshear_gym.envs.vector:make_tracking_vector_env",
+        max_episode_steps=500,
+    )
+
+if "SimShearCoLift-v0" not in registry:
+    register(
+        id="SimShearCoLift-v0",
+        entry_point="simshear_gym.envs.colift:SimShearCoLiftEnv",
+        vector_entry_point="simshear_gym.envs.colift:make_colift_vector_env",
+        max_episode_steps=500,
+    )

@@ -1,0 +1,561 @@
+"""What the SimShear envs share: the follower arm with its TacTip, actions, observations, translation, the
+contact bookkeeping (shear, depth, contact error), reward, termination and the rgb render.
+
+How a task plugs in (``SimShearTracking-v0`` in :mod:`simshear_gym.envs.tracking` is the worked example; a
+``SimShearCoLift-v0`` subclasses the same way): subclass :class:`SimShearEnv`, call ``super().__init__(...)``
+(after ``EzPickle.__init__(self, **your_kwargs)`` so the env pickles), and implement five hooks:
+
+- ``_build_scene()``: spawn the task's bodies into ``self.world``, create the follower with
+  :meth:`SimShearEnv._add_follower` and any other arm with :meth:`SimShearEnv._add_arm` (added arms are moved on
+  by the base every step), and set ``self.face_half_extents_mm`` (the touched face's half size, x and y).
+- ``_reset_scene(rng, options)``: put everything at the episode's start, drawing all randomness from ``rng``;
+  the follower must end in contact (:meth:`SimShearEnv.T_world_sensor_on_face` gives the sensor pose at a point
+  of the face at a depth). Its pose then is the target the contact error is measured against.
+- ``_command_scene(time_s, dt_s)``: send the servo commands that take the task (leader arm) to ``time_s``.
+- ``_sync_scene()``: move bodies that follow arms (a held plate or object) to where the arms now are.
+- ``_T_world_face()``: the touched face's frame (origin on the face, z out of the face, like a stimulus frame).
+
+Optionally override ``_task_info()`` (extra info entries), ``_reward``/``_termination``, and for a horizontal
+sensor (co-lift) ``_sensor_target`` (the action's rotation about the vertical, as a level flange allows) and
+``_oracle_variables`` (which four pose/shear variables the oracle sees), passing the horizontal mount to
+``_add_follower``. Everything else (actions, observations and translation, shear, contact error, reward,
+termination, render, pickling, the batched vector env of :mod:`simshear_gym.envs.vector`) comes with the base.
+
+Frames: the **sensor** frame is the TacTip's (apex origin, +z out of the dome into the face); the **work** frame
+of a face is the labels' frame (z into the face, at the face plus ``ReplayGeometry.surface_depth_mm``), so the
+sensor's pose in it is a label pose and its z is the depth a pose-and-shear network predicts.
+
+Images: the TacTip renders at 128 px (the translator's size); for ``image_size_px=64`` the finished 128 px image
+(sim, or translated) is averaged over 2x2 pixels, so a 64 px observation is the 128 px one at half resolution in
+every mode. The translator's shear input is the tracker's shear with its z component zeroed: the paired training
+data never moved along z during a shear (indentation shows in the sim image itself).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from simshear_gym.data.labels import wrap_deg
+from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
+from simshear_gym.sim.mg400_kinematics import KinematicsError
+from simshear_gym.sim.replay import ReplayGeometry
+from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
+from simshear_gym.sim.tactip import TacTip, TacTipConfig
+from simshear_gym.sim.transforms import invert, matrix_to_pose, pose_to_matrix
+from simshear_gym.sim.world import World
+
+OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
+TRANSLATED_MODES: tuple[str, ...] = ("real", "oracle_real")
+ORACLE_MODES: tuple[str, ...] = ("oracle", "oracle_real")
+IMAGE_SIZES_PX: tuple[int, ...] = (64, 128)
+RENDER_SIZE_PX = 128  # the TacTip renders at the translator's size
+SURFACE_DEPTH_MM = ReplayGeometry().surface_depth_mm  # work-frame z of the face (label convention)
+_TRANSLATOR_SHEAR_MASK = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0])  # z: see the module docstring
+
+# Observation bounds: wide enough that a running episode never leaves them (it terminates long before).
+TCP_POSE_LOW = np.array([-1000.0, -1000.0, -1000.0, -720.0], dtype=np.float32)
+TRUE_POSE_SHEAR_LIMIT = np.array([50.0, 50.0, 50.0, 180.0], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class TacTipMount:
+    """How the TacTip sits on the follower's flange: ``T_flange_sensor`` = down ``tcp_offset_mm`` along the
+    flange's -z (the flange faces down), turned ``mount_rz_deg`` about the axis, with the sensor's +z pointing
+    down (a half turn about x, so sensor y = -flange y).
+
+    Attributes:
+        tcp_offset_mm: flange to dome apex (TacTip body 85 mm plus a 10 mm adapter).
+        mount_rz_deg: rotation of the sensor about its axis on the flange.
+    """
+
+    tcp_offset_mm: float = 95.0
+    mount_rz_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tcp_offset_mm) and self.tcp_offset_mm > 0):
+            raise ValueError(f"TacTipMount.tcp_offset_mm must be > 0, got {self.tcp_offset_mm!r}")
+
+    def T_flange_sensor(self) -> np.ndarray:
+        return pose_to_matrix(np.array([0.0, 0.0, -self.tcp_offset_mm, 0.0, 0.0, self.mount_rz_deg])) @ np.diag(
+            [1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class ActionScale:
+    """Full-scale action (|a| = 1) per step, in the sensor frame: ``step_mm`` for x, y, z and ``step_deg`` for Rz."""
+
+    step_mm: float = 1.0
+    step_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (self.step_mm > 0 and self.step_deg > 0 and math.isfinite(self.step_mm + self.step_deg)):
+            raise ValueError(f"ActionScale needs step_mm, step_deg > 0, got {self.step_mm!r}, {self.step_deg!r}")
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.step_mm, self.step_mm, self.step_mm, self.step_deg])
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """``reward = alive_bonus - min(contact_error_mm / error_scale_mm, max_error_term)
+    - contact_loss_penalty * (not in contact)``. The alive bonus keeps ending an episode early unattractive."""
+
+    alive_bonus: float = 1.0
+    error_scale_mm: float = 5.0
+    max_error_term: float = 2.0
+    contact_loss_penalty: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not self.error_scale_mm > 0 or self.max_error_term < 0 or self.contact_loss_penalty < 0:
+            raise ValueError(f"RewardConfig: need error_scale_mm > 0 and non-negative terms, got {self}")
+
+
+@dataclass(frozen=True)
+class TerminationConfig:
+    """An episode ends when the sensor lifts more than ``lost_contact_mm`` off the face (or leaves the face's
+    extent), the contact error exceeds ``max_contact_error_mm``, the dome is pressed in deeper than
+    ``max_penetration_mm``, or an arm refuses a target."""
+
+    lost_contact_mm: float = 1.0
+    max_contact_error_mm: float = 15.0
+    max_penetration_mm: float = 5.0
+
+    def __post_init__(self) -> None:
+        if min(self.lost_contact_mm, self.max_contact_error_mm, self.max_penetration_mm) <= 0:
+            raise ValueError(f"TerminationConfig thresholds must be > 0, got {self}")
+
+
+@functools.lru_cache(maxsize=None)
+def shipped_translator(contact: str, arch: str = "shpix2pix"):
+    """The shipped translator for a contact type, loaded once per process (torch is imported here)."""
+    from simshear_gym.models.translator import load_shipped
+
+    return load_shipped(arch, contact)
+
+
+def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
+                   contact: str) -> np.ndarray:
+    """Raw 128 px sim images (B, 128, 128) -> observation images (B, S, S): translated in the translated
+    modes (one batched call), then halved for 64 px. Shared by the env and the batched vector env."""
+    images = np.asarray(sim_uint8)
+    if obs_mode in TRANSLATED_MODES:
+        shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6) * _TRANSLATOR_SHEAR_MASK
+        images = shipped_translator(contact)(images, shear.astype(np.float32))
+    if image_size_px != RENDER_SIZE_PX:
+        factor = RENDER_SIZE_PX // image_size_px
+        batch = images.shape[0]
+        images = images.reshape(batch, image_size_px, factor, image_size_px, factor).mean(axis=(2, 4))
+        images = np.rint(images).astype(np.uint8)
+    return images
+
+
+def pose_from_matrix_fast(matrix: np.ndarray) -> np.ndarray:
+    """:func:`~simshear_gym.sim.transforms.matrix_to_pose` without scipy's per-call overhead (same extrinsic
+    x-y-z angles away from Ry = +-90 deg, which a level face and a vertical sensor never approach)."""
+    rotation = matrix[:3, :3]
+    rx = math.atan2(rotation[2, 1], rotation[2, 2])
+    ry = -math.asin(max(-1.0, min(1.0, rotation[2, 0])))
+    rz = math.atan2(rotation[1, 0], rotation[0, 0])
+    return np.array([matrix[0, 3], matrix[1, 3], matrix[2, 3], math.degrees(rx), math.degrees(ry), math.degrees(rz)])
+
+
+def pybullet_pose_fast(matrix_mm: np.ndarray) -> tuple[list[float], list[float]]:
+    """:func:`~simshear_gym.sim.transforms.matrix_to_pybullet` (position in m, quaternion xyzw), without scipy."""
+    m = matrix_mm
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0.0:
+        k = 0.5 / math.sqrt(trace + 1.0)
+        quaternion = [(m[2, 1] - m[1, 2]) * k, (m[0, 2] - m[2, 0]) * k, (m[1, 0] - m[0, 1]) * k, 0.25 / k]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        k = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        quaternion = [0.25 * k, (m[0, 1] + m[1, 0]) / k, (m[0, 2] + m[2, 0]) / k, (m[2, 1] - m[1, 2]) / k]
+    elif m[1, 1] > m[2, 2]:
+        k = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        quaternion = [(m[0, 1] + m[1, 0]) / k, 0.25 * k, (m[1, 2] + m[2, 1]) / k, (m[0, 2] - m[2, 0]) / k]
+    else:
+        k = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        quaternion = [(m[0, 2] + m[2, 0]) / k, (m[1, 2] + m[2, 1]) / k, 0.25 * k, (m[1, 0] - m[0, 1]) / k]
+    return [m[0, 3] / 1000.0, m[1, 3] / 1000.0, m[2, 3] / 1000.0], quaternion
+
+
+def rz_matrix(rz_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(rz_deg)), math.sin(math.radians(rz_deg))
+    return np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ContactState:
+    """The follower's contact after a step (sensor frame / labels' conventions, mm and deg)."""
+
+    pose_work: np.ndarray  # (6,) sensor pose in the face's work frame (a label pose)
+    penetration_mm: float  # apex below the face (negative: above it)
+    on_face: bool  # the apex lies within the face's extent
+    in_contact: bool
+    shear_sensor: np.ndarray  # (6,) ShearTracker output, sensor frame
+    contact_error_mm: float  # |apex - target point carried with the face|
+    rz_error_deg: float  # sensor Rz relative to the face minus the target's
+    T_world_sensor: np.ndarray
+
+    @property
+    def depth_mm(self) -> float:
+        return float(self.pose_work[2])
+
+    def true_pose_shear(self) -> np.ndarray:
+        """float32 (4,): depth (label z), shear x, shear y (mm), shear Rz (deg), sensor frame."""
+        values = np.array([self.depth_mm, self.shear_sensor[0], self.shear_sensor[1], self.shear_sensor[5]])
+        return np.clip(values, -TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT).astype(np.float32)
+
+
+class SimShearEnv(gym.Env, EzPickle):
+    """Base of the SimShear envs (abstract: see the module docstring for the hooks a task implements).
+
+    Args:
+        obs_mode: ``"real"`` (TacTip image translated by the shipped shPix2pix translator), ``"sim"`` (raw depth
+            image), ``"oracle"`` (sim image plus ``true_pose_shear``), ``"oracle_real"`` (translated image plus
+            ``true_pose_shear``).
+        image_size_px: 128 or 64 (see the module docstring).
+        control_rate_hz: steps per second of simulated time; each step's servo command takes one period.
+        render_mode: None or ``"rgb_array"``.
+        reference_depth_mm: the depth to keep, label convention (face at ``SURFACE_DEPTH_MM`` = 2.2 mm).
+        action_scale, reward, termination, mount, arm_config, shear_config: see their classes.
+        raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
+            caller (the batched vector env); the observation space's image is then 1x128x128.
+    """
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    translator_contact = "surface"
+
+    def __init__(self, *, obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
+                 render_mode: str | None = None, reference_depth_mm: float = 4.0,
+                 action_scale: ActionScale = ActionScale(), reward: RewardConfig = RewardConfig(),
+                 termination: TerminationConfig = TerminationConfig(), mount: TacTipMount = TacTipMount(),
+                 arm_config: MG400ArmConfig = MG400ArmConfig(),
+                 shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False) -> None:
+        if obs_mode not in OBS_MODES:
+            raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
+        if image_size_px not in IMAGE_SIZES_PX:
+            raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
+        if not (isinstance(control_rate_hz, (int, float)) and 1.0 <= control_rate_hz <= 250.0):
+            raise ValueError(f"control_rate_hz must be in [1, 250] Hz, got {control_rate_hz!r}")
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if not SURFACE_DEPTH_MM < reference_depth_mm < SURFACE_DEPTH_MM + termination.max_penetration_mm:
+            raise ValueError(
+                f"reference_depth_mm must put the dome into the face: within ({SURFACE_DEPTH_MM}, "
+                f"{SURFACE_DEPTH_MM + termination.max_penetration_mm}) mm, got {reference_depth_mm!r}")
+        self.obs_mode = obs_mode
+        self.image_size_px = image_size_px
+        self.control_rate_hz = float(control_rate_hz)
+        self.dt_s = 1.0 / self.control_rate_hz
+        self.render_mode = render_mode
+        self.reference_depth_mm = float(reference_depth_mm)
+        self.action_scale = action_scale
+        self.reward_config = reward
+        self.termination_config = termination
+        self.mount = mount
+        self.arm_config = arm_config
+        self.raw_tactile = raw_tactile
+        self.metadata = {**self.metadata, "render_fps": self.control_rate_hz}
+
+        self.world = World()
+        self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
+        self.shear_tracker = ShearTracker(shear_config)
+        self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
+        self.T_work_face[2, 3] = SURFACE_DEPTH_MM
+        self._T_face_work = invert(self.T_work_face)
+        self.follower: SimMG400 | None = None
+        self._arms: list[SimMG400] = []
+        self.face_half_extents_mm = (np.inf, np.inf)
+        self._build_scene()
+        if self.follower is None:
+            raise TypeError(f"{type(self).__name__}._build_scene must create the follower with _add_follower()")
+
+        image_px = RENDER_SIZE_PX if raw_tactile else image_size_px
+        observations = {
+            "tactile": spaces.Box(0, 255, (1, image_px, image_px), dtype=np.uint8),
+            "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
+        }
+        if obs_mode in ORACLE_MODES:
+            observations["true_pose_shear"] = spaces.Box(-TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT,
+                                                         dtype=np.float32)
+        self.observation_space = spaces.Dict(observations)
+        self.action_space = spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+
+        self._time_s = 0.0
+        self._steps_out_of_contact = 0
+        self._target_face_mm = np.zeros(3)
+        self._target_rz_deg = 0.0
+        self._state: ContactState | None = None
+        self._last_tactile: np.ndarray | None = None
+        self._scene_bodies: dict[str, int] = {}
+
+    # ------------------------------------------------------------ task hooks
+    def _build_scene(self) -> None:
+        raise NotImplementedError
+
+    def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
+        raise NotImplementedError
+
+    def _command_scene(self, time_s: float, dt_s: float) -> None:
+        raise NotImplementedError
+
+    def _sync_scene(self) -> None:
+        raise NotImplementedError
+
+    def _T_world_face(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def _task_info(self) -> dict[str, Any]:
+        return {}
+
+    def _sensor_target(self, T_world_sensor: np.ndarray, move: np.ndarray) -> np.ndarray:
+        """Where a scaled action ``(dx, dy, dz mm, dRz deg)`` sends the sensor: a move in the sensor frame and a
+        turn about its axis (vertical for a downward sensor). A horizontal-sensor task overrides this to turn
+        about the vertical instead, the only rotation a level MG400 flange has."""
+        T_move = rz_matrix(move[3])
+        T_move[:3, 3] = move[:3]
+        return T_world_sensor @ T_move
+
+    def _oracle_variables(self, state: ContactState) -> np.ndarray:
+        """``true_pose_shear``: depth, shear x, y, Rz (override with the task's four variables)."""
+        return state.true_pose_shear()
+
+    # --------------------------------------------------------- for the tasks
+    def _add_arm(self, T_world_base: np.ndarray, pose_mm_deg: np.ndarray,
+                 T_flange_tool: np.ndarray = np.eye(4)) -> SimMG400:
+        """An MG400 that the base moves on every step. Its link boxes exist only with a render mode: TinyRenderer
+        transforms every shape in the world for each tactile image too (10 boxes: +0.08 ms on ~1 ms)."""
+        arm = SimMG400(self.world, T_world_base, pose_mm_deg, T_flange_tool, self.arm_config,
+                       bodies=self.render_mode is not None)
+        self._arms.append(arm)
+        return arm
+
+    def _add_follower(self, T_world_base: np.ndarray, pose_mm_deg: np.ndarray,
+                      T_flange_sensor: np.ndarray | None = None) -> SimMG400:
+        """The MG400 carrying the TacTip; its tool point is the sensor's TCP. ``T_flange_sensor`` defaults to
+        ``mount.T_flange_sensor()`` (pointing down); a task with a horizontal sensor passes its own."""
+        T_flange_sensor = self.mount.T_flange_sensor() if T_flange_sensor is None else T_flange_sensor
+        self.follower = self._add_arm(T_world_base, pose_mm_deg, T_flange_sensor)
+        return self.follower
+
+    def T_world_sensor_on_face(self, T_world_face: np.ndarray, x_work_mm: float, y_work_mm: float,
+                               depth_mm: float, rz_work_deg: float = 0.0) -> np.ndarray:
+        """Sensor pose at a point of a face given in its work frame (label pose ``(x, y, depth, 0, 0, Rz)``)."""
+        pose_work = np.array([x_work_mm, y_work_mm, depth_mm, 0.0, 0.0, rz_work_deg])
+        return T_world_face @ self._T_face_work @ pose_to_matrix(pose_work)
+
+    # ------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.shear_tracker.reset()
+        self._time_s = 0.0
+        self._steps_out_of_contact = 0
+        self._reset_scene(self.np_random, options)
+        self._sync_scene()
+        for arm in self._arms:
+            arm.update_bodies()
+        T_face_sensor = invert(self._T_world_face()) @ self.follower.T_world_tool()
+        self._target_face_mm = T_face_sensor[:3, 3].copy()
+        self._target_rz_deg = float(matrix_to_pose(self._T_face_work @ T_face_sensor)[5])
+        state = self._measure()
+        if not state.in_contact:
+            raise RuntimeError(f"{type(self).__name__}._reset_scene left the sensor out of contact "
+                               f"(penetration {state.penetration_mm:.3f} mm)")
+        self._state = state
+        return self._observation(state), self._info(state, "")
+
+    def step(self, action):
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        move = self._action_to_move(action)
+        arm_error = ""
+        try:
+            self.follower.servo_tool(self._sensor_target(self._state.T_world_sensor, move), self.dt_s)
+        except ValueError as error:  # LimitError / UnreachableError: the real arm refuses (alarm)
+            arm_error = f"follower refused the target: {error}"
+        self._time_s += self.dt_s
+        try:
+            self._command_scene(self._time_s, self.dt_s)
+        except KinematicsError as error:
+            arm_error = arm_error or f"leader refused the target: {error}"
+        for arm in self._arms:
+            try:
+                arm.advance(self.dt_s)
+            except KinematicsError as error:
+                arm_error = arm_error or f"arm stopped at a limit: {error}"
+        self._sync_scene()
+        state = self._measure()
+        self._state = state
+        self._steps_out_of_contact += int(not state.in_contact)
+        reason = self._termination(state, arm_error)
+        info = self._info(state, reason)
+        if arm_error:
+            info["arm_error"] = arm_error
+        return self._observation(state), float(self._reward(state)), bool(reason), False, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        return np.concatenate([self._scene_view(), self._tactile_view()], axis=1)
+
+    def close(self) -> None:
+        self.world.close()
+
+    def __getstate__(self) -> dict:
+        """Pickled: the construction arguments (EzPickle) and the registry spec; a copy is a fresh env that
+        behaves like the original after the same ``reset(seed=...)``."""
+        return {**EzPickle.__getstate__(self), "spec": self.spec}
+
+    def __setstate__(self, state: dict) -> None:
+        state = dict(state)
+        spec = state.pop("spec", None)
+        EzPickle.__setstate__(self, state)
+        self.spec = spec
+
+    # -------------------------------------------------------------- pieces
+    def _action_to_move(self, action) -> np.ndarray:
+        """Validate an action and scale it to a sensor-frame move ``(dx, dy, dz mm, dRz deg)``."""
+        array = np.asarray(action, dtype=np.float64)
+        if array.shape != (4,):
+            raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
+        if not np.all(np.isfinite(array)):
+            raise ValueError(f"action must be finite, got {array.tolist()}")
+        if np.any(np.abs(array) > 1.0 + 1e-6):
+            raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
+        return np.clip(array, -1.0, 1.0) * self.action_scale.as_array()
+
+    def _measure(self) -> ContactState:
+        T_world_sensor = self.follower.T_world_tool()
+        T_world_face = self._T_world_face()
+        T_face_sensor = invert(T_world_face) @ T_world_sensor
+        penetration = -float(T_face_sensor[2, 3])
+        half_x, half_y = self.face_half_extents_mm
+        on_face = abs(T_face_sensor[0, 3]) <= half_x and abs(T_face_sensor[1, 3]) <= half_y
+        in_contact = on_face and penetration > 0.0
+        pose_work = pose_from_matrix_fast(self.T_work_face @ T_face_sensor)
+        shear = self.shear_tracker.update(pose_work, in_contact)
+        target_world = T_world_face[:3, :3] @ self._target_face_mm + T_world_face[:3, 3]
+        error = float(np.linalg.norm(T_world_sensor[:3, 3] - target_world))
+        return ContactState(pose_work, penetration, bool(on_face), bool(in_contact), shear, error,
+                            float(wrap_deg(pose_work[5] - self._target_rz_deg)), T_world_sensor)
+
+    def _observation(self, state: ContactState) -> dict[str, np.ndarray]:
+        sim = self.tactip.render(state.T_world_sensor)
+        if self.raw_tactile:
+            image = sim
+        else:
+            image = finish_tactile(sim[None], state.shear_sensor[None], self.obs_mode, self.image_size_px,
+                                   self.translator_contact)[0]
+        self._last_tactile = image
+        tcp = np.clip(self.follower.tool_pose_mm_deg(), TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)
+        obs = {"tactile": image[None], "tcp_pose": tcp}
+        if self.obs_mode in ORACLE_MODES:
+            obs["true_pose_shear"] = self._oracle_variables(state)
+        return obs
+
+    def _info(self, state: ContactState, termination: str) -> dict[str, Any]:
+        return {
+            "contact_error_mm": state.contact_error_mm,
+            "rz_error_deg": state.rz_error_deg,
+            "in_contact": state.in_contact,
+            "penetration_mm": state.penetration_mm,
+            "depth_mm": state.depth_mm,
+            "shear_sensor_mm_deg": state.shear_sensor.copy(),
+            "sensor_world_mm": state.T_world_sensor[:3, 3].copy(),
+            "target_world_mm": self._target_world_mm(),
+            "time_s": self._time_s,
+            "steps_out_of_contact": self._steps_out_of_contact,
+            "termination": termination,
+            **self._task_info(),
+        }
+
+    def _target_world_mm(self) -> np.ndarray:
+        """(3,) the contact error's target point now, world frame, mm: the sensor's place at reset, carried with
+        the face."""
+        face = self._T_world_face()
+        return face[:3, :3] @ self._target_face_mm + face[:3, 3]
+
+    def _reward(self, state: ContactState) -> float:
+        config = self.reward_config
+        error_term = min(state.contact_error_mm / config.error_scale_mm, config.max_error_term)
+        return config.alive_bonus - error_term - config.contact_loss_penalty * (not state.in_contact)
+
+    def _termination(self, state: ContactState, arm_error: str) -> str:
+        """The reason the episode ends now, or ``""``."""
+        config = self.termination_config
+        if arm_error:
+            return "arm_limit"
+        if not state.on_face or state.penetration_mm < -config.lost_contact_mm:
+            return "contact_lost"
+        if state.contact_error_mm > config.max_contact_error_mm:
+            return "contact_error"
+        if state.penetration_mm > config.max_penetration_mm:
+            return "too_deep"
+        return ""
+
+    # -------------------------------------------------------------- render
+    _SCENE_SIZE_PX = (240, 180)  # width, height
+
+    def _scene_target_world_mm(self) -> np.ndarray:
+        return self._T_world_face()[:3, 3]
+
+    def _scene_view(self) -> np.ndarray:
+        """A small TinyRenderer view of the arms, the TacTip and the face, uint8 (180, 240, 3)."""
+        client = self.world.client
+        self._place_scene_bodies()
+        width, height = self._SCENE_SIZE_PX
+        target_m = (self._scene_target_world_mm() / 1000.0).tolist()
+        view = client.computeViewMatrixFromYawPitchRoll(target_m, 0.75, 35.0, -25.0, 0.0, 2)
+        projection = client.computeProjectionMatrixFOV(50.0, width / height, 0.02, 3.0)
+        import pybullet
+
+        _, _, rgba, _, _ = client.getCameraImage(width, height, view, projection, renderer=pybullet.ER_TINY_RENDERER,
+                                                 flags=pybullet.ER_NO_SEGMENTATION_MASK)
+        self._park_dome()
+        return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[..., :3].copy()
+
+    def _tactile_view(self) -> np.ndarray:
+        height = self._SCENE_SIZE_PX[1]
+        image = self._last_tactile if self._last_tactile is not None else np.zeros((RENDER_SIZE_PX,) * 2, np.uint8)
+        rows = np.minimum((np.arange(height) * image.shape[0]) // height, image.shape[0] - 1)
+        square = image[rows][:, rows]
+        return np.repeat(square[..., None], 3, axis=2)
+
+    def _place_scene_bodies(self) -> None:
+        """Arm boxes at their joints; the TacTip body (flange to camera) and dome, which the tactile camera
+        must never see, exist only for this view: the dome is parked far away again afterwards."""
+        import pybullet
+
+        client = self.world.client
+        for arm in self._arms:
+            arm.update_bodies()
+        tactip = self.tactip.config
+        body_mm = self.mount.tcp_offset_mm - tactip.camera_to_apex_mm  # flange to the camera
+        if not self._scene_bodies:
+            half_m = [0.02, 0.02, max(body_mm, 2.0) / 2000.0]
+            body = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=half_m, rgbaColor=[0.2, 0.2, 0.25, 1])
+            dome = client.createVisualShape(pybullet.GEOM_SPHERE, radius=tactip.dome_radius_mm / 1000.0,
+                                            rgbaColor=[0.95, 0.95, 0.95, 1])
+            self._scene_bodies = {"tactip_body": client.createMultiBody(baseVisualShapeIndex=body),
+                                  "tactip_dome": client.createMultiBody(baseVisualShapeIndex=dome)}
+        T_world_sensor = self.follower.T_world_tool()
+        # body: centred between the flange and 1 mm behind the camera, along the sensor axis
+        centre = np.array([0.0, 0.0, -(tactip.camera_to_apex_mm + 1.0 + max(body_mm, 2.0) / 2.0), 1.0])
+        T_body = T_world_sensor.copy()
+        T_body[:3, 3] = (T_world_sensor @ centre)[:3]
+        client.resetBasePositionAndOrientation(self._scene_bodies["tactip_body"], *pybullet_pose_fast(T_body))
+        T_dome = T_world_sensor.copy()
+        T_dome[:3, 3] = (T_world_sensor @ np.array([0.0, 0.0, -tactip.dome_radius_mm, 1.0]))[:3]
+        client.resetBasePositionAndOrientation(self._scene_bodies["tactip_dome"], *pybullet_pose_fast(T_dome))
+
+    def _park_dome(self) -> None:
+        self.world.client.resetBasePositionAndOrientation(self._scene_bodies["tactip_dome"], [0.0, 0.0, -50.0],
+                                                          [0.0, 0.0, 0.0, 1.0])

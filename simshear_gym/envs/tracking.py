@@ -1,0 +1,166 @@
+"""``SimShearTracking-v0``: follow a moving plate with a TacTip, keeping depth and place."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from gymnasium.utils import EzPickle
+
+from simshear_gym.envs.base import SimShearEnv, pybullet_pose_fast, rz_matrix
+from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.sim import stimuli
+from simshear_gym.sim.mg400_arm import SimMG400, T_base_flange_to_pose
+from simshear_gym.sim.transforms import invert, pose_to_matrix
+
+TRAJECTORY_CHOICES: tuple[str, ...] = TRAJECTORIES + ("random",)
+
+# Scene layout, world frame (mm): z up, z = 0 at both arms' J2 axes (their base frames' origin height).
+LEADER_T_WORLD_BASE = np.eye(4)
+# Both flanges start 310 mm out, mid-way in the MG400's reach (about 200-430 mm at these heights), so that every
+# randomised trajectory (up to 75 mm either way) stays inside both arms' limits.
+FOLLOWER_T_WORLD_BASE = pose_to_matrix(np.array([690.0, 0.0, 0.0, 0.0, 0.0, 180.0]))
+LEADER_START_POSE_MM_DEG = np.array([310.0, 0.0, -40.0, 0.0])  # leader flange, its base frame
+# The plate's top-face frame on the leader's flange: 70 mm out along the flange's x, 20 mm below it, turned a
+# half turn so that the plate's x (and the work frame's x) runs along the follower's flange x at the start.
+T_FLANGE_PLATE = pose_to_matrix(np.array([70.0, 0.0, -20.0, 0.0, 0.0, 180.0]))
+PLATE = stimuli.FlatSurface(size_mm=(120.0, 120.0, 10.0))
+
+
+class SimShearTrackingEnv(SimShearEnv):
+    """Keep a TacTip in contact with a plate that a leader MG400 moves along a trajectory.
+
+    Two MG400s face each other 690 mm apart. The **leader** holds a flat 120 x 120 mm plate, top face up, on a
+    bracket 70 mm beyond and 20 mm below its flange, and moves it along ``trajectory`` (see
+    :mod:`simshear_gym.envs.trajectories`: ``circle``, ``tilted_square``, ``spiral``, ``loop``, each turning the
+    plate about the vertical by up to 15 deg; the plate stays level). The **follower** carries the TacTip
+    pointing down (``TacTipMount``: apex 95 mm below the flange) and starts touching the plate at the reference
+    depth. Its task: keep that depth and its place on the plate (variables: depth z, shear x, shear y, shear Rz).
+    Both arms are kinematic MG400s in servo mode (:class:`~simshear_gym.sim.mg400_arm.SimMG400`): each step
+    sends one ServoP to each, reached within the control period.
+
+    **Action** ``Box(-1, 1, (4,), float32)``: a relative move of the sensor in its own frame per step:
+
+    ======  ============================  ======  =====================================
+    index   meaning                       unit    full scale (``ActionScale`` default)
+    ======  ============================  ======  =====================================
+    0, 1    dx, dy (in the plate plane)   mm      1 mm per step
+    2       dz (+: into the plate)        mm      1 mm per step
+    3       dRz about the sensor axis     deg     2 deg per step
+    ======  ============================  ======  =====================================
+
+    NaN, wrong shape or values outside [-1, 1] raise ``ValueError``.
+
+    **Observation** ``Dict``:
+
+    ===================  ==========================  ============================================================
+    key                  space                       meaning
+    ===================  ==========================  ============================================================
+    ``tactile``          Box uint8 (1, S, S)         TacTip image, S = ``image_size_px`` (128 or 64); shPix2pix
+                                                     translated ("real", "oracle_real") or raw depth ("sim",
+                                                     "oracle"; 255 = 14.5 mm penetration)
+    ``tcp_pose``         Box float32 (4,)            follower TCP (dome apex) x, y, z mm and flange R deg, in the
+                                                     follower's base frame (as ``GetPose`` with the tool set)
+    ``true_pose_shear``  Box float32 (4,)            oracle modes only: depth (label convention: the plate's face
+                                                     at 2.2 mm), shear x, y (mm), shear Rz (deg), sensor frame
+    ===================  ==========================  ============================================================
+
+    **Reward** ``1 - min(e / 5 mm, 2) - 1[not in contact]`` with ``e`` the contact error (``RewardConfig``).
+
+    **Contact error** ``info["contact_error_mm"]`` every step: the distance between the follower's TCP and its
+    target point: where the TCP was at reset (on the plate at the reference depth), carried along with the
+    plate. ``info`` also holds ``rz_error_deg``, ``in_contact``, ``penetration_mm``, ``depth_mm``,
+    ``shear_sensor_mm_deg`` (6,), ``time_s``, ``steps_out_of_contact``, ``termination`` (reason or ``""``),
+    ``trajectory`` and, when an arm refused a target, ``arm_error``.
+
+    **Termination** (``TerminationConfig``): the sensor lifts > 1 mm off the plate or leaves it
+    (``"contact_lost"``), contact error > 15 mm (``"contact_error"``), penetration > 5 mm (``"too_deep"``), or
+    an arm refuses a target outside its limits (``"arm_limit"``; the step returns normally). **Truncation**:
+    ``max_episode_steps`` of the registration (500 steps = 50 s at 10 Hz; every default trajectory ends
+    within 48 s, after which the plate holds still).
+
+    Args:
+        trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, or ``random`` (one drawn per reset).
+        obs_mode, image_size_px, control_rate_hz, render_mode, reference_depth_mm, ...: see
+            :class:`~simshear_gym.envs.base.SimShearEnv` (defaults: ``"real"``, 128, 10 Hz, None, 4.0 mm).
+        speed_mm_s: the plate's speed along its path.
+        randomise: per reset, draw the trajectory's scale (x0.7-1.3), speed (x0.7-1.3), rotation (-1..1 x 15 deg)
+            and the follower's start place on the plate (+-10 mm in x and y) from the reset's seed.
+        options of ``reset``: ``{"start_offset_mm": (x, y)}`` sets the start place (work frame of the plate).
+
+    Version history: v0 (initial).
+    """
+
+    def __init__(self, trajectory: str = "circle", obs_mode: str = "real", image_size_px: int = 128,
+                 control_rate_hz: float = 10.0, render_mode: str | None = None, reference_depth_mm: float = 4.0,
+                 speed_mm_s: float = 4.0, randomise: bool = False, **base_kwargs) -> None:
+        EzPickle.__init__(self, trajectory=trajectory, obs_mode=obs_mode, image_size_px=image_size_px,
+                          control_rate_hz=control_rate_hz, render_mode=render_mode,
+                          reference_depth_mm=reference_depth_mm, speed_mm_s=speed_mm_s, randomise=randomise,
+                          **base_kwargs)
+        if trajectory not in TRAJECTORY_CHOICES:
+            raise ValueError(f"unknown trajectory {trajectory!r}; expected one of {TRAJECTORY_CHOICES}")
+        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
+            raise ValueError(f"speed_mm_s must be > 0, got {speed_mm_s!r}")
+        self.trajectory_name = trajectory
+        self.speed_mm_s = float(speed_mm_s)
+        self.randomise = bool(randomise)
+        self.trajectory: Trajectory | None = None
+        super().__init__(obs_mode=obs_mode, image_size_px=image_size_px, control_rate_hz=control_rate_hz,
+                         render_mode=render_mode, reference_depth_mm=reference_depth_mm, **base_kwargs)
+
+    # ------------------------------------------------------------------ hooks
+    def _build_scene(self) -> None:
+        self.leader: SimMG400 = self._add_arm(LEADER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE)
+        self._T_world_plate_start = self.leader.T_world_tool()
+        self._plate_body = stimuli.spawn(self.world, PLATE, self._T_world_plate_start)
+        self.face_half_extents_mm = (PLATE.size_mm[0] / 2.0, PLATE.size_mm[1] / 2.0)
+        follower_pose = self._follower_pose_at((0.0, 0.0))
+        self._add_follower(FOLLOWER_T_WORLD_BASE, follower_pose)
+
+    def _follower_pose_at(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
+        """Follower flange pose that puts the sensor on the start plate at ``offset`` at the reference depth."""
+        T_world_sensor = self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0],
+                                                     offset_work_mm[1], self.reference_depth_mm)
+        T_base_flange = invert(FOLLOWER_T_WORLD_BASE) @ T_world_sensor @ invert(self.mount.T_flange_sensor())
+        return T_base_flange_to_pose(T_base_flange)
+
+    def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
+        options = options or {}
+        name = self.trajectory_name
+        if name == "random":
+            name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))]
+        scale, speed, rotation, offset = 1.0, self.speed_mm_s, TrajectoryConfig().rotation_deg, (0.0, 0.0)
+        if self.randomise:
+            scale = float(rng.uniform(0.7, 1.3))
+            speed *= float(rng.uniform(0.7, 1.3))
+            rotation *= float(rng.uniform(-1.0, 1.0))
+            offset = tuple(float(v) for v in rng.uniform(-10.0, 10.0, 2))
+        if "start_offset_mm" in options:
+            offset = tuple(float(v) for v in options["start_offset_mm"])
+            if len(offset) != 2 or not all(math.isfinite(v) and abs(v) <= 40.0 for v in offset):
+                raise ValueError(f"options['start_offset_mm'] must be (x, y) within +-40 mm, got {offset}")
+        self.trajectory = Trajectory(TrajectoryConfig(name, scale=scale, speed_mm_s=speed, rotation_deg=rotation))
+        self.leader.reset(LEADER_START_POSE_MM_DEG)
+        self.follower.reset(self._follower_pose_at(offset))
+
+    def _T_world_plate_at(self, time_s: float) -> np.ndarray:
+        dx, dy, dz, dr = self.trajectory.offset_at(time_s)
+        T_world_plate = self._T_world_plate_start @ rz_matrix(dr)
+        T_world_plate[:3, 3] = self._T_world_plate_start[:3, 3] + (dx, dy, dz)
+        return T_world_plate
+
+    def _command_scene(self, time_s: float, dt_s: float) -> None:
+        self.leader.servo_tool(self._T_world_plate_at(time_s), dt_s)
+
+    def _sync_scene(self) -> None:
+        # stimuli.move without its scipy conversion (this runs every step)
+        T_world_box = self.leader.T_world_tool()
+        T_world_box[:3, 3] += T_world_box[:3, :3] @ PLATE.box_centre_mm()
+        self.world.client.resetBasePositionAndOrientation(self._plate_body, *pybullet_pose_fast(T_world_box))
+
+    def _T_world_face(self) -> np.ndarray:
+        return self.leader.T_world_tool()
+
+    def _task_info(self) -> dict:
+        return {"trajectory": self.trajectory.config.name if self.trajectory is not None else ""}

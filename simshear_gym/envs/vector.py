@@ -1,0 +1,287 @@
+"""Batched vector env for the SimShear envs: sub-envs step in worker processes, images are translated in batches.
+
+``gymnasium.make_vec("SimShearTracking-v0", num_envs=N)`` (no ``vectorization_mode``, or
+``"vector_entry_point"``) builds a :class:`SimShearVectorEnv`. Its sub-envs run with ``raw_tactile=True`` (raw
+128 px sim image plus the shear in ``info``) in ``workers`` processes, each holding a contiguous group of them;
+the translator then runs once per group and step on the whole group's images (``translate_in="workers"``, the
+default), or once per step on all N images in the main process (``translate_in="main"``). With ``workers=0``
+everything runs in this process (one group, one batched translation per step).
+
+Why translating in the workers is the default: each worker translates its group with one torch thread while the
+other worker renders, so the cores stay busy without torch's multi-threading, which collapses when other
+processes share the cores (two threads were ~5x slower than one under load in ``simshear evaluate env-speed``).
+Per image, a one-thread translation at batch 8-16 costs about half of one at batch 1.
+
+Autoreset: ``AutoresetMode.NEXT_STEP`` (gymnasium's default): the step after a sub-env's episode ended resets it
+(its action is ignored; reward 0, not terminated or truncated) and returns the reset observation and info.
+Truncation: ``max_episode_steps`` (from the registration) per sub-env, like gymnasium's ``TimeLimit``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import multiprocessing
+from typing import Any
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from simshear_gym.envs.base import TRANSLATED_MODES, finish_tactile
+
+TRANSLATE_IN: tuple[str, ...] = ("workers", "main")
+
+
+def make_tracking_vector_env(num_envs: int = 1, max_episode_steps: int | None = 500, workers: int | None = None,
+                             translate_in: str = "workers", start_method: str | None = None,
+                             **env_kwargs: Any) -> "SimShearVectorEnv":
+    """The ``vector_entry_point`` of ``SimShearTracking-v0`` (see :class:`SimShearVectorEnv`)."""
+    return SimShearVectorEnv("simshear_gym.envs.tracking:SimShearTrackingEnv", num_envs, env_kwargs,
+                             max_episode_steps, workers, translate_in, start_method)
+
+
+def _load(entry_point: str):
+    module, _, name = entry_point.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+class _EnvGroup:
+    """Sub-envs stepped one after another, with NEXT_STEP autoreset and the step limit; optionally finishes
+    (translates) the group's images in one batch."""
+
+    def __init__(self, entry_point: str, env_kwargs: dict, count: int, max_episode_steps: int | None,
+                 finish: bool) -> None:
+        env_class = _load(entry_point)
+        self.envs = [env_class(**env_kwargs, raw_tactile=True) for _ in range(count)]
+        self.max_episode_steps = max_episode_steps
+        self.finish = finish
+        self.obs_mode = env_kwargs.get("obs_mode", "real")
+        self.image_size_px = env_kwargs.get("image_size_px", 128)
+        self._elapsed = [0] * count
+        self._needs_reset = [False] * count
+
+    def _stack(self, observations: list[dict], infos: list[dict]) -> dict[str, np.ndarray]:
+        batch = {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
+        if self.finish:
+            shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
+            env = self.envs[0]
+            batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
+                                              env.translator_contact)[:, None]
+        return batch
+
+    def reset(self, seeds: list, options: dict | None):
+        observations, infos = [], []
+        for index, (env, seed) in enumerate(zip(self.envs, seeds)):
+            obs, info = env.reset(seed=seed, options=options)
+            self._elapsed[index], self._needs_reset[index] = 0, False
+            observations.append(obs)
+            infos.append(info)
+        return self._stack(observations, infos), infos
+
+    def step(self, actions: np.ndarray):
+        count = len(self.envs)
+        observations, infos = [], []
+        rewards = np.zeros(count)
+        terminations, truncations = np.zeros(count, dtype=bool), np.zeros(count, dtype=bool)
+        for index, env in enumerate(self.envs):
+            if self._needs_reset[index]:
+                obs, info = env.reset()
+                self._elapsed[index], self._needs_reset[index] = 0, False
+            else:
+                obs, rewards[index], terminations[index], _, info = env.step(actions[index])
+                self._elapsed[index] += 1
+                truncations[index] = (self.max_episode_steps is not None
+                                      and self._elapsed[index] >= self.max_episode_steps)
+                self._needs_reset[index] = bool(terminations[index] or truncations[index])
+            observations.append(obs)
+            infos.append(info)
+        return self._stack(observations, infos), rewards, terminations, truncations, infos
+
+    def close(self) -> None:
+        for env in self.envs:
+            env.close()
+
+
+def _worker(connection, entry_point: str, env_kwargs: dict, count: int, max_episode_steps: int | None,
+            finish: bool) -> None:
+    if finish and env_kwargs.get("obs_mode", "real") in TRANSLATED_MODES:
+        import torch
+
+        torch.set_num_threads(1)  # this worker's share of the cores; the others run their own groups
+    group = _EnvGroup(entry_point, env_kwargs, count, max_episode_steps, finish)
+    connection.send(("ready", None))
+    try:
+        while True:
+            command, payload = connection.recv()
+            if command == "close":
+                break
+            try:
+                result = group.reset(*payload) if command == "reset" else group.step(payload)
+                connection.send(("ok", result))
+            except Exception as error:  # hand the error to the main process, which raises it
+                connection.send(("error", f"{type(error).__name__}: {error}"))
+    except (EOFError, KeyboardInterrupt):
+        pass
+    finally:
+        group.close()
+        connection.close()
+
+
+class SimShearVectorEnv(VectorEnv):
+    """N SimShear sub-envs with batched translation (module docstring).
+
+    Args:
+        entry_point: ``"module:Class"`` of the sub-env.
+        num_envs: N.
+        env_kwargs: constructor arguments of every sub-env (``obs_mode``, ``trajectory``, ...).
+        max_episode_steps: truncation per sub-env (None: never).
+        workers: processes to step the sub-envs in (default: the number of CPUs, at most N); 0 = in-process.
+        translate_in: ``"workers"`` (each group's images in its worker) or ``"main"`` (all N in this process).
+        start_method: multiprocessing start method (default ``"fork"`` where available: starts in milliseconds
+            and works from unguarded scripts; else ``"spawn"``, which needs the ``if __name__ == "__main__"``
+            idiom). Forked workers set torch to one thread before they translate.
+    """
+
+    def __init__(self, entry_point: str, num_envs: int, env_kwargs: dict, max_episode_steps: int | None = None,
+                 workers: int | None = None, translate_in: str = "workers", start_method: str | None = None) -> None:
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        if translate_in not in TRANSLATE_IN:
+            raise ValueError(f"translate_in must be one of {TRANSLATE_IN}, got {translate_in!r}")
+        if env_kwargs.get("render_mode") is not None:
+            raise ValueError("SimShearVectorEnv does not render; use vectorization_mode='sync' to render sub-envs")
+        if "raw_tactile" in env_kwargs:
+            raise ValueError("raw_tactile is set by SimShearVectorEnv itself; do not pass it")
+        import os
+
+        workers = min(os.cpu_count() or 1, num_envs) if workers is None else workers
+        if not isinstance(workers, int) or workers < 0:
+            raise ValueError(f"workers must be an int >= 0, got {workers!r}")
+        workers = min(workers, num_envs)
+        self.num_envs = num_envs
+        self.workers = workers
+        self.translate_in = translate_in
+        self.env_kwargs = dict(env_kwargs)
+        self.max_episode_steps = max_episode_steps
+
+        single = _load(entry_point)(**env_kwargs)  # the spaces, and a fast failure on bad kwargs
+        self.single_observation_space = single.observation_space
+        self.single_action_space = single.action_space
+        self.obs_mode, self.image_size_px = single.obs_mode, single.image_size_px
+        self._contact = single.translator_contact
+        single.close()
+        self.observation_space = batch_space(self.single_observation_space, num_envs)
+        self.action_space = batch_space(self.single_action_space, num_envs)
+        self.metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+        self.render_mode = None
+
+        finish_in_groups = translate_in == "workers" or workers == 0
+        self._finish_in_main = not finish_in_groups
+        counts = [len(part) for part in np.array_split(np.arange(num_envs), max(workers, 1))]
+        self._slices = np.cumsum([0] + counts)
+        self._group: _EnvGroup | None = None
+        self._processes, self._connections = [], []
+        if workers == 0:
+            self._group = _EnvGroup(entry_point, env_kwargs, num_envs, max_episode_steps, finish=True)
+        else:
+            if start_method is None:
+                methods = multiprocessing.get_all_start_methods()
+                start_method = "fork" if "fork" in methods else "spawn"
+            context = multiprocessing.get_context(start_method)
+            for count in counts:
+                parent, child = context.Pipe()
+                process = context.Process(target=_worker, daemon=True,
+                                          args=(child, entry_point, env_kwargs, count, max_episode_steps,
+                                                finish_in_groups))
+                process.start()
+                child.close()
+                self._processes.append(process)
+                self._connections.append(parent)
+            for connection in self._connections:
+                self._receive(connection)
+        self._closed = False
+
+    # ------------------------------------------------------------- plumbing
+    @staticmethod
+    def _receive(connection):
+        status, payload = connection.recv()
+        if status == "error":
+            raise RuntimeError(f"a SimShearVectorEnv worker failed: {payload}")
+        return payload
+
+    def _run(self, command: str, payloads: list) -> list:
+        if self._closed:
+            raise RuntimeError("this SimShearVectorEnv is closed")
+        if self._group is not None:
+            return [self._group.reset(*payloads[0]) if command == "reset" else self._group.step(payloads[0])]
+        for connection, payload in zip(self._connections, payloads):
+            connection.send((command, payload))
+        return [self._receive(connection) for connection in self._connections]
+
+    @staticmethod
+    def _merge(parts: list[dict]) -> dict[str, np.ndarray]:
+        return {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+
+    def _finish(self, batch: dict[str, np.ndarray], infos: list[dict]) -> dict[str, np.ndarray]:
+        if self._finish_in_main:
+            shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
+            batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
+                                              self._contact)[:, None]
+        return batch
+
+    def _vector_infos(self, infos: list[dict]) -> dict:
+        vector_infos: dict = {}
+        for index, info in enumerate(infos):
+            vector_infos = self._add_info(vector_infos, info, index)
+        return vector_infos
+
+    # ----------------------------------------------------------- gym API
+    def reset(self, *, seed: int | list | None = None, options: dict | None = None):
+        if seed is None:
+            seeds = [None] * self.num_envs
+        elif isinstance(seed, int):
+            seeds = [seed + index for index in range(self.num_envs)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"reset(seed=...) needs {self.num_envs} seeds, got {len(seeds)}")
+        groups = self._groups()
+        results = self._run("reset", [(seeds[a:b], options) for a, b in groups])
+        infos = [info for _, group_infos in results for info in group_infos]
+        observations = self._finish(self._merge([obs for obs, _ in results]), infos)
+        return observations, self._vector_infos(infos)
+
+    def step(self, actions):
+        actions = np.asarray(actions, dtype=np.float32)
+        if actions.shape != (self.num_envs, 4):
+            raise ValueError(f"actions must have shape ({self.num_envs}, 4), got {actions.shape}")
+        results = self._run("step", [actions[a:b] for a, b in self._groups()])
+        infos = [info for result in results for info in result[4]]
+        observations = self._finish(self._merge([result[0] for result in results]), infos)
+        rewards = np.concatenate([result[1] for result in results])
+        terminations = np.concatenate([result[2] for result in results])
+        truncations = np.concatenate([result[3] for result in results])
+        return observations, rewards, terminations, truncations, self._vector_infos(infos)
+
+    def _groups(self) -> list[tuple[int, int]]:
+        if self._group is not None:
+            return [(0, self.num_envs)]
+        return [(int(a), int(b)) for a, b in zip(self._slices[:-1], self._slices[1:])]
+
+    def close_extras(self, **kwargs: Any) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if self._group is not None:
+            self._group.close()
+        for connection in self._connections:
+            try:
+                connection.send(("close", None))
+            except (BrokenPipeError, OSError):
+                pass
+        for process in self._processes:
+            process.join(timeout=5)
+            if process.is_alive():
+                process.terminate()
+        for connection in self._connections:
+            connection.close()

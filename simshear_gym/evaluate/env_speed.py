@@ -1,0 +1,155 @@
+"""Throughput of ``SimShearTracking-v0`` with translated ("real") 128 px images: one process and vectorised.
+
+``simshear evaluate env-speed`` steps the env with the oracle controller (driven from ``info``, so the env runs
+in ``obs_mode="real"``, translating every image) and writes ``results/env_speed.json``:
+
+- single process: ``gymnasium.make`` and a loop, torch on each of the ``--threads`` settings; the same loop in
+  ``"sim"`` mode and the translator alone at batch 1 show where the time goes;
+- vectorised: ``gymnasium.make_vec(num_envs=--num-envs)`` with ``--workers`` worker processes, translating in the
+  workers (one torch thread each) and, for comparison, in the main process (``--threads`` threads).
+
+Goals: >= 100 steps/s in one process, >= 200 steps/s vectorised over both cores. The machine's load average
+before each run is recorded: on a shared machine other jobs take cores and the numbers with them; the
+single-process rows also give the process's CPU time per step (all its threads), which other jobs disturb less.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simshear_gym.io import write_json
+
+GOAL_SINGLE_STEPS_PER_S = 100.0
+GOAL_VECTOR_STEPS_PER_S = 200.0
+
+
+def _load() -> float:
+    return round(os.getloadavg()[0], 2)
+
+
+def single_process(obs_mode: str, steps: int, warmup: int = 20) -> dict:
+    """Steps per second of one env driven by the oracle from ``info`` (episodes reset as they end)."""
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+    from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
+
+    load = _load()
+    env = gym.make("SimShearTracking-v0", obs_mode=obs_mode)
+    controller = OracleController.for_env(env)
+    _, info = env.reset(seed=0)
+    done_steps, start = 0, None
+    for index in range(steps + warmup):
+        if index == warmup:
+            start, cpu_start = time.perf_counter(), time.process_time()
+        action = controller({"true_pose_shear": true_pose_shear_from_info(info)})
+        _, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            _, info = env.reset()
+            controller.reset()
+        done_steps += index >= warmup
+    seconds, cpu_seconds = time.perf_counter() - start, time.process_time() - cpu_start
+    env.close()
+    return {"obs_mode": obs_mode, "steps": done_steps, "seconds": round(seconds, 3),
+            "steps_per_s": round(done_steps / seconds, 1), "ms_per_step": round(1000 * seconds / done_steps, 3),
+            "cpu_ms_per_step": round(1000 * cpu_seconds / done_steps, 3), "load_average_before": load}
+
+
+def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmup: int = 5) -> dict:
+    """Steps per second (summed over sub-envs) of ``make_vec`` in "real" mode."""
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+    from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
+
+    load = _load()
+    envs = gym.make_vec("SimShearTracking-v0", num_envs=num_envs, obs_mode="real", workers=workers,
+                        translate_in=translate_in)
+    controllers = [OracleController() for _ in range(num_envs)]
+    _, info = envs.reset(seed=0)
+    start = None
+    for index in range(steps + warmup):
+        if index == warmup:
+            start = time.perf_counter()
+        variables = true_pose_shear_from_info(info)
+        actions = np.stack([controller({"true_pose_shear": v}) for controller, v in zip(controllers, variables)])
+        _, _, terminated, truncated, info = envs.step(actions)
+        for env_index in np.flatnonzero(terminated | truncated):
+            controllers[env_index].reset()
+    seconds = time.perf_counter() - start
+    envs.close()
+    total = steps * num_envs
+    return {"num_envs": num_envs, "workers": workers, "translate_in": translate_in, "vector_steps": steps,
+            "env_steps": total, "seconds": round(seconds, 3), "steps_per_s": round(total / seconds, 1),
+            "load_average_before": load}
+
+
+def translator_batch1_ms(repeats: int = 50) -> float:
+    from simshear_gym.envs.base import shipped_translator
+    from simshear_gym.evaluate.translator_speed import latency_ms
+
+    return round(latency_ms(shipped_translator("surface"), 1, repeats, np.random.default_rng(0)), 3)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--steps", type=int, default=500, help="measured steps of the single-process runs")
+    parser.add_argument("--vector-steps", type=int, default=40, help="measured steps of each vectorised run")
+    parser.add_argument("--num-envs", type=int, nargs="+", default=[8, 16, 32], help="sub-envs of the vectorised runs")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes of the vectorised runs")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2],
+                        help="torch threads of the main process: each setting is measured")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    for name in ("steps", "vector_steps", "workers"):
+        if getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
+    for name in ("num_envs", "threads"):
+        if min(getattr(args, name)) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
+    single = {"sim": single_process("sim", args.steps), "real": []}
+    print(f"one process, sim 128 px: {single['sim']['steps_per_s']:.0f} steps/s "
+          f"({single['sim']['ms_per_step']:.2f} ms/step)")
+    for threads in args.threads:
+        torch.set_num_threads(threads)
+        row = {"torch_threads": threads, **single_process("real", args.steps),
+               "translator_ms_batch1": translator_batch1_ms()}
+        single["real"].append(row)
+        print(f"one process, real 128 px, torch threads {threads}: {row['steps_per_s']:.0f} steps/s "
+              f"({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} CPU ms/step; translator at batch 1 "
+              f"{row['translator_ms_batch1']:.2f} ms)")
+    vector = []
+    for num_envs in args.num_envs:
+        for translate_in, threads in [("workers", 1)] + [("main", threads) for threads in args.threads]:
+            torch.set_num_threads(threads)  # the main process's (workers use one thread each)
+            row = {"torch_threads_main": threads, **vectorised(num_envs, args.workers, translate_in,
+                                                               args.vector_steps)}
+            vector.append(row)
+            print(f"make_vec {num_envs} envs, {args.workers} workers, translating in {translate_in}"
+                  f"{f' ({threads} threads)' if translate_in == 'main' else ''}: {row['steps_per_s']:.0f} steps/s")
+    best_single = max(row["steps_per_s"] for row in single["real"])
+    best_vector = max(row["steps_per_s"] for row in vector)
+    payload = {
+        "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
+                    f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
+                    f"--threads {' '.join(map(str, args.threads))}"),
+        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "env": "SimShearTracking-v0, obs_mode='real' (shPix2pix surface translator), 128 px, oracle actions",
+        "single_process": single, "vectorised": vector,
+        "goals": {"single_steps_per_s": GOAL_SINGLE_STEPS_PER_S, "vector_steps_per_s": GOAL_VECTOR_STEPS_PER_S,
+                  "best_single_steps_per_s": best_single, "best_vector_steps_per_s": best_vector,
+                  "single_met": best_single >= GOAL_SINGLE_STEPS_PER_S,
+                  "vector_met": best_vector >= GOAL_VECTOR_STEPS_PER_S},
+    }
+    write_json(args.out / "env_speed.json", payload)
+    print(f"wrote {args.out / 'env_speed.json'}")
+    return 0

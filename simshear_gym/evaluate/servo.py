@@ -1,0 +1,204 @@
+"""Closed-loop benchmarks of the tactile servo controller: the paper's tracking and co-lift runs.
+
+``simshear evaluate servo`` runs :class:`~simshear_gym.control.servo.ServoController` (tactile image -> GDNN + filter
+-> PI law; it never reads ground truth) on every trajectory of ``SimShearTracking-v0`` and every object x
+trajectory of ``SimShearCoLift-v0``, for several seeds, with estimator variants:
+
+- ``shpix2pix``: the env's translated images (``obs_mode="real"``), the shipped GDNN (trained on shPix2pix images);
+- ``pix2pix``: the same images, a GDNN trained on pix2pix-generated images (``--posenet-pix2pix``);
+- ``sim``: raw sim images (``obs_mode="sim"``), a GDNN trained on raw sim images (``--posenet-sim``);
+- ``oracle``: the true depth and shear into the oracle law (the task's floor, not a tactile controller).
+
+Per run: contact error mean, std and max (mm; the env's ``info["contact_error_mm"]`` every step), steps out of
+contact, whether it ended early (``termination``) and, for co-lift, whether the object dropped. Also the control
+loop's compute per step (estimator + filter + law) and the whole env step. Writes ``results/servo.json`` (with
+the command) and figures like the paper's: leader path (the follower's target point) red, follower sensor blue,
+3D, the mean error in the title (``results/servo_<task>.png``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from simshear_gym.io import write_json
+
+TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
+VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle")
+
+
+def make_controller(variant: str, env, posenets: dict[str, str | None]):
+    from simshear_gym.control.estimator import EstimatorConfig
+    from simshear_gym.control.oracle import OracleController
+    from simshear_gym.control.servo import ServoController
+
+    if variant == "oracle":
+        return OracleController.for_env(env)
+    return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)))
+
+
+def obs_mode_of(variant: str) -> str:
+    return {"sim": "sim", "oracle": "oracle"}.get(variant, "real")
+
+
+def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dict:
+    """One episode; returns its figures and the paths (target and sensor, world mm) for the figure."""
+    observation, info = env.reset(seed=seed)
+    controller.reset()
+    errors, targets, sensors = [info["contact_error_mm"]], [], []
+    control_s, step_s = [], []
+    out_of_contact, termination, dropped = 0, "", False
+    steps = 0
+    while True:
+        started = time.perf_counter()
+        action = controller(observation)
+        control_s.append(time.perf_counter() - started)
+        started = time.perf_counter()
+        observation, _, terminated, truncated, info = env.step(action)
+        step_s.append(time.perf_counter() - started)
+        steps += 1
+        errors.append(info["contact_error_mm"])
+        targets.append(np.asarray(info["target_world_mm"], dtype=np.float64))
+        sensors.append(np.asarray(info["sensor_world_mm"], dtype=np.float64))
+        out_of_contact += int(not info["in_contact"])
+        dropped = dropped or bool(info.get("dropped", False))
+        if terminated or truncated or (max_steps is not None and steps >= max_steps):
+            termination = info.get("termination", "") if terminated else ""
+            break
+    errors = np.asarray(errors)
+    return {
+        "steps": steps, "contact_error_mean_mm": float(errors.mean()), "contact_error_std_mm": float(errors.std()),
+        "contact_error_max_mm": float(errors.max()), "steps_out_of_contact": out_of_contact,
+        "termination": termination, "dropped": dropped,
+        "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
+        "_paths": (np.stack(targets), np.stack(sensors)),
+    }
+
+
+def summarise(runs: list[dict]) -> dict:
+    means = np.array([r["contact_error_mean_mm"] for r in runs])
+    return {
+        "seeds": len(runs), "contact_error_mean_mm": float(means.mean()), "contact_error_mean_std_mm": float(means.std()),
+        "contact_error_max_mm": float(max(r["contact_error_max_mm"] for r in runs)),
+        "runs_with_contact_loss": int(sum(r["steps_out_of_contact"] > 0 or r["termination"] == "contact_lost"
+                                          for r in runs)),
+        "runs_ended_early": int(sum(bool(r["termination"]) for r in runs)),
+        "drops": int(sum(r["dropped"] for r in runs)),
+        "control_ms_median": float(np.median([r["control_ms_median"] for r in runs])),
+        "env_step_ms_median": float(np.median([r["env_step_ms_median"] for r in runs])),
+        "terminations": sorted({r["termination"] for r in runs if r["termination"]}),
+    }
+
+
+def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str) -> None:
+    """One 3D panel per run: target path red, follower blue, mean error in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(paths)
+    columns = min(4, len(names))
+    rows = -(-len(names) // columns)
+    fig = plt.figure(figsize=(3.2 * columns, 3.0 * rows))
+    for index, name in enumerate(names):
+        target, sensor, error = paths[name]
+        axis = fig.add_subplot(rows, columns, index + 1, projection="3d")
+        axis.plot(*(target - target[0]).T, color="tab:red", lw=1.2, label="leader (target)")
+        axis.plot(*(sensor - target[0]).T, color="tab:blue", lw=0.8, ls="--", label="follower")
+        axis.set_title(f"{name}\nerror {error:.2f} mm", fontsize=8)
+        axis.tick_params(labelsize=5)
+        axis.set_xlabel("x mm", fontsize=6)
+        axis.set_ylabel("y mm", fontsize=6)
+        axis.set_zlabel("z mm", fontsize=6)
+    fig.axes[0].legend(fontsize=6, loc="upper left")
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=("tracking", "colift"))
+    parser.add_argument("--trajectories", nargs="+", default=list(TRACKING_TRAJECTORIES),
+                        help="tracking trajectories")
+    parser.add_argument("--objects", nargs="+", default=None, help="co-lift objects (default all)")
+    parser.add_argument("--colift-trajectories", nargs="+", default=None, help="co-lift trajectories (default all)")
+    parser.add_argument("--variants", nargs="+", default=["shpix2pix"], choices=VARIANTS)
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    parser.add_argument("--posenet-shpix2pix", default=None, help="GDNN for the shpix2pix variant (default shipped)")
+    parser.add_argument("--posenet-pix2pix", default=None, help="GDNN trained on pix2pix images")
+    parser.add_argument("--posenet-sim", default=None, help="GDNN trained on raw sim images")
+    parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the env's limit)")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--name", default="servo")
+
+
+def run(args: argparse.Namespace) -> int:
+    import gymnasium as gym
+    import torch
+
+    import simshear_gym.envs  # noqa: F401  (registers the envs)
+
+    torch.set_num_threads(args.threads)
+    posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
+    for variant in args.variants:
+        if variant in ("pix2pix", "sim") and not posenets[variant]:
+            raise ValueError(f"--variants {variant} needs --posenet-{variant} (a GDNN trained on {variant} images)")
+    settings: list[tuple[str, str, dict]] = []
+    if "tracking" in args.tasks:
+        settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
+    if "colift" in args.tasks:
+        from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES
+
+        for trajectory in args.colift_trajectories or COLIFT_TRAJECTORIES:
+            for name in args.objects or OBJECT_NAMES:
+                settings.append(("colift", f"{name}_{trajectory}", {"trajectory": trajectory, "object_name": name}))
+    env_ids = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
+    start = time.perf_counter()
+    results: dict = {}
+    paths: dict[tuple[str, str], dict] = {}
+    for variant in args.variants:
+        results[variant] = {}
+        for task, label, kwargs in settings:
+            env = gym.make(env_ids[task], obs_mode=obs_mode_of(variant), **kwargs)
+            controller = make_controller(variant, env, posenets)
+            runs = [run_episode(env, controller, seed, args.max_steps) for seed in args.seeds]
+            env.close()
+            for seed, r in zip(args.seeds, runs):
+                target, sensor = r.pop("_paths")
+                r["seed"] = seed
+                paths.setdefault((task, variant), {})[f"{label} seed {seed}"] = (
+                    target, sensor, r["contact_error_mean_mm"])
+            results[variant][f"{task}/{label}"] = {**summarise(runs), "runs": runs}
+            s = results[variant][f"{task}/{label}"]
+            print(f"{variant:9s} {task}/{label:22s} error {s['contact_error_mean_mm']:.3f} +- "
+                  f"{s['contact_error_mean_std_mm']:.3f} mm (max {s['contact_error_max_mm']:.2f}), "
+                  f"contact losses {s['runs_with_contact_loss']}, drops {s['drops']}, ended early "
+                  f"{s['runs_ended_early']} {s['terminations']}, control {s['control_ms_median']:.2f} ms, "
+                  f"env step {s['env_step_ms_median']:.2f} ms")
+    figures = []
+    for (task, variant), runs in paths.items():
+        first = f"seed {args.seeds[0]}"
+        first_seed = {name: value for name, value in runs.items() if name.endswith(first)}
+        png = args.out / f"{args.name}_{task}_{variant}.png"
+        figure(first_seed, png, f"{task}, {variant} estimator ({first})")
+        figures.append(str(png))
+    command = ("simshear evaluate servo --tasks " + " ".join(args.tasks) + " --variants " + " ".join(args.variants)
+               + " --seeds " + " ".join(str(s) for s in args.seeds)
+               + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)
+               + (f" --max-steps {args.max_steps}" if args.max_steps else ""))
+    write_json(args.out / f"{args.name}.json", {
+        "command": command,
+        "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
+                   "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
+                   "filter + law per step (ms, median); env step = one env.step including rendering/translation",
+        "results": results, "figures": figures, "seconds": round(time.perf_counter() - start, 1),
+    })
+    print(f"wrote {args.out / (args.name + '.json')}")
+    return 0

@@ -1,0 +1,559 @@
+"""``RealTactileEnv``: the real TacTip on a Dobot MG400 behind the same Gymnasium interface as the sim envs.
+
+A policy trained on ``SimShearTracking-v0`` (or the servo controller) drives the real arm unchanged: the action
+and observation spaces are the sim env's, built from the same pieces (:class:`~simshear_gym.envs.base.ActionScale`,
+:class:`~simshear_gym.envs.base.TacTipMount`, ``TCP_POSE_LOW``).
+
+**Action** ``Box(-1, 1, (4,), float32)``: a relative move of the sensor in its own frame per step, scaled by
+``ActionScale`` (dx, dy, dz mm; dRz deg), as in the sim env. Each action becomes one ``ServoP`` target for the
+flange: the last *commanded* flange target moved by the action in the sensor frame (the commanded target, not the
+measured pose, so that a lagging arm does not shorten the moves the estimator's motion model assumes). The target
+passes the :class:`~simshear_gym.real.safety.SafetyLayer` in :meth:`MG400Client.servo_p` (reachability and joint
+limits through the kinematics, the workspace box, and the step per command); a refused target is never sent and
+ends the episode (``info["termination"] == "safety_refused"``, the reason in ``info["safety_event"]``).
+
+**Observation** ``Dict``: ``tactile`` uint8 (1, S, S), the camera frame preprocessed
+(:func:`~simshear_gym.real.camera.preprocess`, 128 px binary) and resized to S = ``image_size_px`` as the sim env
+halves its 128 px image; ``tcp_pose`` float32 (4,): dome apex x, y, z mm and flange R deg in the robot's base
+frame, from the 30004 feedback's flange pose and the mount (the controller's tool frame must be the flange,
+``Tool(0)``).
+
+**Reward** 0 every step: the real robot has no ground truth to score against.
+
+**Termination** (``info["termination"]``): ``safety_refused`` (a target outside the limits or too large a step),
+``robot_error`` (the controller refused a command or is in error mode), ``lost_connection`` (a connection dropped,
+or the feedback is older than ``SafetyConfig.max_feedback_age_s``), ``camera_stall`` (no new frame, or one older
+than ``SafetyConfig.max_camera_frame_age_s``), ``camera_ended`` (a recording ran out) and ``lost_contact`` (the
+optional ``contact_check`` callback says so and ``SafetyConfig.stop_on_lost_contact``). After a termination nothing
+more is sent: the arm stops at its last servo target; :meth:`RealTactileEnv.reset` starts again.
+
+**Timing**: ``step`` sends its command at once, waits until one control period after the previous observation
+and then reads the camera and the feedback, so commands go out at a fixed period as long as the caller's compute
+fits in it; ``info["overrun_s"]`` says by how much it did not.
+
+**Dry run** (``RealEnvConfig.dry_run``): nothing that moves or changes the robot is sent (no EnableRobot, MovJ,
+Sync, ServoP); targets are still checked by the safety layer and logged, and the commanded target advances as if
+they had been sent. Camera and feedback are read as usual.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import cv2
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from simshear_gym.envs.base import IMAGE_SIZES_PX, TCP_POSE_LOW, ActionScale, TacTipMount, rz_matrix
+from simshear_gym.real.camera import (
+    CameraError,
+    CameraSource,
+    EndOfStream,
+    FrameSource,
+    PreprocessConfig,
+    default_config,
+    preprocess,
+    to_gray,
+)
+from simshear_gym.real.mg400_client import (
+    FeedbackStaleError,
+    MG400Client,
+    MG400ClientConfig,
+    MG400ConnectionError,
+    MG400Error,
+    MG400TimeoutError,
+)
+from simshear_gym.real.mg400_protocol import DASHBOARD_PORT, FEEDBACK_PORT, MOTION_PORT, ProtocolError, RobotMode
+from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyError, SafetyLayer, StatusSnapshot
+from simshear_gym.sim.mg400_arm import T_base_flange_to_pose, pose_to_T_base_flange
+from simshear_gym.sim.mg400_kinematics import wrap_deg
+from simshear_gym.sim.transforms import invert
+
+logger = logging.getLogger(__name__)
+
+TERMINATIONS: tuple[str, ...] = ("safety_refused", "robot_error", "lost_connection", "camera_stall", "camera_ended",
+                                 "lost_contact")
+"""Every value ``info["termination"]`` takes besides ``""``."""
+
+ContactCheck = Callable[[dict[str, np.ndarray]], bool]
+"""Observation -> whether the sensor still touches the contact (e.g. from a pose estimator's depth)."""
+
+
+class RealEnvError(RuntimeError):
+    """The robot is not in a state an episode can start from (error mode, unreachable); nothing was moved."""
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Pieces shared with the benchmark and the HIL camera
+
+
+def tracking_spaces(image_size_px: int) -> tuple[spaces.Dict, spaces.Box]:
+    """(observation space, action space) of ``SimShearTracking-v0`` in its ``"real"`` and ``"sim"`` modes."""
+    if image_size_px not in IMAGE_SIZES_PX:
+        raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
+    observation = spaces.Dict({
+        "tactile": spaces.Box(0, 255, (1, image_size_px, image_size_px), dtype=np.uint8),
+        "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
+    })
+    return observation, spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+
+
+def resize_tactile(image: np.ndarray, image_size_px: int) -> np.ndarray:
+    """A uint8 (H, W) tactile image at ``image_size_px`` square: block means rounded, like the sim env's halving
+    of its 128 px image, when the size divides evenly; INTER_AREA otherwise."""
+    height, width = image.shape
+    if (height, width) == (image_size_px, image_size_px):
+        return image
+    if height == width and height % image_size_px == 0:
+        factor = height // image_size_px
+        blocks = image.reshape(image_size_px, factor, image_size_px, factor).mean(axis=(1, 3))
+        return np.rint(blocks).astype(np.uint8)
+    return cv2.resize(image, (image_size_px, image_size_px), interpolation=cv2.INTER_AREA)
+
+
+def tactile_from_frame(frame: np.ndarray, preprocess_config: PreprocessConfig | None,
+                       image_size_px: int) -> np.ndarray:
+    """Camera frame -> uint8 (S, S) tactile image: :func:`preprocess` (unless ``None``: the frame already is a
+    tactile image, as a simulated camera's) then :func:`resize_tactile`."""
+    image = preprocess(frame, preprocess_config) if preprocess_config is not None else to_gray(frame)
+    return resize_tactile(image, image_size_px)
+
+
+def tcp_pose_from_flange(flange_pose_mm_deg, mount: TacTipMount) -> np.ndarray:
+    """Flange pose ``(x, y, z mm, R deg)`` -> the sim env's ``tcp_pose``: dome apex x, y, z and flange R."""
+    flange = np.asarray(flange_pose_mm_deg, dtype=np.float64)
+    T_base_sensor = pose_to_T_base_flange(flange) @ mount.T_flange_sensor()
+    return np.array([T_base_sensor[0, 3], T_base_sensor[1, 3], T_base_sensor[2, 3], flange[3]])
+
+
+def move_to_flange_target(flange_pose_mm_deg, move_sensor, mount: TacTipMount) -> np.ndarray:
+    """The flange pose that moves the sensor by ``move_sensor`` = (dx, dy, dz mm, dRz deg) in its own frame, as
+    the sim env's step does; R is unwrapped next to the given flange R."""
+    flange = np.asarray(flange_pose_mm_deg, dtype=np.float64)
+    dx, dy, dz, drz = (float(v) for v in move_sensor)
+    T_flange_sensor = mount.T_flange_sensor()
+    T_move = rz_matrix(drz)
+    T_move[:3, 3] = (dx, dy, dz)
+    T_base_flange = pose_to_T_base_flange(flange) @ T_flange_sensor @ T_move @ invert(T_flange_sensor)
+    target = T_base_flange_to_pose(T_base_flange)
+    target[3] = flange[3] + wrap_deg(target[3] - flange[3])
+    return target
+
+
+def action_to_move(action, action_scale: ActionScale) -> np.ndarray:
+    """Validate an action like the sim env and scale it to a sensor-frame move ``(dx, dy, dz mm, dRz deg)``."""
+    array = np.asarray(action, dtype=np.float64)
+    if array.shape != (4,):
+        raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"action must be finite, got {array.tolist()}")
+    if np.any(np.abs(array) > 1.0 + 1e-6):
+        raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
+    return np.clip(array, -1.0, 1.0) * action_scale.as_array()
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Configuration
+
+
+@dataclass(frozen=True)
+class RealEnvConfig:
+    """Settings of :class:`RealTactileEnv`.
+
+    Attributes:
+        robot_ip: the MG400 controller's address.
+        dashboard_port, motion_port, feedback_port: its TCP ports.
+        control_period_s: time between servo commands (and observations), s.
+        servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s.
+        camera_source: device index, video file or image folder (:class:`CameraSource`), used unless a frame
+            source is passed to the env.
+        camera_stall_timeout_s: a live camera that gives no new frame for this long raises (ends the episode), s.
+        preprocess: camera frame -> 128 px binary tactile image; None when the source already gives tactile
+            images (a simulated camera, a folder of processed images).
+        image_size_px: S of the ``tactile`` observation, 128 or 64 (as the sim env).
+        start_pose_mm_deg: flange pose ``(x, y, z mm, R deg)`` in the base frame that ``reset`` moves to (with
+            MovJ), checked against the arm's limits and the safety workspace on construction.
+        action_scale: full-scale move per step (the sim env's ``ActionScale``).
+        mount: the TacTip on the flange (the sim env's ``TacTipMount``).
+        safety: limits, step sizes and stop thresholds; its ``dry_run`` must stay False (use ``dry_run`` here).
+        dry_run: check and log motion commands instead of sending them (see the module docstring).
+        enable_robot: send EnableRobot on reset when the robot is disabled.
+        connect_timeout_s, reply_timeout_s: network timeouts, s.
+        move_timeout_s: how long reset waits for the move to the start pose, s.
+    """
+
+    robot_ip: str = "192.168.1.6"
+    dashboard_port: int = DASHBOARD_PORT
+    motion_port: int = MOTION_PORT
+    feedback_port: int = FEEDBACK_PORT
+    control_period_s: float = 0.1
+    servo_margin_s: float = 0.02
+    camera_source: str = "0"
+    camera_stall_timeout_s: float = 0.5
+    preprocess: PreprocessConfig | None = field(default_factory=default_config)
+    image_size_px: int = 128
+    start_pose_mm_deg: tuple[float, float, float, float] = (300.0, 0.0, 0.0, 0.0)
+    action_scale: ActionScale = ActionScale()
+    mount: TacTipMount = TacTipMount()
+    safety: SafetyConfig = SafetyConfig()
+    dry_run: bool = False
+    enable_robot: bool = True
+    connect_timeout_s: float = 2.0
+    reply_timeout_s: float = 1.0
+    move_timeout_s: float = 30.0
+
+    def __post_init__(self) -> None:
+        if not self.robot_ip:
+            raise ValueError("RealEnvConfig.robot_ip must be a host name or IP address, got ''")
+        if self.image_size_px not in IMAGE_SIZES_PX:
+            raise ValueError(f"RealEnvConfig.image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px!r}")
+        if not (math.isfinite(self.control_period_s) and 0.004 <= self.control_period_s <= 1.0):
+            raise ValueError(f"RealEnvConfig.control_period_s must be in [0.004, 1] s, got {self.control_period_s!r}")
+        for name in ("servo_margin_s",):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.0 <= value <= 1.0):
+                raise ValueError(f"RealEnvConfig.{name} must be in [0, 1] s, got {value!r}")
+        for name in ("camera_stall_timeout_s", "connect_timeout_s", "reply_timeout_s", "move_timeout_s"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"RealEnvConfig.{name} must be finite and > 0 s, got {value!r}")
+        if self.safety.dry_run:
+            raise ValueError("set dry_run on RealEnvConfig, not on its SafetyConfig (one place decides)")
+        start = tuple(float(v) for v in self.start_pose_mm_deg)
+        if len(start) != 4 or not all(math.isfinite(v) for v in start):
+            raise ValueError(f"RealEnvConfig.start_pose_mm_deg must be 4 finite numbers (x, y, z mm, R deg), "
+                             f"got {self.start_pose_mm_deg!r}")
+        object.__setattr__(self, "start_pose_mm_deg", start)
+        try:  # reachability, joint limits and the workspace box: the checks every target passes
+            SafetyLayer(self.safety).check_target(start, start, MotionKind.JOINT)
+        except SafetyError as error:
+            raise ValueError(f"RealEnvConfig.start_pose_mm_deg {start} cannot be reached safely: {error}") from None
+        step_mm = math.sqrt(3.0) * self.action_scale.step_mm
+        if step_mm > self.safety.max_step_mm or self.action_scale.step_deg > self.safety.max_step_deg:
+            logger.warning("a full-scale action (%.3f mm, %.3f deg) exceeds the safety step limit (%g mm, %g deg): "
+                           "such actions end the episode", step_mm, self.action_scale.step_deg,
+                           self.safety.max_step_mm, self.safety.max_step_deg)
+
+    @property
+    def servo_time_s(self) -> float:
+        """The ``t`` of each ServoP: period + margin, s."""
+        return self.control_period_s + self.servo_margin_s
+
+    def client_config(self) -> MG400ClientConfig:
+        return MG400ClientConfig(host=self.robot_ip, dashboard_port=self.dashboard_port, motion_port=self.motion_port,
+                                 feedback_port=self.feedback_port, connect_timeout_s=self.connect_timeout_s,
+                                 reply_timeout_s=self.reply_timeout_s, sync_timeout_s=self.move_timeout_s,
+                                 feedback_max_age_s=self.safety.max_feedback_age_s)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-ready summary (for run logs)."""
+        return {
+            "robot_ip": self.robot_ip, "ports": [self.dashboard_port, self.motion_port, self.feedback_port],
+            "control_period_s": self.control_period_s, "servo_time_s": self.servo_time_s,
+            "camera_source": self.camera_source,
+            "preprocess": None if self.preprocess is None else self.preprocess.to_dict(),
+            "image_size_px": self.image_size_px, "start_pose_mm_deg": list(self.start_pose_mm_deg),
+            "action_scale": {"step_mm": self.action_scale.step_mm, "step_deg": self.action_scale.step_deg},
+            "mount": {"tcp_offset_mm": self.mount.tcp_offset_mm, "mount_rz_deg": self.mount.mount_rz_deg},
+            "safety": {key: (list(value) if isinstance(value, tuple) else value)
+                       for key, value in vars(self.safety).items() if key not in ("geometry", "limits")},
+            "dry_run": self.dry_run,
+        }
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The env
+
+
+class RealTactileEnv(gym.Env):
+    """The real (or emulated) MG400 with a TacTip, as ``SimShearTracking-v0`` (see the module docstring).
+
+    Args:
+        config: robot, camera, timing and safety settings.
+        camera: a frame source to read instead of opening ``config.camera_source`` (a simulated camera, a
+            recording); the env closes it on :meth:`close`.
+        contact_check: called with each observation; returning False means contact is lost (ends the episode
+            when ``config.safety.stop_on_lost_contact``).
+
+    The robot is connected on the first :meth:`reset`, so building the env needs no robot.
+
+    ``info`` of every step: ``time_s`` (since reset), ``flange_pose_mm_deg`` (measured), ``flange_target_mm_deg``
+    and ``tcp_target`` (the last target sent, or that would have been sent in a dry run), ``action``,
+    ``robot_mode``, ``feedback_age_s``, ``camera_frame_age_s``, ``in_contact`` (None without a contact check),
+    ``overrun_s``, ``commands_sent``, ``termination`` and, when something stopped the episode, ``safety_event``.
+    """
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, config: RealEnvConfig = RealEnvConfig(), camera: FrameSource | None = None,
+                 contact_check: ContactCheck | None = None) -> None:
+        self.config = config
+        self.observation_space, self.action_space = tracking_spaces(config.image_size_px)
+        self.action_scale = config.action_scale
+        self.safety = SafetyLayer(replace(config.safety, dry_run=config.dry_run))
+        self.client = MG400Client(config.client_config(), self.safety)
+        self._camera = camera
+        self._owns_camera = camera is None
+        self.contact_check = contact_check
+        self._connected = False
+        self._commanded: np.ndarray | None = None  # flange target of the last command (sent or dry-run)
+        self._next_tick = 0.0
+        self._t0 = 0.0
+        self._last_frame_time: float | None = None
+        self._last_obs: dict[str, np.ndarray] | None = None
+        self._termination: str | None = None  # None: no episode; "": running
+        self.commands_sent = 0
+        self.safety_events: list[str] = []
+        self._flange: np.ndarray | None = None  # measured flange pose of the last observation
+        self._snapshot = StatusSnapshot(connected=False)
+        self._camera_frame_age_s: float | None = None
+        self._in_contact: bool | None = None
+
+    # -- connection ----------------------------------------------------------------------------------------------
+
+    @property
+    def camera(self) -> FrameSource | None:
+        return self._camera
+
+    def _connect(self) -> None:
+        if self._camera is None:
+            self._camera = CameraSource(self.config.camera_source, stall_timeout_s=self.config.camera_stall_timeout_s)
+        if self._connected and self.client.connected:
+            return
+        self.client.close()
+        self.client.connect()
+        self._connected = True
+        deadline = time.monotonic() + self.config.connect_timeout_s
+        while True:  # the first feedback packet; the env reads tcp_pose from it
+            try:
+                self.client.latest_feedback()
+                return
+            except FeedbackStaleError as error:
+                if time.monotonic() > deadline:
+                    raise MG400ConnectionError(f"no feedback from the MG400 at {self.config.robot_ip}:"
+                                               f"{self.config.feedback_port} within {self.config.connect_timeout_s:g} s"
+                                               f": {error}") from error
+                time.sleep(0.005)
+
+    def close(self) -> None:
+        """Close the robot connections and the camera (the robot stops at its last servo target)."""
+        self.client.close()
+        self._connected = False
+        if self._camera is not None:
+            self._camera.close()
+            if self._owns_camera:
+                self._camera = None
+        self._termination = None
+
+    # -- gym API -------------------------------------------------------------------------------------------------
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Connect if needed, move to the start pose (``options["start_pose_mm_deg"]`` overrides the config's;
+        it passes the safety layer like every target) and return the first observation.
+
+        Raises:
+            RealEnvError: the robot is in error mode or the move to the start pose failed.
+            SafetyError: the start pose is refused (nothing is sent).
+            MG400ConnectionError: the robot cannot be reached.
+        """
+        super().reset(seed=seed)
+        options = options or {}
+        start = np.asarray(options.get("start_pose_mm_deg", self.config.start_pose_mm_deg), dtype=np.float64)
+        self._termination = None
+        self._connect()
+        mode = self.client.robot_mode()
+        if mode == RobotMode.ERROR:
+            alarms = self.client.get_error_id().all_ids
+            raise RealEnvError(f"the MG400 is in error mode (alarms {list(alarms)}); clear the cause, send "
+                               "ClearError() and Continue(), then reset again")
+        dry_run = self.config.dry_run
+        if not dry_run and self.config.enable_robot and mode in (RobotMode.DISABLED, RobotMode.POWER_OFF):
+            self.client.enable_robot()
+        self.client.reset_reference()
+        try:
+            self.client.mov_j(*start)  # safety: reachability, workspace, path, max_move_*
+            self.client.sync()
+        except MG400Error as error:
+            raise RealEnvError(f"moving to the start pose {start.tolist()} failed: {error}") from error
+        if not dry_run:
+            self._wait_until_at(start)
+        self._commanded = start.copy()
+        self.commands_sent = 0
+        self.safety_events = []
+        self._last_frame_time = None
+        self._t0 = time.monotonic()
+        self._termination = ""
+        obs, stop = self._observe()
+        self._next_tick = time.monotonic() + self.config.control_period_s
+        info = self._info(stop_reason="", action=np.zeros(4), overrun_s=0.0)
+        if stop:
+            # An episode that cannot start is an error, not a zero-length episode.
+            self._termination = None
+            raise RealEnvError(f"cannot start the episode: {stop[1]}")
+        return obs, info
+
+    def step(self, action):
+        if self._termination is None:
+            raise RuntimeError("call reset() before step()")
+        if self._termination:
+            raise RuntimeError(f"the episode ended ({self._termination}); call reset() before step()")
+        move = action_to_move(action, self.action_scale)
+        target = move_to_flange_target(self._commanded, move, self.config.mount)
+        stop = self._send(target)
+        overrun_s = 0.0
+        if stop is None:
+            delay_s = self._next_tick - time.monotonic()
+            if delay_s > 0.0:
+                time.sleep(delay_s)
+            else:
+                overrun_s = -delay_s
+            self._next_tick = max(self._next_tick + self.config.control_period_s, time.monotonic())
+            obs, stop = self._observe()
+        else:
+            obs = self._last_obs
+        reason = ""
+        if stop is not None:
+            reason, event = stop
+            self.safety_events.append(event)
+            logger.warning("real env: episode stopped (%s): %s", reason, event)
+            self._termination = reason
+        info = self._info(stop_reason=reason, action=np.asarray(action, dtype=np.float64), overrun_s=overrun_s)
+        if stop is not None:
+            info["safety_event"] = stop[1]
+        return obs, 0.0, bool(reason), False, info
+
+    def _wait_until_at(self, pose: np.ndarray, tolerance: float = 0.5, timeout_s: float = 2.0) -> None:
+        """Wait for a feedback packet that shows the queue done and the arm at ``pose`` (Sync answers before the
+        newest packet shows it)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            feedback = self.client.latest_feedback()
+            reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)
+            if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
+                    and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
+                return
+            if time.monotonic() > deadline:
+                raise RealEnvError(f"the MG400 stopped at {reached.round(3).tolist()} instead of the start pose "
+                                   f"{pose.tolist()} (tolerance {tolerance} mm / deg)")
+            time.sleep(0.002)
+
+    def _send(self, target: np.ndarray) -> tuple[str, str] | None:
+        """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""
+        try:
+            self.client.servo_p(*target, t_s=self.config.servo_time_s)
+        except SafetyError as error:
+            return "safety_refused", f"target {target.round(3).tolist()} refused, not sent: {error}"
+        except MG400Error as error:
+            return "robot_error", str(error)
+        except (MG400ConnectionError, MG400TimeoutError, ProtocolError) as error:
+            return "lost_connection", str(error)
+        self._commanded = target
+        if not self.config.dry_run:
+            self.commands_sent += 1
+        return None
+
+    def _observe(self) -> tuple[dict[str, np.ndarray], tuple[str, str] | None]:
+        """Read the camera and the feedback; the observation and (termination, reason) if something must stop."""
+        stop: tuple[str, str] | None = None
+        try:
+            frame = self._camera.read()
+        except EndOfStream as error:
+            frame, stop = None, ("camera_ended", str(error))
+        except CameraError as error:
+            frame, stop = None, ("camera_stall", str(error))
+        # The camera's frame age: how old the newest frame had become when this one arrived (or now, without one).
+        now = time.monotonic()
+        frame_age_s = None if self._last_frame_time is None else now - self._last_frame_time
+        if frame is not None:
+            self._last_frame_time = now
+            tactile = tactile_from_frame(frame, self.config.preprocess, self.config.image_size_px)
+        else:
+            tactile = (self._last_obs["tactile"][0] if self._last_obs is not None
+                       else np.zeros((self.config.image_size_px,) * 2, np.uint8))
+        self._camera_frame_age_s = frame_age_s
+        try:
+            flange = np.asarray(self.client.latest_feedback().tool_vector_actual, dtype=np.float64)
+        except FeedbackStaleError as error:
+            flange = None
+            stop = stop or ("lost_connection", f"robot feedback lost: {error}")
+        if flange is not None:
+            tcp = tcp_pose_from_flange(flange, self.config.mount)
+            self._flange = flange
+        else:
+            tcp = (self._last_obs["tcp_pose"].astype(np.float64) if self._last_obs is not None else np.zeros(4))
+            self._flange = None
+        obs = {"tactile": tactile[None].copy(),
+               "tcp_pose": np.clip(tcp, TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)}
+        self._last_obs = obs
+        in_contact = None
+        if self.contact_check is not None and frame is not None:
+            in_contact = bool(self.contact_check(obs))
+        self._in_contact = in_contact
+        snapshot = self.client.status_snapshot(camera_frame_age_s=frame_age_s, in_contact=in_contact)
+        self._snapshot = snapshot
+        decision = self.safety.check_status(snapshot)
+        if stop is None and decision.stop:
+            stop = (self._classify(decision.reasons), "; ".join(decision.reasons))
+        return obs, stop
+
+    @staticmethod
+    def _classify(reasons: tuple[str, ...]) -> str:
+        text = " ".join(reasons)
+        for key, name in (("connection", "lost_connection"), ("feedback", "lost_connection"),
+                          ("error mode", "robot_error"), ("camera", "camera_stall"), ("contact", "lost_contact")):
+            if key in text:
+                return name
+        return "robot_error"
+
+    def _info(self, stop_reason: str, action: np.ndarray, overrun_s: float) -> dict[str, Any]:
+        snapshot = self._snapshot
+        commanded = self._commanded
+        return {
+            "time_s": time.monotonic() - self._t0,
+            "flange_pose_mm_deg": None if self._flange is None else self._flange.copy(),
+            "flange_target_mm_deg": commanded.copy(),
+            "tcp_target": tcp_pose_from_flange(commanded, self.config.mount),
+            "action": np.asarray(action, dtype=np.float64).copy(),
+            "robot_mode": snapshot.robot_mode,
+            "feedback_age_s": snapshot.feedback_age_s,
+            "camera_frame_age_s": self._camera_frame_age_s,
+            "in_contact": self._in_contact,
+            "overrun_s": overrun_s,
+            "commands_sent": self.commands_sent,
+            "dry_run": self.config.dry_run,
+            "termination": stop_reason,
+        }
+
+
+class EstimatedContact:
+    """A ``contact_check`` from a pose estimator's raw reading: in contact while the estimated depth is at least
+    ``min_depth_mm`` (labels' convention: the face lies at 2.2 mm).
+
+    Args:
+        estimator: anything with ``read(tactile) -> (mean, std)`` whose mean starts with the depth, mm
+            (:class:`~simshear_gym.control.estimator.TactileEstimator`; share the controller's to load it once).
+        min_depth_mm: the depth below which contact counts as lost.
+    """
+
+    def __init__(self, estimator, min_depth_mm: float) -> None:
+        if not math.isfinite(min_depth_mm):
+            raise ValueError(f"min_depth_mm must be finite, got {min_depth_mm!r}")
+        self.estimator = estimator
+        self.min_depth_mm = float(min_depth_mm)
+        self.last_depth_mm: float | None = None
+
+    def __call__(self, observation: dict[str, np.ndarray]) -> bool:
+        mean, _ = self.estimator.read(observation["tactile"])
+        self.last_depth_mm = float(mean[0])
+        return self.last_depth_mm >= self.min_depth_mm
+
+
+__all__ = ["TERMINATIONS", "ContactCheck", "EstimatedContact", "RealEnvConfig", "RealEnvError", "RealTactileEnv",
+           "action_to_move", "move_to_flange_target", "resize_tactile", "tactile_from_frame",
+           "tcp_pose_from_flange", "tracking_spaces"]

@@ -1,0 +1,206 @@
+"""Hardware-in-the-loop camera: the simulated TacTip, looking at a moving surface, wherever the (emulated) arm is.
+
+:class:`SimSurfaceCamera` is a frame source for :class:`~simshear_gym.real.env.RealTactileEnv`. On every
+``read()`` it asks where the arm's flange is (a callable: the emulator's state, or the robot's feedback), places
+the TacTip there with the env's mount, moves a flat surface along its configured path, renders the sim TacTip
+(:mod:`simshear_gym.sim.tactip`), tracks the shear of the contact (:class:`~simshear_gym.sim.shear.ShearTracker`)
+and translates the image with the shipped shPix2pix, exactly as ``SimShearTracking-v0`` does in its ``"real"``
+mode (:func:`~simshear_gym.envs.base.finish_tactile`). So the whole real path closes: camera -> estimator ->
+controller -> TCP/IP -> emulator -> camera.
+
+Frames (the robot's base frame is the world frame, mm): the surface's face frame has its origin on the top face
+and +z out of the face (up); at the start it is placed so that the sensor at ``start_flange_pose_mm_deg`` touches
+it at ``reference_depth_mm`` (labels' convention, the face at 2.2 mm) with the sensor's x along the face's x.
+The surface then moves at ``velocity_mm_s`` (base frame) until it has travelled ``max_travel_mm``, timed by the
+wall clock from the first ``read()``.
+
+Ground truth, for tests and logs: each read appends a :class:`ContactTruth` to :attr:`SimSurfaceCamera.history`
+(``contact_error_mm``: the TCP's distance from where it touched the surface, carried along with the surface, as the
+sim env's contact error).
+
+Optionally (``raw_frame_layout``) the image is returned as a 640x480 camera-like frame, the tactile image scaled
+into the preprocessing's crop box, so that :func:`~simshear_gym.real.camera.preprocess` runs on it too.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from simshear_gym.envs.base import RENDER_SIZE_PX, SURFACE_DEPTH_MM, TacTipMount, finish_tactile, pose_from_matrix_fast
+from simshear_gym.real.camera import CameraError, PreprocessConfig
+from simshear_gym.sim import stimuli
+from simshear_gym.sim.mg400_arm import pose_to_T_base_flange
+from simshear_gym.sim.shear import ShearTracker
+from simshear_gym.sim.tactip import TacTip, TacTipConfig
+from simshear_gym.sim.transforms import invert, pose_to_matrix
+from simshear_gym.sim.world import World
+
+RAW_FRAME_SIZE_PX = (640, 480)  # (width, height) of the TacTip camera's frames
+
+
+@dataclass(frozen=True)
+class MovingSurfaceConfig:
+    """The surface the simulated TacTip touches and how it moves.
+
+    Attributes:
+        velocity_mm_s: the surface's velocity in the robot's base frame (x, y, z), mm/s.
+        max_travel_mm: the surface stops after moving this far, mm.
+        reference_depth_mm: where the sensor at the start pose touches it (labels' convention), mm.
+        size_mm: the surface box (length x, width y, thickness z), mm.
+        translate: True: shPix2pix-translated image (what a real TacTip shows); False: the raw sim depth image.
+        contact: the translator's contact type.
+    """
+
+    velocity_mm_s: tuple[float, float, float] = (2.0, 0.0, 0.0)
+    max_travel_mm: float = 20.0
+    reference_depth_mm: float = 4.0
+    size_mm: tuple[float, float, float] = (120.0, 120.0, 10.0)
+    translate: bool = True
+    contact: str = "surface"
+
+    def __post_init__(self) -> None:
+        velocity = tuple(float(v) for v in self.velocity_mm_s)
+        if len(velocity) != 3 or not all(math.isfinite(v) for v in velocity):
+            raise ValueError(f"MovingSurfaceConfig.velocity_mm_s must be 3 finite numbers, got {self.velocity_mm_s!r}")
+        object.__setattr__(self, "velocity_mm_s", velocity)
+        if not (math.isfinite(self.max_travel_mm) and self.max_travel_mm >= 0.0):
+            raise ValueError(f"MovingSurfaceConfig.max_travel_mm must be >= 0, got {self.max_travel_mm!r}")
+        if not SURFACE_DEPTH_MM < self.reference_depth_mm < SURFACE_DEPTH_MM + 10.0:
+            raise ValueError(f"MovingSurfaceConfig.reference_depth_mm must press the dome into the surface: within "
+                             f"({SURFACE_DEPTH_MM}, {SURFACE_DEPTH_MM + 10.0}) mm, got {self.reference_depth_mm!r}")
+        if self.contact != "surface":
+            raise ValueError(f"MovingSurfaceConfig.contact must be 'surface' (a flat surface), got {self.contact!r}")
+
+    def offset_at(self, time_s: float) -> np.ndarray:
+        """The surface's displacement from its start after ``time_s`` seconds, base frame, mm."""
+        velocity = np.asarray(self.velocity_mm_s)
+        speed = float(np.linalg.norm(velocity))
+        if speed == 0.0:
+            return np.zeros(3)
+        return velocity * min(max(time_s, 0.0), self.max_travel_mm / speed)
+
+
+@dataclass(frozen=True)
+class ContactTruth:
+    """What the simulation knows at one read (base frame, mm)."""
+
+    time_s: float
+    flange_pose_mm_deg: np.ndarray
+    surface_offset_mm: np.ndarray
+    penetration_mm: float
+    in_contact: bool
+    contact_error_mm: float
+    shear_sensor: np.ndarray
+
+
+class SimSurfaceCamera:
+    """A frame source rendering the simulated TacTip on a moving surface (see the module docstring).
+
+    Args:
+        flange_pose: returns the arm's current flange pose ``(x, y, z mm, R deg)`` in its base frame.
+        start_flange_pose_mm_deg: the flange pose at which the sensor touches the surface at the reference depth.
+        config: the surface and its motion.
+        mount: the TacTip on the flange (as the env's).
+        raw_frame_layout: a preprocessing config to emit 640x480 frames for (the image fills its crop box);
+            None: emit the 128 px tactile image itself.
+        clock: monotonic time source, s.
+    """
+
+    def __init__(self, flange_pose: Callable[[], object], start_flange_pose_mm_deg, config: MovingSurfaceConfig =
+                 MovingSurfaceConfig(), mount: TacTipMount = TacTipMount(),
+                 raw_frame_layout: PreprocessConfig | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        if not callable(flange_pose):
+            raise ValueError(f"flange_pose must be callable, got {type(flange_pose).__name__}")
+        self.name = "simulated TacTip camera"
+        self.config = config
+        self.mount = mount
+        self.raw_frame_layout = raw_frame_layout
+        self._flange_pose = flange_pose
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._T_flange_sensor = mount.T_flange_sensor()
+        self._T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
+        self._T_work_face[2, 3] = SURFACE_DEPTH_MM
+        start = np.asarray(start_flange_pose_mm_deg, dtype=np.float64)
+        T_base_sensor = pose_to_T_base_flange(start) @ self._T_flange_sensor
+        T_work_sensor = pose_to_matrix(np.array([0.0, 0.0, config.reference_depth_mm, 0.0, 0.0, 0.0]))
+        # T_base_sensor = T_base_face @ T_face_work @ T_work_sensor
+        self._T_base_face_start = T_base_sensor @ invert(T_work_sensor) @ self._T_work_face
+        self._target_face_mm = (invert(self._T_base_face_start) @ T_base_sensor)[:3, 3]
+        self._half_extents_mm = (config.size_mm[0] / 2.0, config.size_mm[1] / 2.0)
+        self._stimulus = stimuli.FlatSurface(size_mm=config.size_mm)
+        self.world = World()
+        self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
+        self._body = stimuli.spawn(self.world, self._stimulus, self._T_base_face_start)
+        self._tracker = ShearTracker()
+        self._t0: float | None = None
+        self._closed = False
+        self.history: list[ContactTruth] = []
+
+    def T_base_face(self, time_s: float) -> np.ndarray:
+        """The surface's face frame in the base frame at ``time_s`` after the first read."""
+        T = self._T_base_face_start.copy()
+        T[:3, 3] += self.config.offset_at(time_s)
+        return T
+
+    def read(self) -> np.ndarray:
+        """The tactile image (uint8 128x128, or a 640x480 frame with ``raw_frame_layout``) at the arm's pose now."""
+        with self._lock:
+            if self._closed:
+                raise CameraError(f"{self.name}: read() after close()")
+            now = self._clock()
+            if self._t0 is None:
+                self._t0 = now
+            time_s = now - self._t0
+            flange = np.asarray(self._flange_pose(), dtype=np.float64)[:4]
+            T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
+            T_base_face = self.T_base_face(time_s)
+            stimuli.move(self.world, self._body, T_base_face, self._stimulus)
+            T_face_sensor = invert(T_base_face) @ T_base_sensor
+            penetration_mm = -float(T_face_sensor[2, 3])
+            on_face = (abs(T_face_sensor[0, 3]) <= self._half_extents_mm[0]
+                       and abs(T_face_sensor[1, 3]) <= self._half_extents_mm[1])
+            in_contact = bool(on_face and penetration_mm > 0.0)
+            shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_face_sensor), in_contact)
+            target_base = T_base_face[:3, :3] @ self._target_face_mm + T_base_face[:3, 3]
+            error_mm = float(np.linalg.norm(T_base_sensor[:3, 3] - target_base))
+            sim = self.tactip.render(T_base_sensor)
+            mode = "real" if self.config.translate else "sim"
+            image = finish_tactile(sim[None], shear[None], mode, RENDER_SIZE_PX, self.config.contact)[0]
+            self.history.append(ContactTruth(time_s, flange, T_base_face[:3, 3] - self._T_base_face_start[:3, 3],
+                                             penetration_mm, in_contact, error_mm, shear.copy()))
+        if self.raw_frame_layout is None:
+            return image
+        return embed_in_frame(image, self.raw_frame_layout)
+
+    def close(self) -> None:
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self.world.close()
+
+    def __enter__(self) -> SimSurfaceCamera:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.close()
+
+
+def embed_in_frame(image: np.ndarray, layout: PreprocessConfig, frame_size_px: tuple[int, int] = RAW_FRAME_SIZE_PX
+                   ) -> np.ndarray:
+    """A grey uint8 frame (``frame_size_px`` = width, height) with ``image`` scaled into ``layout.crop_bbox_px``,
+    so that ``preprocess(frame, layout)`` gives (close to) ``image`` back."""
+    x0, y0, x1, y1 = layout.crop_bbox_px
+    width, height = frame_size_px
+    if x1 > width or y1 > height:
+        raise ValueError(f"crop_bbox_px {layout.crop_bbox_px} does not fit a {width}x{height} frame")
+    frame = np.zeros((height, width), np.uint8)
+    frame[y0:y1, x0:x1] = cv2.resize(image, (x1 - x0, y1 - y0), interpolation=cv2.INTER_NEAREST)
+    return frame

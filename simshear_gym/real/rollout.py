@@ -1,0 +1,416 @@
+"""``simshear rollout``: run the servo controller or a trained SB3 policy on the real (or emulated) MG400.
+
+::
+
+    simshear rollout --robot 192.168.1.6 --camera 0 --controller servo --steps 300 --out runs/rollout/surface
+    simshear rollout --robot 127.0.0.1 --camera sim-surface --controller runs/rl/ppo/final.zip --dry-run
+
+Controllers: ``servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter + PI law,
+``--posenet`` weights, default the shipped ``surface`` GDNN) or the path of a Stable-Baselines3 PPO / SAC ``.zip``
+trained on ``SimShearTracking-v0`` (its observation space must equal the env's: same ``--image-size``).
+
+Camera (``--camera``): a device index, a video file or an image folder (:class:`~simshear_gym.real.camera.
+CameraSource`, preprocessed with ``--preprocess``), or ``sim-surface``: the hardware-in-the-loop camera
+(:class:`~simshear_gym.real.hil.SimSurfaceCamera`) rendering the simulated TacTip at the pose the robot's feedback
+reports, on a surface moving at ``--surface-velocity`` (use it with ``simshear mg400-emulator``).
+
+Output in ``--out``: ``steps.csv`` (one row per step: time, measured and commanded TCP and flange poses, action,
+the controller's state estimate, timing, robot mode, safety events; with ``sim-surface`` also the simulated ground
+truth), ``rollout.json`` (the command, the env's config, how the run ended, timing summary) and
+``trajectory.png``. Exit status 0 when every step ran, 1 when a safety condition ended the run early.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import logging
+import shlex
+import time
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from simshear_gym.io import atomic_write, write_json
+
+logger = logging.getLogger(__name__)
+
+SIM_SURFACE_CAMERA = "sim-surface"
+STATE_NAMES = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
+POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Policies: a common face for the servo controller and SB3 models
+
+
+class ServoPolicy:
+    """The servo controller as a rollout policy (its state estimate is logged)."""
+
+    name = "servo"
+
+    def __init__(self, controller) -> None:
+        self.controller = controller
+
+    def reset(self) -> None:
+        self.controller.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        return self.controller(observation)
+
+    def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        return self.controller.last_estimate
+
+
+class SB3Policy:
+    """A Stable-Baselines3 model as a rollout policy (deterministic actions)."""
+
+    def __init__(self, model, path: Path) -> None:
+        self.model = model
+        self.name = f"{type(model).__name__.lower()}:{path}"
+
+    def reset(self) -> None:
+        pass
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        action, _ = self.model.predict(observation, deterministic=True)
+        return np.asarray(action, dtype=np.float32).reshape(4)
+
+    def estimate(self) -> None:
+        return None
+
+
+def sb3_algorithm(path: Path) -> str:
+    """``"ppo"`` or ``"sac"``: which SB3 algorithm saved a ``.zip`` (read from its ``data`` entry)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as error:
+        raise ValueError(f"{path} is not a Stable-Baselines3 model .zip (no readable 'data' entry): {error}") from None
+    # The zip names the policy class, not the algorithm; the saved hyper-parameters tell PPO and SAC apart.
+    if "clip_range" in data:
+        return "ppo"
+    if "target_entropy" in data:
+        return "sac"
+    raise ValueError(f"{path}: neither a PPO nor a SAC model of stable_baselines3 (saved keys: {sorted(data)[:12]}...)")
+
+
+def load_sb3_policy(path: str | Path, observation_space, action_space) -> SB3Policy:
+    """Load a PPO/SAC ``.zip`` and check that its spaces are the env's.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: not an SB3 PPO/SAC model, or trained for other observation/action spaces.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"controller {str(path)!r} is neither 'servo' nor an existing SB3 .zip file")
+    algorithm = sb3_algorithm(path)
+    if algorithm == "ppo":
+        from stable_baselines3 import PPO as Algorithm
+    else:
+        from stable_baselines3 import SAC as Algorithm
+    model = Algorithm.load(path, device="cpu")
+    if model.observation_space != observation_space:
+        raise ValueError(f"{path} was trained on observations {model.observation_space}, but the env gives "
+                         f"{observation_space} (check --image-size)")
+    if model.action_space != action_space:
+        raise ValueError(f"{path} was trained with actions {model.action_space}, the env takes {action_space}")
+    return SB3Policy(model, path)
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# The rollout loop and its log
+
+
+def _vector(value, size: int = 4) -> list[float]:
+    if value is None:
+        return [float("nan")] * size
+    return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
+
+
+def _columns(with_estimate: bool, with_truth: bool) -> list[str]:
+    columns = ["step", "time_s"]
+    columns += [f"tcp_{n}" for n in POSE_NAMES] + [f"tcp_target_{n}" for n in POSE_NAMES]
+    columns += [f"flange_{n}" for n in POSE_NAMES] + [f"flange_target_{n}" for n in POSE_NAMES]
+    columns += [f"action_{i}" for i in range(4)]
+    if with_estimate:
+        columns += [f"estimate_{n}" for n in STATE_NAMES] + [f"estimate_std_{n}" for n in STATE_NAMES]
+    columns += ["policy_ms", "overrun_s", "robot_mode", "feedback_age_s", "camera_frame_age_s", "in_contact",
+                "commands_sent", "termination", "safety_event"]
+    if with_truth:
+        columns += ["truth_contact_error_mm", "truth_penetration_mm", "truth_in_contact"]
+    return columns
+
+
+def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: float, truth) -> dict[str, Any]:
+    row: dict[str, Any] = {"step": step, "time_s": round(float(info["time_s"]), 4)}
+    for prefix, value in (("tcp", observation["tcp_pose"]), ("tcp_target", info["tcp_target"]),
+                          ("flange", info["flange_pose_mm_deg"]), ("flange_target", info["flange_target_mm_deg"])):
+        for name, number in zip(POSE_NAMES, _vector(value)):
+            row[f"{prefix}_{name}"] = round(number, 6)  # the precision of the commands sent
+    for index, number in enumerate(_vector(action)):
+        row[f"action_{index}"] = round(number, 5)
+    if estimate is not None:
+        for name, mean, std in zip(STATE_NAMES, _vector(estimate[0]), _vector(estimate[1])):
+            row[f"estimate_{name}"] = round(mean, 4)
+            row[f"estimate_std_{name}"] = round(std, 4)
+    row.update(policy_ms=round(policy_ms, 3), overrun_s=round(float(info["overrun_s"]), 4),
+               robot_mode=info["robot_mode"], feedback_age_s=info["feedback_age_s"],
+               camera_frame_age_s=info["camera_frame_age_s"], in_contact=info["in_contact"],
+               commands_sent=info["commands_sent"], termination=info["termination"],
+               safety_event=info.get("safety_event", ""))
+    if truth is not None:
+        row.update(truth_contact_error_mm=round(truth.contact_error_mm, 4),
+                   truth_penetration_mm=round(truth.penetration_mm, 4), truth_in_contact=truth.in_contact)
+    return row
+
+
+def run_rollout(env, policy, steps: int, out_dir: str | Path, command: str = "") -> dict[str, Any]:
+    """Reset ``env`` (a :class:`~simshear_gym.real.env.RealTactileEnv`), run ``policy`` for up to ``steps`` steps
+    and write ``steps.csv``, ``rollout.json`` and ``trajectory.png`` in ``out_dir``; returns the summary."""
+    if steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    observation, info = env.reset()
+    policy.reset()
+    truth_source = getattr(env.camera, "history", None)
+    with_estimate = isinstance(policy, ServoPolicy)
+    rows = [_row(0, observation, info, np.zeros(4), None, 0.0, truth_source[-1] if truth_source else None)]
+    termination, policy_ms = "", []
+    for step in range(1, steps + 1):
+        start = time.perf_counter()
+        action = policy(observation)
+        policy_ms.append(1000.0 * (time.perf_counter() - start))
+        observation, _, terminated, truncated, info = env.step(action)
+        truth = truth_source[-1] if truth_source else None
+        rows.append(_row(step, observation, info, action, policy.estimate(), policy_ms[-1], truth))
+        if terminated or truncated:
+            termination = info["termination"]
+            break
+    events = list(env.safety_events)
+    columns = _columns(with_estimate, truth_source is not None)
+    _write_csv(out_dir / "steps.csv", columns, rows)
+    figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{policy.name}: {termination or 'completed'}")
+    overruns = np.array([row["overrun_s"] for row in rows[1:]]) if len(rows) > 1 else np.zeros(0)
+    summary: dict[str, Any] = {
+        "command": command,
+        "controller": policy.name,
+        "steps_requested": steps,
+        "steps_run": len(rows) - 1,
+        "termination": termination,
+        "safety_events": events,
+        "commands_sent": env.commands_sent,
+        "dry_run": env.config.dry_run,
+        "policy_ms_median": round(float(np.median(policy_ms)), 3) if policy_ms else None,
+        "policy_ms_p95": round(float(np.percentile(policy_ms, 95)), 3) if policy_ms else None,
+        "period_overruns": int(np.sum(overruns > 0.0)),
+        "max_overrun_s": round(float(overruns.max()), 4) if overruns.size else 0.0,
+        "config": env.config.to_dict(),
+        "files": {"steps": "steps.csv", "figure": figure.name},
+    }
+    truth = [row["truth_contact_error_mm"] for row in rows if "truth_contact_error_mm" in row]
+    if truth:
+        summary["truth_contact_error_mm"] = {"mean": round(float(np.mean(truth)), 4),
+                                             "max": round(float(np.max(truth)), 4),
+                                             "final": round(float(truth[-1]), 4)}
+    write_json(out_dir / "rollout.json", summary)
+    return summary
+
+
+def _write_csv(path: Path, columns: list[str], rows: list[dict]) -> None:
+    def write(tmp: str) -> None:
+        with open(tmp, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
+            writer.writeheader()
+            for row in rows:
+                writer.writerow({key: ("" if row.get(key) is None else row.get(key)) for key in columns})
+
+    atomic_write(path, write)
+
+
+def plot_trajectory(rows: list[dict], path: Path, title: str = "") -> Path:
+    """Top view of the TCP path (measured and commanded), the TCP against time and the state estimate."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def column(name: str) -> np.ndarray:
+        return np.array([float("nan") if row.get(name) is None else row[name] for row in rows], dtype=float)
+
+    time_s = column("time_s")
+    has_estimate = any("estimate_depth_mm" in row for row in rows)
+    has_truth = "truth_contact_error_mm" in rows[0]
+    panels = 2 + int(has_estimate or has_truth)
+    figure, axes = plt.subplots(1, panels, figsize=(5.0 * panels, 4.2))
+    axes[0].plot(column("tcp_x_mm"), column("tcp_y_mm"), label="measured")
+    axes[0].plot(column("tcp_target_x_mm"), column("tcp_target_y_mm"), "--", label="commanded")
+    axes[0].plot(column("tcp_x_mm")[:1], column("tcp_y_mm")[:1], "ko", label="start")
+    axes[0].set(xlabel="x (mm, base)", ylabel="y (mm, base)", title="TCP path, top view")
+    axes[0].axis("equal")
+    axes[0].legend(fontsize=8)
+    for name, colour in (("x", "C0"), ("y", "C1"), ("z", "C2")):
+        values = column(f"tcp_{name}_mm")
+        axes[1].plot(time_s, values - values[0], colour, label=f"{name} measured")
+        target = column(f"tcp_target_{name}_mm")
+        axes[1].plot(time_s, target - values[0], colour, linestyle="--", linewidth=0.8)
+    axes[1].set(xlabel="time (s)", ylabel="TCP - start (mm)", title="TCP (dashed: commanded)")
+    axes[1].legend(fontsize=8)
+    if panels == 3:
+        if has_estimate:
+            for name, colour in (("shear_x_mm", "C0"), ("shear_y_mm", "C1")):
+                axes[2].plot(time_s, column(f"estimate_{name}"), colour, label=f"est. {name}")
+            axes[2].plot(time_s, column("estimate_depth_mm") - np.nanmedian(column("estimate_depth_mm")), "C2",
+                         label="est. depth - median")
+        if has_truth:
+            axes[2].plot(time_s, column("truth_contact_error_mm"), "k", label="true contact error")
+        axes[2].set(xlabel="time (s)", ylabel="mm", title="state estimate / ground truth")
+        axes[2].legend(fontsize=8)
+    if title:
+        figure.suptitle(title)
+    figure.tight_layout()
+    atomic_write(path, lambda tmp: figure.savefig(tmp, dpi=90, format="png"), suffix=".png")
+    plt.close(figure)
+    return path
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# Command line
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``simshear rollout``."""
+    from simshear_gym.real.mg400_protocol import DASHBOARD_PORT, FEEDBACK_PORT, MOTION_PORT
+
+    parser.add_argument("--robot", required=True, metavar="IP", help="MG400 controller address")
+    parser.add_argument("--camera", required=True, metavar="SRC",
+                        help=f"camera device index, video file, image folder, or '{SIM_SURFACE_CAMERA}' (simulated "
+                             "TacTip on a moving surface at the robot's reported pose)")
+    parser.add_argument("--controller", required=True, metavar="servo|MODEL.zip",
+                        help="'servo' (GDNN + filter + PI law) or a Stable-Baselines3 PPO/SAC .zip")
+    parser.add_argument("--steps", type=int, default=200, help="control steps to run (default 200)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (default runs/rollout/<date-time>)")
+    parser.add_argument("--dry-run", action="store_true", help="check and log motion commands, send none")
+    parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1)")
+    parser.add_argument("--image-size", type=int, default=128, choices=(64, 128), help="tactile observation size")
+    parser.add_argument("--start-pose", type=float, nargs=4, default=(300.0, 0.0, 0.0, 0.0),
+                        metavar=("X", "Y", "Z", "R"), help="flange start pose, mm and deg (default 300 0 0 0)")
+    parser.add_argument("--max-step-mm", type=float, default=5.0, help="safety: largest translation per command")
+    parser.add_argument("--max-step-deg", type=float, default=5.0, help="safety: largest rotation per command")
+    parser.add_argument("--posenet", default=None, help="GDNN weights for the servo controller (default: shipped)")
+    parser.add_argument("--reference-depth-mm", type=float, default=4.0,
+                        help="depth the servo controller holds, labels' convention (default 4.0)")
+    parser.add_argument("--min-depth-mm", type=float, default=None,
+                        help="stop when the GDNN's depth reading falls below this (lost contact); default off")
+    parser.add_argument("--preprocess", default="shipped",
+                        help="preprocessing JSON, 'shipped' (default), or 'none' when frames are tactile images")
+    parser.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT)
+    parser.add_argument("--motion-port", type=int, default=MOTION_PORT)
+    parser.add_argument("--feedback-port", type=int, default=FEEDBACK_PORT)
+    parser.add_argument("--surface-velocity", type=float, nargs=3, default=(2.0, 0.0, 0.0), metavar=("VX", "VY", "VZ"),
+                        help=f"{SIM_SURFACE_CAMERA} camera: surface velocity in the base frame, mm/s")
+    parser.add_argument("--surface-travel-mm", type=float, default=20.0,
+                        help=f"{SIM_SURFACE_CAMERA} camera: the surface stops after this travel, mm")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+
+
+def command_line(args: argparse.Namespace) -> str:
+    """The ``simshear rollout`` command that reproduces ``args``."""
+    words = ["simshear", "rollout", "--robot", args.robot, "--camera", str(args.camera), "--controller",
+             str(args.controller), "--steps", str(args.steps), "--period-s", f"{args.period_s:g}", "--image-size",
+             str(args.image_size), "--start-pose", *(f"{v:g}" for v in args.start_pose),
+             "--max-step-mm", f"{args.max_step_mm:g}", "--max-step-deg", f"{args.max_step_deg:g}",
+             "--reference-depth-mm", f"{args.reference_depth_mm:g}", "--preprocess", str(args.preprocess),
+             "--dashboard-port", str(args.dashboard_port), "--motion-port", str(args.motion_port),
+             "--feedback-port", str(args.feedback_port), "--threads", str(args.threads)]
+    if args.out is not None:
+        words += ["--out", str(args.out)]
+    if args.posenet:
+        words += ["--posenet", str(args.posenet)]
+    if args.min_depth_mm is not None:
+        words += ["--min-depth-mm", f"{args.min_depth_mm:g}"]
+    if args.camera == SIM_SURFACE_CAMERA:
+        words += ["--surface-velocity", *(f"{v:g}" for v in args.surface_velocity),
+                  "--surface-travel-mm", f"{args.surface_travel_mm:g}"]
+    if args.dry_run:
+        words.append("--dry-run")
+    return " ".join(shlex.quote(word) for word in words)
+
+
+def _preprocess_config(value: str):
+    from simshear_gym.real.camera import PreprocessConfig, default_config
+
+    if value == "none":
+        return None
+    if value == "shipped":
+        return default_config()
+    return PreprocessConfig.load(value)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the rollout; 0 when every step ran, 1 when a safety condition stopped it early."""
+    import torch
+
+    from simshear_gym.control.estimator import EstimatorConfig
+    from simshear_gym.control.servo import ServoController
+    from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv
+    from simshear_gym.real.safety import SafetyConfig
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    torch.set_num_threads(args.threads)
+    if args.steps < 1:
+        raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
+    preprocess_config = _preprocess_config(args.preprocess)
+    config = RealEnvConfig(
+        robot_ip=args.robot, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
+        feedback_port=args.feedback_port, control_period_s=args.period_s, camera_source=str(args.camera),
+        preprocess=preprocess_config, image_size_px=args.image_size, start_pose_mm_deg=tuple(args.start_pose),
+        safety=SafetyConfig(max_step_mm=args.max_step_mm, max_step_deg=args.max_step_deg,
+                            stop_on_lost_contact=args.min_depth_mm is not None),
+        dry_run=args.dry_run)
+    if args.camera != SIM_SURFACE_CAMERA:
+        env = RealTactileEnv(config)  # the camera is opened on the first reset
+    else:
+        from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
+
+        surface = MovingSurfaceConfig(velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
+                                      reference_depth_mm=args.reference_depth_mm)
+        holder: list[RealTactileEnv] = []
+        camera = SimSurfaceCamera(lambda: holder[0].client.measured_pose(), config.start_pose_mm_deg, surface,
+                                  config.mount, raw_frame_layout=preprocess_config)
+        env = RealTactileEnv(config, camera=camera)
+        holder.append(env)
+    estimator_config = EstimatorConfig(posenet=args.posenet)
+    if args.controller == "servo":
+        controller = ServoController(args.reference_depth_mm, config.action_scale.as_array(),
+                                     estimator=estimator_config)
+        policy = ServoPolicy(controller)
+        estimator = controller.estimator
+    else:
+        policy = load_sb3_policy(args.controller, env.observation_space, env.action_space)
+        estimator = None
+    if args.min_depth_mm is not None:
+        if estimator is None:
+            from simshear_gym.control.estimator import TactileEstimator
+
+            estimator = TactileEstimator(estimator_config)
+        env.contact_check = EstimatedContact(estimator, args.min_depth_mm)
+    command = command_line(args)
+    try:
+        summary = run_rollout(env, policy, args.steps, out_dir, command=command)
+    finally:
+        env.close()
+    print(f"{summary['steps_run']}/{args.steps} steps, {summary['commands_sent']} commands sent"
+          f"{' (dry run)' if args.dry_run else ''}; policy {summary['policy_ms_median']} ms median; "
+          f"{'ended: ' + summary['termination'] if summary['termination'] else 'completed'}")
+    for event in summary["safety_events"]:
+        print(f"  safety: {event}")
+    print(f"wrote {out_dir / 'steps.csv'}, {out_dir / 'rollout.json'}, {out_dir / 'trajectory.png'}")
+    return 1 if summary["termination"] else 0
