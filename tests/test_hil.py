@@ -7,7 +7,6 @@ interpolation) -> the arm's new pose -> the simulated camera. The surface moves 
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, tcp_pose_from_f
 from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera, embed_in_frame
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 
-INTERIM_POSENET = Path(__file__).resolve().parents[1] / "runs" / "posenet2" / "surface_real_a" / "best.pt"
 START = (300.0, 0.0, 0.0, 0.0)
 RATE_HZ = 15.0
 STEPS = 150  # 10 s
@@ -26,15 +24,10 @@ TRAVEL_MM = 20.0
 
 
 def posenet_path() -> str:
-    """The shipped surface GDNN when present, else the interim training run's."""
+    """The shipped surface GDNN (the one the servo controller uses by default)."""
     from simshear_gym.models.posenet_io import shipped_posenet_path
 
-    try:
-        return str(shipped_posenet_path("surface"))
-    except FileNotFoundError:
-        if INTERIM_POSENET.is_file():
-            return str(INTERIM_POSENET)
-    pytest.skip(f"no surface GDNN: neither the shipped one nor {INTERIM_POSENET} exists")
+    return str(shipped_posenet_path("surface"))
 
 
 def test_sim_camera_frame_survives_the_real_preprocessing():

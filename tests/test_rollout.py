@@ -16,20 +16,14 @@ from simshear_gym.real.env import tracking_spaces
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 from simshear_gym.real.rollout import load_sb3_policy, sb3_algorithm
 
-INTERIM_POSENET = Path(__file__).resolve().parents[1] / "runs" / "posenet2" / "surface_real_a" / "best.pt"
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 
 def posenet_path() -> str:
-    """The shipped surface GDNN when present, else the interim training run's."""
+    """The shipped surface GDNN (the one the servo controller uses by default)."""
     from simshear_gym.models.posenet_io import shipped_posenet_path
 
-    try:
-        return str(shipped_posenet_path("surface"))
-    except FileNotFoundError:
-        if INTERIM_POSENET.is_file():
-            return str(INTERIM_POSENET)
-    pytest.skip(f"no surface GDNN: neither the shipped one nor {INTERIM_POSENET} exists")
+    return str(shipped_posenet_path("surface"))
 
 
 @pytest.fixture

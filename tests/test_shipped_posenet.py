@@ -1,0 +1,36 @@
+"""The shipped GDNNs load and reproduce their recorded check figure on real validation rows."""
+
+import numpy as np
+import pytest
+import torch
+
+from simshear_gym.models.posenet_io import load_shipped_posenet, shipped_posenet_path
+from simshear_gym.train.export_posenet import check_figure
+
+torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("contact", ["surface", "edge"])
+def test_shipped_posenet_loads_with_card(contact):
+    model, card = load_shipped_posenet(contact)
+    assert model.variables.name == contact and not model.training
+    assert card["contact"] == contact and "train_command" in card and card["train_config"]["source"] == "shpix2pix"
+    assert shipped_posenet_path(contact).with_suffix(".md").is_file()
+    assert shipped_posenet_path(contact).stat().st_size < 10 * 2 ** 20
+    mean, std = model(torch.zeros(2, 1, model.config.image_size_px, model.config.image_size_px))
+    assert torch.isfinite(mean).all() and (std > 0).all()
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("contact", ["surface", "edge"])
+def test_shipped_posenet_reproduces_its_check_figure(contact, data_root):
+    _, card = load_shipped_posenet(contact)
+    recorded = card["check"]
+    measured = check_figure(shipped_posenet_path(contact), contact, recorded["rows"], str(data_root))
+    for name, value in recorded["mae"].items():
+        assert measured["mae"][name] == pytest.approx(value, rel=1e-3, abs=1e-4), name
+
+
+def test_unknown_contact_is_a_clear_error():
+    with pytest.raises(FileNotFoundError, match="no shipped posenet for 'cylinder'"):
+        shipped_posenet_path("cylinder")
