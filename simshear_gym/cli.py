@@ -43,6 +43,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
     (("evaluate", "oracle"), "simshear_gym.evaluate.oracle",
      "contact error of the oracle controller on every SimShearTracking-v0 trajectory"),
+    (("evaluate", "servo"), "simshear_gym.evaluate.servo",
+     "closed-loop tracking and co-lift benchmarks of the tactile servo controller"),
     (("evaluate", "env-speed"), "simshear_gym.evaluate.env_speed",
      "steps per second of SimShearTracking-v0 (real images), one process and vectorised"),
     (("rollout",), "simshear_gym.real.rollout",

@@ -1,6 +1,5 @@
 """The shipped GDNNs load and reproduce their recorded check figure on real validation rows."""
 
-import numpy as np
 import pytest
 import torch
 

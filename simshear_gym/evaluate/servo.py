@@ -109,6 +109,12 @@ def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, t
         axis = fig.add_subplot(rows, columns, index + 1, projection="3d")
         axis.plot(*(target - target[0]).T, color="tab:red", lw=1.2, label="leader (target)")
         axis.plot(*(sensor - target[0]).T, color="tab:blue", lw=0.8, ls="--", label="follower")
+        points = np.concatenate([target, sensor]) - target[0]
+        low, high = points.min(axis=0), points.max(axis=0)
+        middle, half = (low + high) / 2, max(float((high - low).max()) / 2, 5.0)
+        for setter, centre in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), middle):
+            setter(centre - half, centre + half)  # equal scale on the three axes
+        axis.set_box_aspect((1, 1, 1))
         axis.set_title(f"{name}\nerror {error:.2f} mm", fontsize=8)
         axis.tick_params(labelsize=5)
         axis.set_xlabel("x mm", fontsize=6)
