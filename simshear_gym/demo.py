@@ -1,8 +1,11 @@
-"""``simshear demo``: the embedded default job, runnable on a fresh machine without the real data.
+"""``simshear demo``: the embedded default job: tactile servoing in simulation on shipped weights, no data needed.
 
-Renders random surface and edge contacts with the simulated TacTip and the shear tracker (the same code that
-builds the paired training sets), writes them as paired sets under ``--out``, and a montage with each contact's
-labels and shear vector. Later stages of the project extend this into the tracking demo.
+Runs the tactile servo controller (:class:`~simshear_gym.control.servo.ServoController`: the shipped GDNN reads
+depth and shear from each tactile image, the Bayesian filter fuses the readings, a PI law moves the follower) on
+the four ``SimShearTracking-v0`` trajectories with ``obs_mode="real"`` (the shipped shPix2pix turns every sim
+image into a real-looking TacTip image), prints the contact error per trajectory and writes the paper-style
+figure (leader path red, follower blue) to ``--out``. The full benchmark with seeds, co-lift and the estimator
+variants is ``simshear evaluate servo``.
 """
 
 from __future__ import annotations
@@ -11,44 +14,43 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
+TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory")
-    parser.add_argument("--n", type=int, default=200, help="contacts per contact type")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--trajectories", nargs="+", default=list(TRAJECTORIES), choices=TRAJECTORIES)
+    parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the whole path)")
+    parser.add_argument("--threads", type=int, default=1)
 
 
 def run(args: argparse.Namespace) -> int:
-    import cv2
+    import gymnasium as gym
+    import torch
 
-    from simshear_gym.data.collect import CollectConfig, load_paired, random_set
-    from simshear_gym.data.labels import SHEAR_COLUMNS
+    import simshear_gym.envs  # noqa: F401  (registers the envs)
+    from simshear_gym.control.servo import ServoController
+    from simshear_gym.evaluate.servo import figure, run_episode
 
-    config = CollectConfig(workers=args.workers)
-    tiles = []
-    print(f"{'contact':8s} {'rows':>5s} {'s':>6s} {'rows/s':>7s} {'in contact':>10s} {'mean |shear xy| mm':>19s}")
-    for contact in ("surface", "edge"):
-        start = time.perf_counter()
-        random_set(contact, args.n, args.seed, args.out / contact, config)
-        seconds = time.perf_counter() - start
-        paired, _ = load_paired(args.out / contact)
-        images = paired.load_images()
-        shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy()
-        touching = (images.max(axis=(1, 2)) > 0).mean()
-        print(f"{contact:8s} {len(images):5d} {seconds:6.2f} {len(images) / seconds:7.0f} {touching:10.0%} "
-              f"{np.hypot(shear[:, 0], shear[:, 1]).mean():19.2f}")
-        for i in range(4):
-            tile = cv2.cvtColor(np.clip(images[i].astype(np.float32) * 4, 0, 255).astype(np.uint8), cv2.COLOR_GRAY2BGR)
-            pose = paired.poses()[i]
-            lines = (f"{contact} z {pose[2]:.1f}mm", f"Rx {pose[3]:.0f} Ry {pose[4]:.0f} Rz {pose[5]:.0f}",
-                     f"shear {shear[i, 0]:+.1f},{shear[i, 1]:+.1f}mm")
-            for row, line in enumerate(lines):
-                cv2.putText(tile, line, (2, 10 + 11 * row), cv2.FONT_HERSHEY_SIMPLEX, 0.32, (0, 255, 255), 1)
-            tiles.append(tile)
-    figure = args.out / "demo.png"
-    cv2.imwrite(str(figure), np.vstack([np.hstack(tiles[:4]), np.hstack(tiles[4:])]))
-    print(f"wrote paired sets under {args.out} and the montage {figure}")
+    torch.set_num_threads(args.threads)
+    print("Tactile servoing on SimShearTracking-v0: shPix2pix images -> shipped GDNN + filter -> PI law")
+    print(f"{'trajectory':14s} {'steps':>5s} {'error mm (mean +- std)':>23s} {'max mm':>7s} {'out of contact':>14s} "
+          f"{'control ms':>10s} {'env step ms':>11s}")
+    paths = {}
+    start = time.perf_counter()
+    for trajectory in args.trajectories:
+        env = gym.make("SimShearTracking-v0", trajectory=trajectory, obs_mode="real")
+        controller = ServoController.for_env(env)
+        result = run_episode(env, controller, seed=0, max_steps=args.max_steps)
+        env.close()
+        target, sensor = result.pop("_paths")
+        paths[trajectory] = (target, sensor, result["contact_error_mean_mm"])
+        print(f"{trajectory:14s} {result['steps']:5d} {result['contact_error_mean_mm']:13.3f} +- "
+              f"{result['contact_error_std_mm']:.3f} {result['contact_error_max_mm']:7.2f} "
+              f"{result['steps_out_of_contact']:14d} {result['control_ms_median']:10.2f} "
+              f"{result['env_step_ms_median']:11.2f}" + (f"  ended: {result['termination']}"
+                                                         if result["termination"] else ""))
+    png = args.out / "tracking.png"
+    figure(paths, png, "SimShearTracking-v0, tactile servo controller (shipped weights)")
+    print(f"wrote {png} ({time.perf_counter() - start:.0f} s)")
     return 0

@@ -3,6 +3,9 @@ and call ``world.client``; nothing in the package calls the global ``pybullet`` 
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 from dataclasses import dataclass
 
 import pybullet
@@ -30,6 +33,24 @@ class WorldConfig:
             raise ValueError(f"solver_iterations must be >= 1, got {self.solver_iterations}")
 
 
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence the C library's stdout (PyBullet prints ``argv[0]=`` on every connection) for the block."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):  # no real stdout file descriptor (some test runners): nothing to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 class World:
     """A headless (DIRECT) PyBullet physics client with fixed settings.
 
@@ -38,7 +59,8 @@ class World:
 
     def __init__(self, config: WorldConfig = WorldConfig()) -> None:
         self.config = config
-        self._client: BulletClient | None = BulletClient(connection_mode=pybullet.DIRECT)
+        with _quiet_stdout():
+            self._client: BulletClient | None = BulletClient(connection_mode=pybullet.DIRECT)
         self._client.setTimeStep(config.time_step_s)
         self._client.setPhysicsEngineParameter(numSolverIterations=config.solver_iterations)
         self._client.setGravity(0.0, 0.0, -config.gravity_mps2)
