@@ -35,6 +35,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
     (("train", "export-posenet"), "simshear_gym.train.export_posenet",
      "ship a posenet run's best GDNN with its model card"),
+    (("train", "rl"), "simshear_gym.train.rl",
+     "train a PPO or SAC agent on SimShearTracking-v0 (translated images, randomised trajectories)"),
     (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",
      "pose-and-shear GDNN errors on the real validation images, against chance"),
     (("evaluate", "filter"), "simshear_gym.evaluate.posenet_filter",

@@ -8,7 +8,8 @@ trajectory's scale, speed, rotation and the start place), with estimator variant
 - ``shpix2pix``: the env's translated images (``obs_mode="real"``), the shipped GDNN (trained on shPix2pix images);
 - ``pix2pix``: the same images, a GDNN trained on pix2pix-generated images (``--posenet-pix2pix``);
 - ``sim``: raw sim images (``obs_mode="sim"``), a GDNN trained on raw sim images (``--posenet-sim``);
-- ``oracle``: the true depth and shear into the oracle law (the task's floor, not a tactile controller).
+- ``oracle``: the true depth and shear into the oracle law (the task's floor, not a tactile controller);
+- ``policy``: an SB3 agent of ``simshear train rl`` (``--policy``) on the env's translated images.
 
 Per run: contact error mean, std and max (mm; the env's ``info["contact_error_mm"]`` every step), steps out of
 contact, whether it ended early (``termination``) and, for co-lift, whether the object dropped. Also the control
@@ -28,21 +29,47 @@ import numpy as np
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
-VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle")
+VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy")
 
 
-def make_controller(variant: str, env, posenets: dict[str, str | None]):
+class _PolicyController:
+    """An SB3 model as a controller (deterministic actions)."""
+
+    def __init__(self, path: str, env) -> None:
+        from simshear_gym.real.rollout import load_sb3_policy
+
+        self.policy = load_sb3_policy(path, env.observation_space, env.action_space)
+
+    def reset(self) -> None:
+        self.policy.reset()
+
+    def __call__(self, observation: dict):
+        return self.policy(observation)
+
+
+def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None):
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.oracle import OracleController
     from simshear_gym.control.servo import ServoController
 
     if variant == "oracle":
         return OracleController.for_env(env)
+    if variant == "policy":
+        return _PolicyController(policy, env)
     return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)))
 
 
-def obs_mode_of(variant: str) -> str:
-    return {"sim": "sim", "oracle": "oracle"}.get(variant, "real")
+def env_kwargs_of(variant: str, policy: str | None) -> dict:
+    """Observation settings of a variant (a policy runs at the image size it was trained on)."""
+    kwargs = {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
+    if variant == "policy":
+        config = Path(policy).parent / "config.json"
+        if config.is_file():
+            import json
+
+            settings = json.loads(config.read_text())
+            kwargs = {"obs_mode": settings.get("obs_mode", "real"), "image_size_px": settings.get("image_size_px", 128)}
+    return kwargs
 
 
 def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dict:
@@ -142,6 +169,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--posenet-shpix2pix", default=None, help="GDNN for the shpix2pix variant (default shipped)")
     parser.add_argument("--posenet-pix2pix", default=None, help="GDNN trained on pix2pix images")
     parser.add_argument("--posenet-sim", default=None, help="GDNN trained on raw sim images")
+    parser.add_argument("--policy", default=None, help="SB3 model .zip for the policy variant")
     parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the env's limit)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--out", type=Path, default=Path("results"))
@@ -159,6 +187,8 @@ def run(args: argparse.Namespace) -> int:
     for variant in args.variants:
         if variant in ("pix2pix", "sim") and not posenets[variant]:
             raise ValueError(f"--variants {variant} needs --posenet-{variant} (a GDNN trained on {variant} images)")
+        if variant == "policy" and not args.policy:
+            raise ValueError("--variants policy needs --policy MODEL.zip (from simshear train rl)")
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
@@ -177,8 +207,8 @@ def run(args: argparse.Namespace) -> int:
         for task, label, kwargs in settings:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(env_ids[task], obs_mode=obs_mode_of(variant), randomise=randomise, **kwargs)
-                controller = make_controller(variant, env, posenets)
+                env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, args.policy), **kwargs)
+                controller = make_controller(variant, env, posenets, args.policy)
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
                     target, sensor = r.pop("_paths")
@@ -204,6 +234,7 @@ def run(args: argparse.Namespace) -> int:
     command = ("simshear evaluate servo --tasks " + " ".join(args.tasks) + " --variants " + " ".join(args.variants)
                + " --seeds " + " ".join(str(s) for s in args.seeds)
                + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)
+               + (f" --policy {args.policy}" if args.policy else "")
                + (f" --max-steps {args.max_steps}" if args.max_steps else ""))
     write_json(args.out / f"{args.name}.json", {
         "command": command,
