@@ -193,3 +193,18 @@ def test_untrained_network_predicts_centre_and_initial_std():
     assert std.mean().item() == pytest.approx(0.5, abs=0.1)
     with pytest.raises(ValueError, match="initial_std"):
         tiny_config(initial_std=0.005)
+
+
+def test_frozen_copy_gives_the_same_outputs():
+    torch.manual_seed(0)
+    model = GDNN(tiny_config(dropout=0.1))
+    model.train()
+    model(torch.rand(4, 1, 32, 32))  # move the batch-norm statistics away from their initial values
+    model.eval()
+    images = torch.rand(3, 1, 32, 32)
+    with torch.no_grad():
+        expected = model(images)
+        frozen = model.frozen()(images)
+    for a, b in zip(expected, frozen):
+        assert torch.allclose(a, b, atol=1e-5)
+    assert model.training is False

@@ -76,6 +76,7 @@ class TactileEstimator:
         self._filter = DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
             specs, process, prior_std=(math.inf,) * 4))
         self._size = self.model.config.image_size_px
+        self._inference = self.model.frozen()
         self._started = False
 
     def reset(self) -> None:
@@ -95,7 +96,7 @@ class TactileEstimator:
         if image.shape != (self._size, self._size):
             image = cv2.resize(image, (self._size, self._size), interpolation=cv2.INTER_AREA)
         with torch.inference_mode():
-            mean, std = self.model(torch.from_numpy(image)[None, None].to(torch.float32) / 255.0)
+            mean, std = self._inference(torch.from_numpy(image)[None, None].to(torch.float32) / 255.0)
             mean, std = self.model.decode(mean, std)
         return mean[0, self._index].numpy().astype(np.float64), std[0, self._index].numpy().astype(np.float64)
 

@@ -297,6 +297,38 @@ class GDNN(nn.Module):
         """(mean, std) (B, D) of :meth:`forward` -> per-variable (mean, std) (B, V) in mm / deg."""
         return self.variables.decode(mean, std)
 
+    def frozen(self) -> nn.Module:
+        """A copy for CPU inference: the same outputs as :meth:`forward` in eval mode, traced and frozen by
+        TorchScript (batch norm folded into the convolutions, weights pre-packed): about 3x faster at batch 1 on
+        our 2-core CPU (2 ms instead of 6-7 ms). TorchScript is deprecated in favour of ``torch.compile``, whose
+        compile time (tens of seconds) would dwarf an episode; with the pinned torch it works, and where it
+        does not the eager copy is returned. Input shapes are not checked: give (B, 1, H, W) in [0, 1]."""
+        import copy
+        import warnings
+
+        core = _GDNNCore(copy.deepcopy(self).eval()).eval()
+        size = self.config.image_size_px
+        try:
+            with warnings.catch_warnings(), torch.no_grad():
+                warnings.simplefilter("ignore", DeprecationWarning)
+                return torch.jit.freeze(torch.jit.trace(core, torch.zeros(1, 1, size, size)))
+        except (AttributeError, RuntimeError):  # TorchScript gone or failing: eager is slower but the same
+            return core
+
+
+class _GDNNCore(nn.Module):
+    """The GDNN's computation without the input check (what :meth:`GDNN.frozen` traces)."""
+
+    def __init__(self, gdnn: GDNN) -> None:
+        super().__init__()
+        self.features, self.dense = gdnn.features, gdnn.dense
+        self.mean_head, self.std_head = gdnn.mean_head, gdnn.std_head
+        self.min_std = gdnn.config.min_std
+
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        hidden = self.dense(self.features(image))
+        return self.mean_head(hidden), self.min_std + F.softplus(self.std_head(hidden))
+
 
 def decode(mean: torch.Tensor, std: torch.Tensor,
            variables: str | VariableSet = "surface") -> tuple[torch.Tensor, torch.Tensor]:
