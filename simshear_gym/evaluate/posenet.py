@@ -93,6 +93,25 @@ def predict(model, images_uint8: np.ndarray, batch: int = 64):
     return torch.cat(means), torch.cat(stds)
 
 
+def latency_ms(model, repeats: int = 200) -> dict:
+    """Median and p95 ms of one image at batch 1 through the frozen inference copy (as the estimator runs it),
+    with the torch threads as set."""
+    import torch
+
+    inference = model.frozen()
+    size = model.config.image_size_px
+    image = torch.rand(1, 1, size, size)
+    times = []
+    with torch.inference_mode():
+        for index in range(repeats + 20):
+            start = time.perf_counter()
+            inference(image)
+            if index >= 20:
+                times.append(1000 * (time.perf_counter() - start))
+    return {"median_ms": float(np.median(times)), "p95_ms": float(np.percentile(times, 95)),
+            "torch_threads": torch.get_num_threads()}
+
+
 def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None) -> tuple[dict, dict]:
     """Figures per model; also (truth, predicted means, stds) per model for the figure."""
     from simshear_gym.models.posenet_io import load_posenet
@@ -108,7 +127,8 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
             raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")
         truth = truth_labels(val, variables)[select]
         mean_encoded, std_encoded = predict(model, images)
-        results[name] = {"path": str(path), "card": card, **metrics(mean_encoded, std_encoded, truth, variables)}
+        results[name] = {"path": str(path), "card": card, **metrics(mean_encoded, std_encoded, truth, variables),
+                         "latency_batch1": latency_ms(model)}
         mean, std = (t.numpy() for t in variables.decode(mean_encoded, std_encoded))
         arrays[name] = (variables, truth, mean, std)
     return results, arrays
@@ -181,9 +201,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of the val set (default all)")
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--name", default="posenet", help="base name of the json and png written")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (latency is measured with them)")
 
 
 def run(args: argparse.Namespace) -> int:
+    import torch
+
+    torch.set_num_threads(getattr(args, "threads", 1))
     contacts = [args.contact] if isinstance(args.contact, str) else list(args.contact)
     start = time.perf_counter()
     sections = {}
