@@ -39,7 +39,7 @@ def test_the_integral_removes_the_lag_behind_a_moving_plate():
 def test_the_oracle_needs_the_true_pose_and_shear():
     with pytest.raises(ValueError, match="obs_mode='oracle'"):
         OracleController()({"tactile": np.zeros((1, 128, 128), np.uint8)})
-    with pytest.raises(ValueError, match="OracleGains"):
+    with pytest.raises(ValueError, match="PIGains"):
         OracleGains(kp=(1.0, 1.0, 1.0))
 
 

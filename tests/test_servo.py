@@ -5,7 +5,8 @@ import pytest
 import torch
 
 from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
-from simshear_gym.control.servo import SERVO_GAINS, PIGains, PILaw, ServoController
+from simshear_gym.control.pi_law import PIGains, PILaw
+from simshear_gym.control.servo import SERVO_GAINS, ServoController
 from simshear_gym.models.gdnn import GDNN, GDNNConfig
 from simshear_gym.models.posenet_io import save_posenet
 

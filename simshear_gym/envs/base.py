@@ -50,6 +50,7 @@ from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
 from simshear_gym.sim.transforms import invert, matrix_to_pose, pose_to_matrix
+from simshear_gym.sim.transforms import matrix_to_pybullet_fast as pybullet_pose_fast
 from simshear_gym.sim.world import World
 
 OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
@@ -167,23 +168,17 @@ def pose_from_matrix_fast(matrix: np.ndarray) -> np.ndarray:
     return np.array([matrix[0, 3], matrix[1, 3], matrix[2, 3], math.degrees(rx), math.degrees(ry), math.degrees(rz)])
 
 
-def pybullet_pose_fast(matrix_mm: np.ndarray) -> tuple[list[float], list[float]]:
-    """:func:`~simshear_gym.sim.transforms.matrix_to_pybullet` (position in m, quaternion xyzw), without scipy."""
-    m = matrix_mm
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0.0:
-        k = 0.5 / math.sqrt(trace + 1.0)
-        quaternion = [(m[2, 1] - m[1, 2]) * k, (m[0, 2] - m[2, 0]) * k, (m[1, 0] - m[0, 1]) * k, 0.25 / k]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        k = 2.0 * math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        quaternion = [0.25 * k, (m[0, 1] + m[1, 0]) / k, (m[0, 2] + m[2, 0]) / k, (m[2, 1] - m[1, 2]) / k]
-    elif m[1, 1] > m[2, 2]:
-        k = 2.0 * math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        quaternion = [(m[0, 1] + m[1, 0]) / k, 0.25 * k, (m[1, 2] + m[2, 1]) / k, (m[0, 2] - m[2, 0]) / k]
-    else:
-        k = 2.0 * math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        quaternion = [(m[0, 2] + m[2, 0]) / k, (m[1, 2] + m[2, 1]) / k, 0.25 * k, (m[1, 0] - m[0, 1]) / k]
-    return [m[0, 3] / 1000.0, m[1, 3] / 1000.0, m[2, 3] / 1000.0], quaternion
+def action_to_move(action, action_scale: "ActionScale") -> np.ndarray:
+    """Validate an action (shape (4,), finite, in [-1, 1]) and scale it to a sensor-frame move
+    ``(dx, dy, dz mm, dRz deg)``; the sim envs and the real env share it."""
+    array = np.asarray(action, dtype=np.float64)
+    if array.shape != (4,):
+        raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"action must be finite, got {array.tolist()}")
+    if np.any(np.abs(array) > 1.0 + 1e-6):
+        raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
+    return np.clip(array, -1.0, 1.0) * action_scale.as_array()
 
 
 def rz_matrix(rz_deg: float) -> np.ndarray:
@@ -422,15 +417,7 @@ class SimShearEnv(gym.Env, EzPickle):
 
     # -------------------------------------------------------------- pieces
     def _action_to_move(self, action) -> np.ndarray:
-        """Validate an action and scale it to a sensor-frame move ``(dx, dy, dz mm, dRz deg)``."""
-        array = np.asarray(action, dtype=np.float64)
-        if array.shape != (4,):
-            raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
-        if not np.all(np.isfinite(array)):
-            raise ValueError(f"action must be finite, got {array.tolist()}")
-        if np.any(np.abs(array) > 1.0 + 1e-6):
-            raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
-        return np.clip(array, -1.0, 1.0) * self.action_scale.as_array()
+        return action_to_move(action, self.action_scale)
 
     def _measure(self) -> ContactState:
         T_world_sensor = self.follower.T_world_tool()

@@ -50,7 +50,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from simshear_gym.envs.base import IMAGE_SIZES_PX, TCP_POSE_LOW, ActionScale, TacTipMount, rz_matrix
+from simshear_gym.envs.base import IMAGE_SIZES_PX, TCP_POSE_LOW, ActionScale, TacTipMount, action_to_move, rz_matrix
 from simshear_gym.real.camera import (
     CameraError,
     CameraSource,
@@ -144,18 +144,6 @@ def move_to_flange_target(flange_pose_mm_deg, move_sensor, mount: TacTipMount) -
     target = T_base_flange_to_pose(T_base_flange)
     target[3] = flange[3] + wrap_deg(target[3] - flange[3])
     return target
-
-
-def action_to_move(action, action_scale: ActionScale) -> np.ndarray:
-    """Validate an action like the sim env and scale it to a sensor-frame move ``(dx, dy, dz mm, dRz deg)``."""
-    array = np.asarray(action, dtype=np.float64)
-    if array.shape != (4,):
-        raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"action must be finite, got {array.tolist()}")
-    if np.any(np.abs(array) > 1.0 + 1e-6):
-        raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
-    return np.clip(array, -1.0, 1.0) * action_scale.as_array()
 
 
 # ----------------------------------------------------------------------------------------------------------------

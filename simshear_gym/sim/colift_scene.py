@@ -57,7 +57,7 @@ from scipy.spatial.transform import Rotation
 from simshear_gym.sim.objects import OBJECTS, ObjectSpec, object_spec, spawn_object
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.transforms import invert, matrix_to_pose, matrix_to_pybullet
+from simshear_gym.sim.transforms import invert, matrix_to_pose, matrix_to_pybullet, rotation_to_quaternion_xyzw
 from simshear_gym.sim.world import World, WorldConfig
 
 _FAR_MM = 300.0  # where bodies wait while the others are measured at reset
@@ -333,8 +333,8 @@ class CoLiftScene:
         self._update_shear()
 
     def _hold(self, T_world_plate: np.ndarray, T_world_sensor: np.ndarray, n_steps: int) -> None:
-        plate = (T_world_plate[:3, 3] / 1000.0, _matrix_to_quaternion(T_world_plate[:3, :3]))
-        sensor = (T_world_sensor[:3, 3] / 1000.0, _matrix_to_quaternion(T_world_sensor[:3, :3]))
+        plate = (T_world_plate[:3, 3] / 1000.0, rotation_to_quaternion_xyzw(T_world_plate[:3, :3]))
+        sensor = (T_world_sensor[:3, 3] / 1000.0, rotation_to_quaternion_xyzw(T_world_sensor[:3, :3]))
         for _ in range(n_steps):
             self._drive(plate, sensor)
 
@@ -457,7 +457,7 @@ class CoLiftScene:
 def _interpolate(T_start: np.ndarray, T_end: np.ndarray, fractions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Poses between two transforms (mm): positions (n, 3) in m, linearly, and quaternions (n, 4) xyzw, by slerp."""
     positions_m = (T_start[:3, 3] + fractions[:, None] * (T_end[:3, 3] - T_start[:3, 3])) / 1000.0
-    q0, q1 = _matrix_to_quaternion(T_start[:3, :3]), _matrix_to_quaternion(T_end[:3, :3])
+    q0, q1 = rotation_to_quaternion_xyzw(T_start[:3, :3]), rotation_to_quaternion_xyzw(T_end[:3, :3])
     cos = float(np.dot(q0, q1))
     if cos < 0.0:  # the shorter way round
         q1, cos = -q1, -cos
@@ -472,26 +472,6 @@ def _interpolate(T_start: np.ndarray, T_end: np.ndarray, fractions: np.ndarray) 
 
 # Plain-numpy quaternion helpers (xyzw, like PyBullet): scipy's Rotation costs ~0.1 ms a call, too slow for the
 # drive loop, which runs twice per physics step.
-
-def _matrix_to_quaternion(rotation: np.ndarray) -> np.ndarray:
-    """Unit quaternion (x, y, z, w) of a rotation matrix (Shepperd's method)."""
-    m = rotation
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0.0:
-        s = 2.0 * np.sqrt(trace + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, 0.25 * s]
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
-        q = [0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
-    elif m[1, 1] > m[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
-        q = [(m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
-        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.array(q)
-    return q / np.linalg.norm(q)
-
 
 def _quaternion_multiply(a, b) -> np.ndarray:
     ax, ay, az, aw = a
