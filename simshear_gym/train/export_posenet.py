@@ -55,15 +55,27 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
         f"- Exact commands: `simshear collect --replay-all --out runs/paired`, then `{card.get('train_command')}`, "
         f"then `simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`.",
     ]
-    if results is not None and result_name in results.get("models", {}):
-        figures = results["models"][result_name]
+    section = (results or {}).get("contacts", {}).get(card["contact"], {})
+    if result_name in section.get("models", {}):
+        figures = section["models"][result_name]
         lines += ["", "## Metrics on the real validation images", "",
-                  f"From `{results.get('command')}` ({figures['rows']} rows of {results.get('set')}; model "
-                  f"`{result_name}`), mean NLL {figures['mean_nll']:.3f}:", "",
+                  f"From `{results.get('command')}` (`results/posenet.json`; {figures['rows']} rows of "
+                  f"{section.get('set')}; model `{result_name}`), mean NLL {figures['mean_nll']:.3f}, "
+                  f"latency at batch 1 {figures.get('latency_batch1', {}).get('median_ms', float('nan')):.2f} ms "
+                  "(median, 1 thread):", "",
                   "| variable | MAE | chance MAE | within 1 std | within 2 std |", "|---|---|---|---|---|"]
         for name, row in figures["variables"].items():
             lines.append(f"| {name} ({row['unit']}) | {row['mae']:.3f} | {row['chance_mae']:.3f} | "
                          f"{row['within_1_std']:.2f} | {row['within_2_std']:.2f} |")
+        accepted = section.get("acceptance", {}).get("variables", {})
+        if accepted:
+            lines += ["", "Against the same GDNN trained on the real training images (`real`, the upper bound): "
+                      "MAE ratio per variable that one reads (MAE <= 0.5 x chance): "
+                      + ", ".join(f"{name} {row['ratio']:.2f}" for name, row in accepted.items()
+                                  if row["reference_reads"])
+                      + "; not read by either: " + ", ".join(name for name, row in accepted.items()
+                                                               if not row["reference_reads"]) + "."]
+
     check = card.get("check")
     if check:
         lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real "
