@@ -44,7 +44,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("evaluate", "camera"), "simshear_gym.evaluate.camera_calibration",
      "calibrate the TacTip camera preprocessing on raw frames against the published processed images"),
     (("evaluate", "oracle"), "simshear_gym.evaluate.oracle",
-     "contact error of the oracle controller on every SimShearTracking-v0 trajectory"),
+     "contact error of the oracle controller on every tracking trajectory (--tasks colift: every co-lift run)"),
     (("evaluate", "servo"), "simshear_gym.evaluate.servo",
      "closed-loop tracking and co-lift benchmarks of the tactile servo controller"),
     (("evaluate", "env-speed"), "simshear_gym.evaluate.env_speed",

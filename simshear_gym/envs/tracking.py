@@ -71,7 +71,8 @@ class SimShearTrackingEnv(SimShearEnv):
     target point: where the TCP was at reset (on the plate at the reference depth), carried along with the
     plate. ``info`` also holds ``rz_error_deg``, ``in_contact``, ``penetration_mm``, ``depth_mm``,
     ``shear_sensor_mm_deg`` (6,), ``time_s``, ``steps_out_of_contact``, ``termination`` (reason or ``""``),
-    ``trajectory`` and, when an arm refused a target, ``arm_error``.
+    ``trajectory``, ``sensor_world_mm`` and ``target_world_mm`` (the TCP and its target point, world frame, for
+    path figures) and, when an arm refused a target, ``arm_error``.
 
     **Termination** (``TerminationConfig``): the sensor lifts > 1 mm off the plate or leaves it
     (``"contact_lost"``), contact error > 15 mm (``"contact_error"``), penetration > 5 mm (``"too_deep"``), or
