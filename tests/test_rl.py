@@ -48,3 +48,11 @@ def test_bad_settings_are_refused():
         tiny(obs_mode="oracle")
     with pytest.raises(ValueError, match="algo"):
         tiny(algo="dqn")
+
+
+def test_tiny_sac_trains_and_saves(tmp_path):
+    summary = train(tiny(algo="sac", timesteps=24, batch_size=8), tmp_path / "sac", progress=False)
+    assert summary["algo"] == "sac" and summary["timesteps"] >= 24 and (tmp_path / "sac" / "model.zip").is_file()
+    from simshear_gym.real.rollout import sb3_algorithm
+
+    assert sb3_algorithm(tmp_path / "sac" / "model.zip") == "sac"
