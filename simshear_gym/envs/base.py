@@ -44,7 +44,7 @@ from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
 from simshear_gym.data.labels import wrap_deg
-from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
+from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400, T_base_flange_to_pose
 from simshear_gym.sim.mg400_kinematics import KinematicsError
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
@@ -346,6 +346,10 @@ class SimShearEnv(gym.Env, EzPickle):
         """Sensor pose at a point of a face given in its work frame (label pose ``(x, y, depth, 0, 0, Rz)``)."""
         pose_work = np.array([x_work_mm, y_work_mm, depth_mm, 0.0, 0.0, rz_work_deg])
         return T_world_face @ self._T_face_work @ pose_to_matrix(pose_work)
+
+    def flange_pose_for_sensor(self, T_world_base: np.ndarray, T_world_sensor: np.ndarray) -> np.ndarray:
+        """The flange pose (x, y, z mm, R deg in an arm's base frame) that puts the TacTip at ``T_world_sensor``."""
+        return T_base_flange_to_pose(invert(T_world_base) @ T_world_sensor @ invert(self.mount.T_flange_sensor()))
 
     # ------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):

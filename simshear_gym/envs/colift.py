@@ -22,7 +22,7 @@ from simshear_gym.envs.base import (
 )
 from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig, upright_plate
-from simshear_gym.sim.mg400_arm import SimMG400, T_base_flange_to_pose
+from simshear_gym.sim.mg400_arm import SimMG400
 from simshear_gym.sim.objects import OBJECTS, spawn_object
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.sim.transforms import invert, pose_to_matrix
@@ -234,7 +234,8 @@ class SimShearCoLiftEnv(SimShearEnv):
         # the nominal start (the exact one comes from the scene at reset): object against the plate, squeezed
         T_world_plate = self.leader.T_world_tool()
         T_world_sensor = T_world_plate @ _translation(z_mm=spec.size_mm[2] - self.scene_config.squeeze_mm)
-        self._add_follower(FOLLOWER_T_WORLD_BASE, self._follower_pose_for(T_world_sensor @ _T_SENSOR_TURN))
+        start_pose = self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor @ _T_SENSOR_TURN)
+        self._add_follower(FOLLOWER_T_WORLD_BASE, start_pose)
         self.face_half_extents_mm = (spec.size_mm[0] / 2.0, spec.size_mm[1] / 2.0)
         # Visual copies of the physics bodies in the env's world: the TacTip renders the object's copy; the
         # plate's copy is drawn only in the scene view. This world is never stepped.
@@ -248,10 +249,6 @@ class SimShearCoLiftEnv(SimShearEnv):
                 pybullet.GEOM_BOX, halfExtents=half_m, visualFramePosition=[0.0, 0.0, -half_m[2]],
                 rgbaColor=[0.3, 0.3, 0.3, 1.0])
             self._plate_copy = self.world.client.createMultiBody(baseVisualShapeIndex=visual)
-
-    def _follower_pose_for(self, T_world_sensor: np.ndarray) -> np.ndarray:
-        T_base_flange = invert(FOLLOWER_T_WORLD_BASE) @ T_world_sensor @ invert(self.mount.T_flange_sensor())
-        return T_base_flange_to_pose(T_base_flange)
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
         options = options or {}
@@ -275,7 +272,7 @@ class SimShearCoLiftEnv(SimShearEnv):
         self._T_world_plate_start = T_world_plate
         T_world_sensor = self.scene.reset(T_world_plate)
         try:
-            self.follower.reset(self._follower_pose_for(T_world_sensor))
+            self.follower.reset(self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor))
         except ValueError as error:
             raise ValueError(f"the follower cannot reach the start grip (start offset {offset.tolist()} mm): "
                              f"{error}") from error

@@ -10,8 +10,8 @@ from gymnasium.utils import EzPickle
 from simshear_gym.envs.base import SimShearEnv, pybullet_pose_fast, rz_matrix
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.sim import stimuli
-from simshear_gym.sim.mg400_arm import SimMG400, T_base_flange_to_pose
-from simshear_gym.sim.transforms import invert, pose_to_matrix
+from simshear_gym.sim.mg400_arm import SimMG400
+from simshear_gym.sim.transforms import pose_to_matrix
 
 TRAJECTORY_CHOICES: tuple[str, ...] = TRAJECTORIES + ("random",)
 
@@ -123,8 +123,7 @@ class SimShearTrackingEnv(SimShearEnv):
         """Follower flange pose that puts the sensor on the start plate at ``offset`` at the reference depth."""
         T_world_sensor = self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0],
                                                      offset_work_mm[1], self.reference_depth_mm)
-        T_base_flange = invert(FOLLOWER_T_WORLD_BASE) @ T_world_sensor @ invert(self.mount.T_flange_sensor())
-        return T_base_flange_to_pose(T_base_flange)
+        return self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor)
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
         options = options or {}

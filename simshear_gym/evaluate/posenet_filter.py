@@ -100,8 +100,8 @@ def contact_sequence(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
     return poses, moves
 
 
-def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(poses, moves, shear (T, 6) sensor frame, translated uint8 images (T, H, W)) of a sequence."""
+def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(poses, shear (T, 6) sensor frame, translated uint8 images (T, H, W)) of a sequence."""
     from simshear_gym.data.collect import replay_shear
     from simshear_gym.models.translator import load_shipped
     from simshear_gym.sim.replay import ReplayScene
@@ -113,7 +113,7 @@ def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.
     shear = replay_shear(poses, moves, ShearTrackerConfig())
     translator = load_shipped("shpix2pix", config.contact)
     images = np.concatenate([translator(sim[i:i + 32], shear[i:i + 32]) for i in range(0, len(sim), 32)])
-    return poses, moves, shear, images
+    return poses, shear, images
 
 
 def sequence_labels(poses: np.ndarray, shear: np.ndarray, variables) -> np.ndarray:
@@ -170,7 +170,7 @@ def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: Filter
     variables = model.variables
     if variables.name != config.contact:
         raise ValueError(f"{model_path}: predicts the {variables.name!r} variables, not {config.contact!r}")
-    poses, moves, shear, images = sequence_images(config)
+    poses, shear, images = sequence_images(config)
     truth = sequence_labels(poses, shear, variables)
     mean_encoded, std_encoded = predict(model, images)
     raw_mean, raw_std = (t.numpy().astype(np.float64) for t in variables.decode(mean_encoded, std_encoded))

@@ -73,9 +73,8 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
                       "MAE ratio per variable that one reads (MAE <= 0.5 x chance): "
                       + ", ".join(f"{name} {row['ratio']:.2f}" for name, row in accepted.items()
                                   if row["reference_reads"])
-                      + "; not read by either: " + ", ".join(name for name, row in accepted.items()
+                      + "; not read by `real` either: " + ", ".join(name for name, row in accepted.items()
                                                                if not row["reference_reads"]) + "."]
-
     check = card.get("check")
     if check:
         lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real "
