@@ -10,10 +10,10 @@ from simshear_gym.train.translator import PairedTensors, TranslatorTrainConfig, 
 
 
 @pytest.mark.parametrize("size, depth", [(64, 6), (128, 7), (256, 8), (128, 5)])
-@pytest.mark.parametrize("shear_dim", [0, 6])
-def test_generator_shapes(size, depth, shear_dim):
+@pytest.mark.parametrize("shear_dim, shear_decoder", [(0, False), (6, False), (6, True)])
+def test_generator_shapes(size, depth, shear_dim, shear_decoder):
     generator = UNetGenerator(UNetConfig(image_size_px=size, depth=depth, base_channels=4, max_channels=16,
-                                         shear_dim=shear_dim)).eval()
+                                         shear_dim=shear_dim, shear_decoder=shear_decoder)).eval()
     sim = torch.rand(2, 1, size, size)
     out = generator(sim, torch.rand(2, 6) if shear_dim else None)
     assert out.shape == (2, 1, size, size) and 0.0 <= out.min() and out.max() <= 1.0
@@ -29,6 +29,21 @@ def test_generator_rejects_wrong_inputs():
         generator(torch.rand(2, 1, 64, 64))
     with pytest.raises(ValueError, match="power of two"):
         UNetConfig(image_size_px=100)
+    with pytest.raises(ValueError, match="shear_decoder needs shear_dim"):
+        UNetConfig(shear_dim=0, shear_decoder=True)
+
+
+def test_cosine_schedule_decays_to_zero_over_the_run(tmp_path):
+    config = tiny_config(lr=1e-3, lr_schedule="cosine", epochs=2)
+    assert config.lr_at(0.0) == pytest.approx(1e-3) and config.lr_at(0.5) == pytest.approx(5e-4)
+    assert config.lr_at(1.0) == pytest.approx(0.0, abs=1e-12) and config.lr_at(2.0) == pytest.approx(0.0, abs=1e-12)
+    assert tiny_config(lr=1e-3).lr_at(0.9) == 1e-3  # constant
+    with pytest.raises(ValueError, match="lr_schedule must be one of"):
+        tiny_config(lr_schedule="step")
+    trainer = TranslatorTrainer(config, tmp_path / "run", toy_pairs())
+    trainer.fit(progress=False)
+    last_lr = trainer.opt_g.param_groups[0]["lr"]
+    assert 0.0 < last_lr < 0.1 * config.lr  # the last step ran near the end of the schedule
 
 
 def toy_pairs(n=48, size=32, seed=0):
@@ -65,9 +80,11 @@ def test_tiny_training_run_end_to_end(tmp_path, gan_weight):
     assert out.shape == (3, 32, 32) and out.dtype == np.uint8
 
 
-def test_shear_changes_trained_shpix2pix_output(tmp_path):
+@pytest.mark.parametrize("shear_decoder", [False, True])
+def test_shear_changes_trained_shpix2pix_output(tmp_path, shear_decoder):
     """On data where the real image follows the shear, a trained shPix2pix moves its output with the shear."""
-    trainer = TranslatorTrainer(tiny_config(epochs=10), tmp_path / "run", toy_pairs(n=192))
+    trainer = TranslatorTrainer(tiny_config(epochs=10, shear_decoder=shear_decoder), tmp_path / "run",
+                                toy_pairs(n=192))
     trainer.fit(progress=False)
     translator = Translator(trainer.generator)
     sim = toy_pairs(n=2).sim.numpy()

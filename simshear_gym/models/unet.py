@@ -8,7 +8,9 @@ Architecture: ``depth`` encoder levels (4x4 conv, stride 2; batch norm after the
 bottleneck, and mirrored decoder levels (4x4 transposed conv, batch norm, ReLU, dropout on the deepest
 levels) that concatenate the encoder's skip features. With ``shear_dim > 0`` the bottleneck is flattened,
 concatenated with the shear vector, passed through a fully connected layer and ReLU, and reshaped back
-(SimShear's shPix2pix); with ``shear_dim = 0`` it is the plain pix2pix U-Net.
+(SimShear's shPix2pix); with ``shear_dim = 0`` it is the plain pix2pix U-Net. Optionally
+(``shear_decoder=True``) the shear vector is also stacked as constant planes onto the input of every decoder level,
+so the levels that place the markers see it directly instead of only through the 1x1 bottleneck.
 
 Optionally (``template=True``) a learned image of the sensor at rest is stacked onto the input and a learned
 per-pixel logit is added to the output. The marker layout is the same in every image, and a U-Net with
@@ -39,6 +41,8 @@ class UNetConfig:
         dropout: dropout probability on the ``dropout_levels`` deepest decoder levels.
         dropout_levels: how many of the deepest decoder levels use dropout.
         template: stack a learned at-rest sensor image onto the input and add a learned logit to the output.
+        shear_decoder: also stack the shear vector as constant planes onto every decoder level's input
+            (needs ``shear_dim > 0``).
     """
 
     image_size_px: int = 128
@@ -49,6 +53,7 @@ class UNetConfig:
     dropout: float = 0.0
     dropout_levels: int = 3
     template: bool = True
+    shear_decoder: bool = False
 
     def __post_init__(self) -> None:
         size = self.image_size_px
@@ -60,6 +65,8 @@ class UNetConfig:
             raise ValueError(f"need 1 <= base_channels <= max_channels, got {self.base_channels}, {self.max_channels}")
         if self.shear_dim < 0:
             raise ValueError(f"shear_dim must be >= 0, got {self.shear_dim}")
+        if self.shear_decoder and not self.shear_dim:
+            raise ValueError("shear_decoder needs shear_dim > 0")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
 
@@ -97,7 +104,8 @@ class UNetGenerator(nn.Module):
         self.decoder = nn.ModuleList()
         for level in reversed(range(config.depth)):
             deepest = level == config.depth - 1
-            in_ch = channels[level] if deepest else 2 * channels[level]
+            in_ch = (channels[level] if deepest else 2 * channels[level]) + (
+                config.shear_dim if config.shear_decoder else 0)
             out = channels[level - 1] if level > 0 else 1
             layers = [nn.ConvTranspose2d(in_ch, out, 4, stride=2, padding=1, bias=level == 0)]
             if level > 0:
@@ -123,10 +131,12 @@ class UNetGenerator(nn.Module):
                 raise ValueError(f"shear must be (B, {config.shear_dim}) for shPix2pix, got {got}")
             flat = torch.cat([x.flatten(1), shear.to(x.dtype)], dim=1)
             x = self.bottleneck(flat).view_as(x)
+        planes = shear.to(x.dtype)[:, :, None, None] if config.shear_decoder else None
         for index, layer in enumerate(self.decoder):
-            if index > 0:
-                x = torch.cat([x, skips[-1 - index]], dim=1)
-            x = layer(x)
+            parts = [x] if index == 0 else [x, skips[-1 - index]]
+            if planes is not None:
+                parts.append(planes.expand(-1, -1, x.shape[2], x.shape[3]))
+            x = layer(torch.cat(parts, dim=1) if len(parts) > 1 else x)
         if config.template:
             x = x + self.output_logit
         return torch.sigmoid(x)

@@ -4,6 +4,9 @@
 (:mod:`simshear_gym.data.collect`). A share of the training rows (``--holdout``) is held out for early stopping
 on L1, so the real validation sets stay unseen until ``simshear evaluate translation``. Objective: ``l1_weight *
 L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained).
+Learning rate: constant, or ``--lr-schedule cosine``: ``lr * (1 + cos(pi * p)) / 2`` where ``p`` is the share of
+the time budget (``--max-minutes``) used so far, or of the epochs when there is no budget, so a budgeted run ends
+at a small learning rate whenever its time runs out.
 
 Run directory: ``config.json``, ``history.json`` (per epoch: wall time, train and holdout L1), tensorboard logs
 under ``tb/`` (scalars, image grids sim | generated | real), ``checkpoint.pt`` (written atomically after every
@@ -31,6 +34,7 @@ from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfi
 from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
 
 ARCHS = ("shpix2pix", "pix2pix")
+LR_SCHEDULES = ("constant", "cosine")
 _RESUME_FREE = ("epochs", "max_minutes", "patience_epochs")  # settings a resumed run may change
 
 
@@ -44,9 +48,11 @@ class TranslatorTrainConfig:
     base_channels: int = 16
     max_channels: int = 128
     template: bool = True
+    shear_decoder: bool = False
     epochs: int = 100
     batch_size: int = 16
     lr: float = 1e-3
+    lr_schedule: str = "constant"
     l1_weight: float = 100.0
     gan_weight: float = 0.0
     holdout: float = 0.05
@@ -58,6 +64,10 @@ class TranslatorTrainConfig:
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        if self.shear_decoder and self.arch != "shpix2pix":
+            raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:
             raise ValueError("paired_dirs: give at least one paired set directory")
         if self.epochs < 1 or self.batch_size < 2:
@@ -71,7 +81,13 @@ class TranslatorTrainConfig:
         depth = int(math.log2(self.image_size_px))
         return UNetConfig(image_size_px=self.image_size_px, depth=depth, base_channels=self.base_channels,
                           max_channels=self.max_channels, shear_dim=6 if self.arch == "shpix2pix" else 0,
-                          template=self.template)
+                          template=self.template, shear_decoder=self.shear_decoder)
+
+    def lr_at(self, progress: float) -> float:
+        """Learning rate after ``progress`` (0..1) of the run."""
+        if self.lr_schedule == "constant":
+            return self.lr
+        return self.lr * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,12 +248,14 @@ class TranslatorTrainer:
                                   leave=False):
                     if len(index) < 2:
                         continue
+                    self._set_lr(budget_s, len(batches))
                     losses = self.train_step(*self.train_pairs.batch(index))
                     running.append(losses["l1"])
                     self.step += 1
                     if self.step % 20 == 0:
                         for name, value in losses.items():
                             writer.add_scalar(f"train/{name}", value, self.step)
+                        writer.add_scalar("train/lr", self.opt_g.param_groups[0]["lr"], self.step)
                     self.elapsed_s = time.perf_counter() - started
                     if self.elapsed_s > budget_s:
                         out_of_time = True
@@ -270,6 +288,17 @@ class TranslatorTrainer:
         return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
                 "best_holdout_l1": self.best_holdout_l1, "stopped_by": stop_reason}
 
+    def _set_lr(self, budget_s: float, batches_per_epoch: int) -> None:
+        config = self.config
+        if math.isfinite(budget_s):
+            progress = self.elapsed_s / budget_s
+        else:
+            progress = self.step / (config.epochs * batches_per_epoch)
+        lr = config.lr_at(progress)
+        for optimiser in (self.opt_g, self.opt_d):
+            for group in optimiser.param_groups if optimiser is not None else ():
+                group["lr"] = lr
+
     def _log_images(self, writer) -> None:
         sim, shear, real = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
         self.generator.eval()
@@ -287,6 +316,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     defaults = TranslatorTrainConfig(paired_dirs=("x",))
+    parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default=defaults.lr_schedule,
+                        help="cosine: decay to 0 over the time budget (or the epochs)")
+    parser.add_argument("--shear-decoder", action="store_true",
+                        help="shpix2pix: also feed the shear vector to every decoder level")
     for name in ("image_size_px", "base_channels", "max_channels", "epochs", "batch_size", "lr", "l1_weight",
                  "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
         value = getattr(defaults, name)
@@ -302,7 +335,8 @@ def run(args: argparse.Namespace) -> int:
     config = TranslatorTrainConfig(
         arch=args.arch, paired_dirs=tuple(str(d) for d in args.paired), image_size_px=args.image_size_px,
         base_channels=args.base_channels, max_channels=args.max_channels, template=not args.no_template,
-        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, l1_weight=args.l1_weight,
+        shear_decoder=args.shear_decoder, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+        lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
     )
