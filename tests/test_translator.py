@@ -135,3 +135,27 @@ def test_fp16_weights_round_trip(tmp_path):
         load_generator(tmp_path / "bad.pt")
     with pytest.raises(FileNotFoundError, match="not found"):
         load_generator(tmp_path / "missing.pt")
+
+
+@pytest.mark.parametrize("shear_dim, shear_decoder, decoder_scale", [(0, False, 1.0), (6, False, 1.0),
+                                                                      (6, True, 0.5)])
+def test_fast_translator_matches_the_eager_generator(shear_dim, shear_decoder, decoder_scale):
+    torch.manual_seed(0)
+    generator = UNetGenerator(UNetConfig(image_size_px=64, depth=6, base_channels=4, max_channels=16,
+                                         shear_dim=shear_dim, shear_decoder=shear_decoder,
+                                         decoder_scale=decoder_scale))
+    for module in generator.modules():  # non-trivial batch-norm statistics, so folding them is tested
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.running_mean.uniform_(-0.5, 0.5)
+            module.running_var.uniform_(0.5, 2.0)
+    rng = np.random.default_rng(0)
+    sim = rng.integers(0, 60, (3, 64, 64), dtype=np.uint8)
+    shear = rng.uniform(-5, 5, (3, 6)).astype(np.float32)
+    fast, eager = Translator(generator), Translator(generator, fast=False)
+    assert np.abs(fast(sim, shear).astype(int) - eager(sim, shear).astype(int)).max() <= 1
+    assert np.array_equal(fast(sim[:1], shear[:1]), fast(sim, shear)[:1])  # batch size is not baked in
+    with pytest.raises(ValueError, match="64x64 px"):
+        fast(np.zeros((1, 32, 32), np.uint8), shear[:1])
+    if shear_dim:
+        with pytest.raises(ValueError, match=r"shear_sensor must be \(B, 6\)"):
+            fast(sim, shear[:2])

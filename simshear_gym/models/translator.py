@@ -52,12 +52,14 @@ class Translator:
     """Batched inference of a trained generator.
 
     ``translator(sim_uint8, shear_sensor)``: sim uint8 (B, H, W) or (B, 1, H, W), shear (B, 6) in the sensor
-    frame (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
+    frame (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W). Runs a frozen copy of the generator
+    (:meth:`UNetGenerator.frozen`, taken at construction) unless ``fast=False``.
     """
 
-    def __init__(self, generator: UNetGenerator, card: dict | None = None) -> None:
+    def __init__(self, generator: UNetGenerator, card: dict | None = None, fast: bool = True) -> None:
         self.generator = generator.eval()
         self.card = card or {}
+        self._run = generator.frozen() if fast else None
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Translator":
@@ -70,12 +72,20 @@ class Translator:
     @torch.inference_mode()
     def __call__(self, sim_uint8: np.ndarray, shear_sensor: np.ndarray | None = None) -> np.ndarray:
         sim = normalise_sim(sim_uint8)
+        size = self.image_size_px
+        if sim.shape[1:] != (1, size, size):
+            raise ValueError(f"sim images must be {size}x{size} px for this translator, got {tuple(sim.shape[-2:])}")
         shear = None
         if self.generator.config.shear_dim:
             if shear_sensor is None:
                 raise ValueError("this translator is shear-conditioned (shPix2pix): pass shear_sensor (B, 6)")
             shear = normalise_shear(shear_sensor)
-        out = self.generator(sim, shear)
+            if shear.shape != (len(sim), 6):
+                raise ValueError(f"shear_sensor must be (B, 6) = ({len(sim)}, 6), got {tuple(shear.shape)}")
+        if self._run is None:
+            out = self.generator(sim, shear)
+        else:
+            out = self._run(sim, shear) if shear is not None else self._run(sim)
         return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
 
 

@@ -49,6 +49,7 @@ class TranslatorTrainConfig:
     max_channels: int = 128
     template: bool = True
     shear_decoder: bool = False
+    decoder_scale: float = 1.0
     epochs: int = 100
     batch_size: int = 16
     lr: float = 1e-3
@@ -81,7 +82,8 @@ class TranslatorTrainConfig:
         depth = int(math.log2(self.image_size_px))
         return UNetConfig(image_size_px=self.image_size_px, depth=depth, base_channels=self.base_channels,
                           max_channels=self.max_channels, shear_dim=6 if self.arch == "shpix2pix" else 0,
-                          template=self.template, shear_decoder=self.shear_decoder)
+                          template=self.template, shear_decoder=self.shear_decoder,
+                          decoder_scale=self.decoder_scale)
 
     def lr_at(self, progress: float) -> float:
         """Learning rate after ``progress`` (0..1) of the run."""
@@ -320,7 +322,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cosine: decay to 0 over the time budget (or the epochs)")
     parser.add_argument("--shear-decoder", action="store_true",
                         help="shpix2pix: also feed the shear vector to every decoder level")
-    for name in ("image_size_px", "base_channels", "max_channels", "epochs", "batch_size", "lr", "l1_weight",
+    for name in ("image_size_px", "base_channels", "max_channels", "decoder_scale", "epochs", "batch_size", "lr", "l1_weight",
                  "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
         value = getattr(defaults, name)
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
@@ -335,7 +337,7 @@ def run(args: argparse.Namespace) -> int:
     config = TranslatorTrainConfig(
         arch=args.arch, paired_dirs=tuple(str(d) for d in args.paired), image_size_px=args.image_size_px,
         base_channels=args.base_channels, max_channels=args.max_channels, template=not args.no_template,
-        shear_decoder=args.shear_decoder, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+        shear_decoder=args.shear_decoder, decoder_scale=args.decoder_scale, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
