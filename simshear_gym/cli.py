@@ -15,6 +15,8 @@ import sys
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("demo",), "simshear_gym.demo", "the default job: simulated TacTip contacts with shear, no data needed"),
     (("collect",), "simshear_gym.data.collect", "render paired (sim image, shear, real image) sets"),
+    (("collect-env",), "simshear_gym.data.env_collect",
+     "labelled translated images from a SimShear env (its own estimator's training set)"),
     (("evaluate", "render"), "simshear_gym.evaluate.render_agreement",
      "compare our sim renders with the published Tactile Gym sim images"),
     (("evaluate", "collect-speed"), "simshear_gym.evaluate.collect_speed",

@@ -183,8 +183,16 @@ VARIABLE_SETS: dict[str, VariableSet] = {
         OutputSpec("edge_angle_deg", "deg", -180.0, 180.0, periodic=True, column="pose_6"),
     ) + _SHEAR),
     "mg400": VariableSet("mg400", (OutputSpec("z_mm", "mm", 2.0, 5.5, column="pose_3"),) + _SHEAR),
+    "env": VariableSet("env", (
+        OutputSpec("z_mm", "mm", 2.0, 8.0, column="z_mm"),
+        OutputSpec("shear_x_mm", "mm", -7.5, 7.5, column="shear_x_mm"),
+        OutputSpec("shear_y_mm", "mm", -7.5, 7.5, column="shear_y_mm"),
+        OutputSpec("shear_rz_deg", "deg", -7.5, 7.5, column="shear_rz_deg"),
+    )),
 }
-"""The named variable sets: ``surface`` and ``edge`` contacts, and ``mg400`` (depth and shear only)."""
+"""The named variable sets: ``surface`` and ``edge`` contacts, ``mg400`` (depth and shear only), and ``env``: an
+env's true state as :mod:`simshear_gym.data.env_collect` labels it (depth, shear x, y, shear Rz; the co-lift
+env's Rz is the sensor's yaw error)."""
 
 
 def variable_set(name: str) -> VariableSet:

@@ -7,7 +7,9 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
 - ``real``: the real images the paired sets replay (the real-to-real reference);
 - ``sim``: the paired sets' own sim renders;
 - ``shpix2pix`` / ``pix2pix``: the sim renders (and shear) through the shipped translator of that architecture
-  and contact type, generated once at the start and kept in memory.
+  and contact type, generated once at the start and kept in memory;
+- ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
+  emitted (already translated) with its true state; with ``--contact env`` (its variable set).
 
 Images enter the network as uint8 / 255, resized to ``--image-size`` (64 px by default: at 128 px an epoch
 costs 20x more on a 2-core CPU for no measured gain in pose error). Loss: beta-NLL
@@ -40,8 +42,8 @@ from simshear_gym.models.gdnn import GDNN, GDNNConfig, VariableSet, beta_nll, ga
 from simshear_gym.models.posenet_io import save_posenet
 from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
 
-SOURCES = ("real", "sim", "shpix2pix", "pix2pix")
-CONTACTS = ("surface", "edge")
+SOURCES = ("real", "sim", "shpix2pix", "pix2pix", "env")
+CONTACTS = ("surface", "edge", "env")
 _RESUME_FREE = ("epochs", "max_minutes", "patience_epochs", "threads")
 
 
@@ -73,6 +75,9 @@ class PosenetTrainConfig:
             raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
         if self.contact not in CONTACTS:
             raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        if (self.source == "env") != (self.contact == "env"):
+            raise ValueError(f"source 'env' (sets of simshear collect-env) goes with contact 'env' and only with it, "
+                             f"got source {self.source!r}, contact {self.contact!r}")
         if not self.paired_dirs:
             raise ValueError("paired_dirs: give at least one paired set directory")
         if self.epochs < 1 or self.batch_size < 2:
@@ -140,6 +145,8 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
     variables = variable_set(contact)
+    if source == "env":
+        return _load_env_sets(paired_dirs, variables, image_size_px)
     translator = None
     if source in ("shpix2pix", "pix2pix"):
         from simshear_gym.models.translator import load_shipped
@@ -163,6 +170,20 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
                                         for i in range(0, len(stack), batch)])
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
+    return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
+
+
+def _load_env_sets(directories, variables: VariableSet, image_size_px: int) -> LabelledImages:
+    from simshear_gym.data.tactile_set import read_set
+
+    images, labels = [], []
+    for directory in directories:
+        found = read_set(directory, required_columns=variables.columns)
+        if found.meta.get("kind") != "env":
+            raise ValueError(f"{directory}: not a set of simshear collect-env (meta.json kind "
+                             f"{found.meta.get('kind')!r}, expected 'env')")
+        images.append(resize_images(found.load_images(), image_size_px))
+        labels.append(label_matrix(found.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
 
 
@@ -327,9 +348,11 @@ class PosenetTrainer:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--source", choices=SOURCES, required=True,
                         help="training images: the real ones, our sim renders, or sim through a shipped translator")
-    parser.add_argument("--contact", choices=CONTACTS, required=True, help="contact type (selects the variables)")
+    parser.add_argument("--contact", choices=CONTACTS, required=True,
+                        help="contact type (selects the variables); env: an env's state (with --source env)")
     parser.add_argument("--paired", nargs="+", required=True,
-                        help="paired set directories, e.g. runs/paired/surface_shear/csv_train")
+                        help="paired set directories, e.g. runs/paired/surface_shear/csv_train (env sets for "
+                             "--source env)")
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     defaults = PosenetTrainConfig(paired_dirs=("x",))

@@ -1,0 +1,158 @@
+"""Labelled tactile images from a SimShear env, for training a task's own estimator.
+
+``simshear collect-env --task colift --rows 12000 --out DIR`` runs the task's env with ``obs_mode="oracle_real"``
+and keeps, every step, the image the env emits (translated by the shipped shPix2pix, as a controller sees it)
+with the env's true state: depth (label convention), shear x, y (mm) and shear Rz (deg; for co-lift the sensor's
+yaw error), the variables of :data:`~simshear_gym.models.gdnn.VARIABLE_SETS` ``"env"``.
+
+Which states: the follower is driven by the oracle's law (:class:`~simshear_gym.control.oracle.OracleController`)
+scaled by a gain that wanders between ``gain_min`` and 1 (a slow sine with a random phase per episode), plus
+Gaussian action noise, so the follower lags, overshoots and loses its place the way a learned controller does,
+not only the oracle's near-zero errors. Episodes run over the task's objects and trajectories in turn, with the
+env's randomisation of scale, speed and start; an episode that ends early (a drop, a limit) is followed by the
+next.
+
+Output: a set directory (``images/image_N.png`` 128 px, ``targets.csv``, ``meta.json``) like the data's own sets;
+``targets.csv`` columns: ``sensor_image``, ``episode``, ``step``, ``object_name``, ``trajectory``, the four
+variables (``z_mm``, ``shear_x_mm``, ``shear_y_mm``, ``shear_rz_deg``) and ``contact_error_mm``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+TASKS = ("tracking", "colift")
+STATE_COLUMNS = ("z_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
+"""The env's ``true_pose_shear``, in order, as label columns."""
+
+
+@dataclass(frozen=True)
+class EnvCollectConfig:
+    """What to collect.
+
+    Attributes:
+        task: ``tracking`` (SimShearTracking-v0 over its trajectories) or ``colift`` (SimShearCoLift-v0 over its
+            objects and trajectories).
+        rows: images to keep.
+        episode_steps: steps per episode at most.
+        gain_min: the oracle law's gain wanders between this and 1.
+        gain_period_steps: period of the gain's wander.
+        noise: std of the Gaussian noise added to the action (action units, full scale 1).
+        seed: seeds episodes, gains and noise.
+    """
+
+    task: str = "colift"
+    rows: int = 12000
+    episode_steps: int = 200
+    gain_min: float = 0.3
+    gain_period_steps: float = 60.0
+    noise: float = 0.3
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        if self.rows < 1 or self.episode_steps < 1:
+            raise ValueError(f"rows and episode_steps must be >= 1, got {self.rows}, {self.episode_steps}")
+        if not 0.0 <= self.gain_min <= 1.0 or self.gain_period_steps <= 0 or self.noise < 0:
+            raise ValueError(f"need 0 <= gain_min <= 1, gain_period_steps > 0, noise >= 0; got {self.gain_min}, "
+                             f"{self.gain_period_steps}, {self.noise}")
+
+    def episodes(self) -> list[dict]:
+        """The env settings of the episodes, in the order they run (repeated as long as rows are needed)."""
+        if self.task == "colift":
+            from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES
+
+            return [{"object_name": name, "trajectory": path} for path in COLIFT_TRAJECTORIES
+                    for name in OBJECT_NAMES]
+        from simshear_gym.envs.trajectories import TRAJECTORIES
+
+        return [{"trajectory": path} for path in TRAJECTORIES]
+
+
+def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> int:
+    """Write a set of ``config.rows`` labelled env images to ``out_dir``; returns the rows written."""
+    import gymnasium as gym
+    import pandas as pd
+    from tqdm import tqdm
+
+    import simshear_gym.envs  # noqa: F401  (registers the env ids)
+    from simshear_gym.control.oracle import OracleController
+    from simshear_gym.data.tactile_set import image_name, write_image, write_targets
+
+    env_id = "SimShearCoLift-v0" if config.task == "colift" else "SimShearTracking-v0"
+    out_dir = Path(out_dir)
+    images_dir = out_dir / "images"
+    images_dir.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(config.seed)
+    rows: list[dict] = []
+    envs: dict[tuple, gym.Env] = {}
+    settings = config.episodes()
+    started = time.perf_counter()
+    bar = tqdm(total=config.rows, disable=not progress, desc=f"collect {config.task}")
+    episode = 0
+    try:
+        while len(rows) < config.rows:
+            setting = settings[episode % len(settings)]
+            key = tuple(sorted(setting.items()))
+            if key not in envs:
+                envs[key] = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting)
+            env = envs[key]
+            controller = OracleController.for_env(env)
+            observation, _ = env.reset(seed=int(rng.integers(2 ** 31)))
+            controller.reset()
+            phase = rng.uniform(0.0, 2.0 * math.pi)
+            for step in range(config.episode_steps):
+                gain = config.gain_min + (1.0 - config.gain_min) * 0.5 * (
+                    1.0 + math.sin(phase + 2.0 * math.pi * step / config.gain_period_steps))
+                action = gain * controller(observation) + rng.normal(0.0, config.noise, 4)
+                observation, _, terminated, truncated, info = env.step(np.clip(action, -1, 1).astype(np.float32))
+                name = image_name(len(rows))
+                write_image(images_dir, name, observation["tactile"][0])
+                rows.append({"sensor_image": name, "episode": episode, "step": step,
+                             "object_name": setting.get("object_name", ""), "trajectory": setting["trajectory"],
+                             **dict(zip(STATE_COLUMNS, observation["true_pose_shear"].astype(float))),
+                             "contact_error_mm": float(info["contact_error_mm"])})
+                bar.update(1)
+                if terminated or truncated or len(rows) >= config.rows:
+                    break
+            episode += 1
+    finally:
+        bar.close()
+        for env in envs.values():
+            env.close()
+    meta = {"kind": "env", "env_id": env_id, "obs_mode": "oracle_real", "variables": "env",
+            "config": asdict(config), "episodes": episode, "seconds": round(time.perf_counter() - started, 1)}
+    write_targets(out_dir, pd.DataFrame(rows), meta)
+    return len(rows)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = EnvCollectConfig()
+    parser.add_argument("--task", choices=TASKS, default=defaults.task)
+    parser.add_argument("--out", type=Path, required=True, help="set directory to write")
+    for name in ("rows", "episode_steps", "gain_min", "gain_period_steps", "noise", "seed"):
+        value = getattr(defaults, name)
+        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value, help=f"default {value}")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (translation)")
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    torch.set_num_threads(args.threads)
+    config = EnvCollectConfig(task=args.task, rows=args.rows, episode_steps=args.episode_steps,
+                              gain_min=args.gain_min, gain_period_steps=args.gain_period_steps, noise=args.noise,
+                              seed=args.seed)
+    if (Path(args.out) / "targets.csv").exists():
+        raise ValueError(f"{args.out}/targets.csv exists: choose a new --out")
+    started = time.perf_counter()
+    rows = collect(config, args.out)
+    print(f"wrote {rows} rows to {args.out} in {time.perf_counter() - started:.0f} s")
+    return 0

@@ -1,0 +1,64 @@
+"""Env-collected sets: the env's translated images with its true state, loadable as posenet training data."""
+
+import json
+
+import numpy as np
+import pytest
+
+from simshear_gym.data.env_collect import STATE_COLUMNS, EnvCollectConfig, collect
+from simshear_gym.data.tactile_set import read_set
+from simshear_gym.models.gdnn import variable_set
+from simshear_gym.train.posenet import PosenetTrainConfig, PosenetTrainer, load_source
+
+
+@pytest.fixture(scope="module")
+def colift_set(tmp_path_factory):
+    out = tmp_path_factory.mktemp("colift_set")
+    assert collect(EnvCollectConfig(task="colift", rows=30, episode_steps=6, seed=3), out, progress=False) == 30
+    return out
+
+
+def test_collected_set_holds_the_envs_images_and_true_state(colift_set):
+    found = read_set(colift_set, required_columns=STATE_COLUMNS)
+    assert len(found) == 30 and found.meta["kind"] == "env" and found.meta["env_id"] == "SimShearCoLift-v0"
+    targets = found.targets
+    assert set(targets["object_name"]) == {"prism", "egg", "brain", "ducky"}  # five 6-step episodes in turn
+    assert targets["episode"].nunique() == 5 and targets["step"].max() == 5
+    # near the co-lift reference depth (5.2 mm), with the noise's shear
+    assert 3.0 < targets["z_mm"].mean() < 7.0
+    assert targets[["shear_x_mm", "shear_y_mm"]].abs().to_numpy().max() > 0.05
+    images = found.load_images()
+    assert images.shape == (30, 128, 128) and images.dtype == np.uint8
+    assert 20 < images.mean() < 235  # translated TacTip images, not blank renders
+    json.dumps(found.meta)
+
+
+def test_env_sets_train_a_gdnn_on_the_env_variables(colift_set, tmp_path):
+    data = load_source("env", "env", [str(colift_set)], image_size_px=32)
+    assert tuple(data.images.shape) == (30, 32, 32) and tuple(data.labels.shape) == (30, 4)
+    assert variable_set("env").names == STATE_COLUMNS
+    config = PosenetTrainConfig(source="env", contact="env", paired_dirs=(str(colift_set),), image_size_px=32,
+                                conv_channels=(4, 8), conv_kernels=(3, 3), dense=(16,), epochs=2, batch_size=8,
+                                holdout=0.2, threads=1)
+    summary = PosenetTrainer(config, tmp_path / "run", data).fit(progress=False)
+    assert summary["epochs"] == 2 and (tmp_path / "run" / "best.pt").is_file()
+
+
+def test_env_source_and_contact_go_together_and_bad_settings_are_named():
+    with pytest.raises(ValueError, match="source 'env'"):
+        PosenetTrainConfig(source="env", contact="surface", paired_dirs=("x",))
+    with pytest.raises(ValueError, match="source 'env'"):
+        PosenetTrainConfig(source="real", contact="env", paired_dirs=("x",))
+    with pytest.raises(ValueError, match="task must be one of"):
+        EnvCollectConfig(task="push")
+    with pytest.raises(ValueError, match="gain_min"):
+        EnvCollectConfig(gain_min=1.5)
+
+
+def test_a_paired_set_is_not_taken_for_an_env_set(tmp_path, colift_set):
+    meta = json.loads((colift_set / "meta.json").read_text())
+    (tmp_path / "images").symlink_to(colift_set / "images")
+    (tmp_path / "targets.csv").write_text((colift_set / "targets.csv").read_text())
+    (tmp_path / "meta.json").write_text(json.dumps({**meta, "kind": "paired"}))
+    with pytest.raises(ValueError, match="not a set of simshear collect-env"):
+        load_source("env", "env", [str(tmp_path)])
