@@ -62,3 +62,14 @@ def test_a_paired_set_is_not_taken_for_an_env_set(tmp_path, colift_set):
     (tmp_path / "meta.json").write_text(json.dumps({**meta, "kind": "paired"}))
     with pytest.raises(ValueError, match="not a set of simshear collect-env"):
         load_source("env", "env", [str(tmp_path)])
+
+
+def test_the_servo_controller_can_drive_the_collection(tmp_path):
+    """DAgger's collection: the image-based controller moves the follower, the labels are still the truth."""
+    config = EnvCollectConfig(task="tracking", rows=8, episode_steps=8, noise=0.0, driver="servo", seed=1)
+    assert collect(config, tmp_path, progress=False) == 8
+    found = read_set(tmp_path, required_columns=STATE_COLUMNS)
+    assert found.meta["config"]["driver"] == "servo" and found.meta["env_id"] == "SimShearTracking-v0"
+    assert np.abs(found.targets["z_mm"] - 4.0).max() < 1.5  # the servo keeps the tracking reference depth
+    with pytest.raises(ValueError, match="driver must be one of"):
+        EnvCollectConfig(driver="ppo")

@@ -5,10 +5,13 @@ and keeps, every step, the image the env emits (translated by the shipped shPix2
 with the env's true state: depth (label convention), shear x, y (mm) and shear Rz (deg; for co-lift the sensor's
 yaw error), the variables of :data:`~simshear_gym.models.gdnn.VARIABLE_SETS` ``"env"``.
 
-Which states: the follower is driven by the oracle's law (:class:`~simshear_gym.control.oracle.OracleController`)
-scaled by a gain that wanders between ``gain_min`` and 1 (a slow sine with a random phase per episode), plus
-Gaussian action noise, so the follower lags, overshoots and loses its place the way a learned controller does,
-not only the oracle's near-zero errors. Episodes run over the task's objects and trajectories in turn, with the
+Which states: by default (``driver="oracle"``) the follower is driven by the oracle's law
+(:class:`~simshear_gym.control.oracle.OracleController`) scaled by a gain that wanders between ``gain_min`` and 1
+(a slow sine with a random phase per episode), plus Gaussian action noise, so the follower lags, overshoots and
+loses its place the way a learned controller does, not only the oracle's near-zero errors. With
+``driver="servo"`` the image-based :class:`~simshear_gym.control.servo.ServoController` (``posenet``: its GDNN)
+drives, plus the noise: the states that controller visits, labelled with the truth (one round of DAgger: train
+on oracle-driven sets, collect where the trained estimator takes the follower, train again on both). Episodes run over the task's objects and trajectories in turn, with the
 env's randomisation of scale, speed and start; an episode that ends early (a drop, a limit) is followed by the
 next.
 
@@ -28,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 TASKS = ("tracking", "colift")
+DRIVERS = ("oracle", "servo")
 STATE_COLUMNS = ("z_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 """The env's ``true_pose_shear``, in order, as label columns."""
 
@@ -45,6 +49,8 @@ class EnvCollectConfig:
         gain_period_steps: period of the gain's wander.
         noise: std of the Gaussian noise added to the action (action units, full scale 1).
         seed: seeds episodes, gains and noise.
+        driver: ``oracle`` (the oracle law with the wandering gain) or ``servo`` (the servo controller).
+        posenet: the servo driver's GDNN weights (None: the shipped one the controller picks).
     """
 
     task: str = "colift"
@@ -54,8 +60,12 @@ class EnvCollectConfig:
     gain_period_steps: float = 60.0
     noise: float = 0.3
     seed: int = 0
+    driver: str = "oracle"
+    posenet: str | None = None
 
     def __post_init__(self) -> None:
+        if self.driver not in DRIVERS:
+            raise ValueError(f"driver must be one of {DRIVERS}, got {self.driver!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
         if self.rows < 1 or self.episode_steps < 1:
@@ -83,7 +93,9 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
     from tqdm import tqdm
 
     import simshear_gym.envs  # noqa: F401  (registers the env ids)
+    from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.oracle import OracleController
+    from simshear_gym.control.servo import ServoController
     from simshear_gym.data.tactile_set import image_name, write_image, write_targets
 
     env_id = "SimShearCoLift-v0" if config.task == "colift" else "SimShearTracking-v0"
@@ -104,12 +116,15 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
             if key not in envs:
                 envs[key] = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting)
             env = envs[key]
-            controller = OracleController.for_env(env)
+            if config.driver == "servo":
+                controller = ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
+            else:
+                controller = OracleController.for_env(env)
             observation, _ = env.reset(seed=int(rng.integers(2 ** 31)))
             controller.reset()
             phase = rng.uniform(0.0, 2.0 * math.pi)
             for step in range(config.episode_steps):
-                gain = config.gain_min + (1.0 - config.gain_min) * 0.5 * (
+                gain = 1.0 if config.driver == "servo" else config.gain_min + (1.0 - config.gain_min) * 0.5 * (
                     1.0 + math.sin(phase + 2.0 * math.pi * step / config.gain_period_steps))
                 action = gain * controller(observation) + rng.normal(0.0, config.noise, 4)
                 observation, _, terminated, truncated, info = env.step(np.clip(action, -1, 1).astype(np.float32))
@@ -137,6 +152,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = EnvCollectConfig()
     parser.add_argument("--task", choices=TASKS, default=defaults.task)
     parser.add_argument("--out", type=Path, required=True, help="set directory to write")
+    parser.add_argument("--driver", choices=DRIVERS, default=defaults.driver,
+                        help="who moves the follower: the oracle law (wandering gain) or the servo controller")
+    parser.add_argument("--posenet", default=None, help="GDNN of the servo driver (default: shipped)")
     for name in ("rows", "episode_steps", "gain_min", "gain_period_steps", "noise", "seed"):
         value = getattr(defaults, name)
         parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value, help=f"default {value}")
@@ -149,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     config = EnvCollectConfig(task=args.task, rows=args.rows, episode_steps=args.episode_steps,
                               gain_min=args.gain_min, gain_period_steps=args.gain_period_steps, noise=args.noise,
-                              seed=args.seed)
+                              seed=args.seed, driver=args.driver, posenet=args.posenet)
     if (Path(args.out) / "targets.csv").exists():
         raise ValueError(f"{args.out}/targets.csv exists: choose a new --out")
     started = time.perf_counter()
