@@ -71,3 +71,18 @@ def test_servo_controller_gives_bounded_actions(tiny_posenet):
     assert controller.last_estimate is not None
     with pytest.raises(ValueError, match="tactile"):
         controller({"tcp_pose": np.zeros(4)})
+
+
+def test_for_env_reads_each_env_with_its_own_shipped_gdnn():
+    """Tracking images are read with the shipped surface GDNN, co-lift images with the one trained on co-lift."""
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+
+    for env_id, variables in (("SimShearTracking-v0", "surface"), ("SimShearCoLift-v0", "env")):
+        env = gym.make(env_id, obs_mode="sim")
+        try:
+            controller = ServoController.for_env(env)
+            assert controller.estimator.model.variables.name == variables, env_id
+        finally:
+            env.close()

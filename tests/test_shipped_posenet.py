@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from simshear_gym.models.posenet_io import load_shipped_posenet, shipped_posenet_path
-from simshear_gym.train.export_posenet import check_figure
+from simshear_gym.train.export_posenet import check_figure, env_check_figure
 
 torch.set_num_threads(1)
 
@@ -33,3 +33,21 @@ def test_shipped_posenet_reproduces_its_check_figure(contact, data_root):
 def test_unknown_contact_is_a_clear_error():
     with pytest.raises(FileNotFoundError, match="no shipped posenet for 'cylinder'"):
         shipped_posenet_path("cylinder")
+
+
+def test_shipped_colift_posenet_is_the_colift_envs_estimator():
+    model, card = load_shipped_posenet("colift")
+    assert model.variables.name == "env" and card["contact"] == "colift"
+    assert card["train_config"]["source"] == "env" and "collect_command" in card
+    assert shipped_posenet_path("colift").with_suffix(".md").is_file()
+    assert shipped_posenet_path("colift").stat().st_size < 10 * 2 ** 20
+
+
+def test_shipped_colift_posenet_reproduces_its_check_figure():
+    """The check set is collected afresh from its seed: same physics and translation, so about the same MAE."""
+    _, card = load_shipped_posenet("colift")
+    recorded = card["check"]
+    measured = env_check_figure(shipped_posenet_path("colift"), recorded["collect"])
+    assert measured["rows"] == recorded["rows"]
+    for name, value in recorded["mae"].items():
+        assert measured["mae"][name] == pytest.approx(value, rel=0.05, abs=0.02), name

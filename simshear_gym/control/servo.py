@@ -44,8 +44,18 @@ class ServoController:
     @classmethod
     def for_env(cls, env, gains: PIGains = SERVO_GAINS,
                 estimator: EstimatorConfig = EstimatorConfig()) -> "ServoController":
-        """A controller matched to an env's reference depth and action scale (wrappers are looked through)."""
+        """A controller matched to an env's reference depth and action scale (wrappers are looked through).
+
+        Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
+        (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none)."""
+        from dataclasses import replace
+
+        from simshear_gym.models.posenet_io import shipped_posenet_path
+
         base = env.unwrapped
+        if estimator.posenet is None:
+            name = getattr(base, "estimator_posenet", "surface")
+            estimator = replace(estimator, posenet=str(shipped_posenet_path(name)))
         return cls(base.reference_depth_mm, base.action_scale.as_array(), gains, estimator)
 
     def reset(self) -> None:

@@ -227,6 +227,7 @@ class SimShearEnv(gym.Env, EzPickle):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
     translator_contact = "surface"
+    estimator_posenet = "surface"  # the shipped GDNN an image-based controller reads this env's images with
 
     def __init__(self, *, obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = 4.0,

@@ -187,6 +187,8 @@ class SimShearCoLiftEnv(SimShearEnv):
     Version history: v0 (initial).
     """
 
+    estimator_posenet = "colift"  # the shipped GDNN trained on this env's own images (simshear collect-env)
+
     def __init__(self, trajectory: str = "circular_wave", object_name: str = "prism", mass_kg: float | None = None,
                  obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = SURFACE_DEPTH_MM + 3.0,

@@ -231,11 +231,17 @@ def run(args: argparse.Namespace) -> int:
         png = args.out / f"{args.name}_{task}_{variant}.png"
         figure(first_seed, png, f"{task}, {variant} estimator (nominal runs)")
         figures.append(str(png))
-    command = ("simshear evaluate servo --tasks " + " ".join(args.tasks) + " --variants " + " ".join(args.variants)
+    command = ("simshear evaluate servo --tasks " + " ".join(args.tasks)
+               + (" --trajectories " + " ".join(args.trajectories)
+                  if "tracking" in args.tasks and list(args.trajectories) != list(TRACKING_TRAJECTORIES) else "")
+               + (" --objects " + " ".join(args.objects) if args.objects else "")
+               + (" --colift-trajectories " + " ".join(args.colift_trajectories) if args.colift_trajectories else "")
+               + " --variants " + " ".join(args.variants)
                + " --seeds " + " ".join(str(s) for s in args.seeds)
                + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)
                + (f" --policy {args.policy}" if args.policy else "")
-               + (f" --max-steps {args.max_steps}" if args.max_steps else ""))
+               + (f" --max-steps {args.max_steps}" if args.max_steps else "")
+               + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {
         "command": command,
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "

@@ -4,6 +4,10 @@ Copies the run's best GDNN into a weights file with a card (training command, ru
 check figure: the per-variable MAE on the first ``--check-rows`` rows of the real ``<contact>_shear`` validation
 set, which ``tests/test_shipped_posenet.py`` reproduces), and writes the Markdown model card beside it from the
 ``simshear evaluate posenet`` results of that run (``--results``, the model named ``--result-name``).
+
+``--contact colift``: a GDNN of the ``env`` variables trained on co-lift env sets (``simshear collect-env``); its
+check figure is the MAE on a small seeded co-lift set collected afresh (:func:`env_check_figure`), since no real
+images of that task exist.
 """
 
 from __future__ import annotations
@@ -31,6 +35,34 @@ def check_figure(weights: Path, contact: str, rows: int, data: str | None = None
     return {"kind": "shear", "rows": rows, "mae": {name: float(v) for name, v in zip(model.variables.names, mae)}}
 
 
+ENV_CHECK = {"task": "colift", "rows": 48, "episode_steps": 12, "seed": 12345}
+"""The seeded co-lift set of an env GDNN's check figure (oracle-driven, collected afresh by the check)."""
+
+
+def env_check_figure(weights: Path, settings: dict = ENV_CHECK) -> dict:
+    """Per-variable MAE of an ``env`` GDNN on a small seeded co-lift set collected into a temporary directory."""
+    import tempfile
+
+    import numpy as np
+
+    from simshear_gym.data.env_collect import EnvCollectConfig, collect
+    from simshear_gym.data.tactile_set import read_set
+    from simshear_gym.evaluate.posenet import errors, predict
+    from simshear_gym.models.posenet_io import load_posenet
+    from simshear_gym.train.posenet import label_matrix
+
+    model, _ = load_posenet(weights)
+    with tempfile.TemporaryDirectory() as directory:
+        collect(EnvCollectConfig(**settings), Path(directory), progress=False)
+        found = read_set(directory, required_columns=model.variables.columns)
+        truth = label_matrix(found.targets, model.variables)
+        images = found.load_images(use_cache=False)
+    mean, _ = model.variables.decode(*predict(model, images))
+    mae = np.abs(errors(mean.numpy(), truth, model.variables)).mean(axis=0)
+    return {"kind": "env", "collect": dict(settings), "rows": len(truth),
+            "mae": {name: float(v) for name, v in zip(model.variables.names, mae)}}
+
+
 def write_card(weights: Path, card: dict, results: dict | None, result_name: str, date: str) -> Path:
     """``<weights>.md``: data, exact commands, metrics, date."""
     config = card.get("train_config", {})
@@ -43,16 +75,20 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
         f"- Architecture: GDNN, {config.get('image_size_px')} px input, conv channels {config.get('conv_channels')} "
         f"kernels {config.get('conv_kernels')}, dense {config.get('dense')}; outputs mean and std per variable "
         f"({', '.join(card.get('variables', []))}).",
-        f"- Data: images from source `{config.get('source')}` of the paired sets {config.get('paired_dirs')} "
-        "(our sim renders of the real tactip331 training rows; `shpix2pix` = translated by the shipped shPix2pix of "
-        f"this contact type); {100 * config.get('holdout', 0):.0f} % of them held out for early stopping. The real "
-        "validation images were not used in training or selection.",
+        (f"- Data: images from source `{config.get('source')}` of the paired sets {config.get('paired_dirs')} "
+         "(our sim renders of the real tactip331 training rows; `shpix2pix` = translated by the shipped shPix2pix of "
+         f"this contact type); {100 * config.get('holdout', 0):.0f} % of them held out for early stopping. The real "
+         "validation images were not used in training or selection.") if config.get("source") != "env" else
+        (f"- Data: the env sets {config.get('paired_dirs')} of `simshear collect-env` (the images the env emits, "
+         "translated by the shipped shPix2pix, labelled with the env's true state); "
+         f"{100 * config.get('holdout', 0):.0f} % of them held out for early stopping."),
         f"- Objective: beta-NLL (beta {config.get('beta')}); Adam lr {config.get('lr')}, batch "
         f"{config.get('batch_size')}, shift augmentation {config.get('shift')}, seed {config.get('seed')}, "
         f"{config.get('threads')} CPU thread(s).",
         f"- Training: best holdout NLL {card.get('holdout_nll', float('nan')):.3f} at epoch {card.get('epoch')}, "
         f"{card.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU.",
-        f"- Exact commands: `simshear collect --replay-all --out runs/paired`, then `{card.get('train_command')}`, "
+        f"- Exact commands: `{card.get('collect_command', 'simshear collect --replay-all --out runs/paired')}`, "
+        f"then `{card.get('train_command')}`, "
         f"then `simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`.",
     ]
     section = (results or {}).get("contacts", {}).get(card["contact"], {})
@@ -76,7 +112,11 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
                       + "; not read by `real` either: " + ", ".join(name for name, row in accepted.items()
                                                                if not row["reference_reads"]) + "."]
     check = card.get("check")
-    if check:
+    if check and check.get("kind") == "env":
+        lines += ["", f"Check figure (tests): MAE on a fresh seeded co-lift set ({check['rows']} rows, "
+                      f"`EnvCollectConfig(**{check['collect']})`): "
+                      + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())]
+    elif check:
         lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real "
                       f"`{card['contact']}_shear` validation set: "
                       + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())]
@@ -85,30 +125,39 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
     return path
 
 
+_VARIABLES = {"surface": "surface", "edge": "edge", "colift": "env"}  # --contact -> the GDNN's variable set
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="posenet run directory (best.pt, config.json)")
-    parser.add_argument("--contact", choices=("surface", "edge"), required=True)
+    parser.add_argument("--contact", choices=tuple(_VARIABLES), required=True,
+                        help="surface | edge (real-data GDNNs) or colift (an env GDNN of the co-lift env)")
     parser.add_argument("--to", type=Path, required=True, help="weights file to write")
     parser.add_argument("--train-command", required=True, help="the exact command that trained the run")
     parser.add_argument("--results", type=Path, default=None, help="results json of simshear evaluate posenet")
     parser.add_argument("--result-name", default="shpix2pix", help="the model's name in --results")
     parser.add_argument("--check-rows", type=int, default=64)
     parser.add_argument("--data", default=None)
+    parser.add_argument("--collect-command", default=None,
+                        help="the exact command(s) that made the training sets (default: simshear collect)")
 
 
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
 
     model, best_card = load_posenet(args.run / "best.pt")
-    if model.variables.name != args.contact:
+    if model.variables.name != _VARIABLES[args.contact]:
         raise ValueError(f"{args.run / 'best.pt'}: predicts the {model.variables.name!r} variables, not "
-                         f"{args.contact!r}")
+                         f"{_VARIABLES[args.contact]!r} (--contact {args.contact})")
     config = json.loads((args.run / "config.json").read_text())
     card = {**best_card, "contact": args.contact, "train_command": args.train_command, "train_config": config,
             "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters())}
+    if args.collect_command:
+        card["collect_command"] = args.collect_command
     args.to.parent.mkdir(parents=True, exist_ok=True)
     save_posenet(args.to, model, card)
-    card["check"] = check_figure(args.to, args.contact, args.check_rows, args.data)
+    card["check"] = (env_check_figure(args.to) if args.contact == "colift" else
+                     check_figure(args.to, args.contact, args.check_rows, args.data))
     save_posenet(args.to, model, card)
     results = json.loads(args.results.read_text()) if args.results else None
     md = write_card(args.to, card, results, args.result_name, datetime.date.today().isoformat())
