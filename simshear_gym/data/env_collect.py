@@ -104,7 +104,7 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
     images_dir.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(config.seed)
     rows: list[dict] = []
-    envs: dict[tuple, gym.Env] = {}
+    envs: dict[tuple, tuple[gym.Env, object]] = {}  # env and its controller, made once per setting
     settings = config.episodes()
     started = time.perf_counter()
     bar = tqdm(total=config.rows, disable=not progress, desc=f"collect {config.task}")
@@ -114,12 +114,10 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
             setting = settings[episode % len(settings)]
             key = tuple(sorted(setting.items()))
             if key not in envs:
-                envs[key] = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting)
-            env = envs[key]
-            if config.driver == "servo":
-                controller = ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
-            else:
-                controller = OracleController.for_env(env)
+                env = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting)
+                envs[key] = env, (ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
+                                  if config.driver == "servo" else OracleController.for_env(env))
+            env, controller = envs[key]
             observation, _ = env.reset(seed=int(rng.integers(2 ** 31)))
             controller.reset()
             phase = rng.uniform(0.0, 2.0 * math.pi)
@@ -140,7 +138,7 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
             episode += 1
     finally:
         bar.close()
-        for env in envs.values():
+        for env, _ in envs.values():
             env.close()
     meta = {"kind": "env", "env_id": env_id, "obs_mode": "oracle_real", "variables": "env",
             "config": asdict(config), "episodes": episode, "seconds": round(time.perf_counter() - started, 1)}

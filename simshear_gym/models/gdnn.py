@@ -308,20 +308,14 @@ class GDNN(nn.Module):
     def frozen(self) -> nn.Module:
         """A copy for CPU inference: the same outputs as :meth:`forward` in eval mode, traced and frozen by
         TorchScript (batch norm folded into the convolutions, weights pre-packed): about 3x faster at batch 1 on
-        our 2-core CPU (2 ms instead of 6-7 ms). TorchScript is deprecated in favour of ``torch.compile``, whose
-        compile time (tens of seconds) would dwarf an episode; with the pinned torch it works, and where it
-        does not the eager copy is returned. Input shapes are not checked: give (B, 1, H, W) in [0, 1]."""
+        our 2-core CPU (2 ms instead of 6-7 ms); see :func:`~simshear_gym.models.torchscript.frozen_copy`.
+        Input shapes are not checked: give (B, 1, H, W) in [0, 1]."""
         import copy
-        import warnings
 
-        core = _GDNNCore(copy.deepcopy(self).eval()).eval()
+        from simshear_gym.models.torchscript import frozen_copy
+
         size = self.config.image_size_px
-        try:
-            with warnings.catch_warnings(), torch.no_grad():
-                warnings.simplefilter("ignore", DeprecationWarning)
-                return torch.jit.freeze(torch.jit.trace(core, torch.zeros(1, 1, size, size)))
-        except (AttributeError, RuntimeError):  # TorchScript gone or failing: eager is slower but the same
-            return core
+        return frozen_copy(_GDNNCore(copy.deepcopy(self).eval()), (torch.zeros(1, 1, size, size),))
 
 
 class _GDNNCore(nn.Module):

@@ -59,7 +59,7 @@ class Translator:
     def __init__(self, generator: UNetGenerator, card: dict | None = None, fast: bool = True) -> None:
         self.generator = generator.eval()
         self.card = card or {}
-        self._run = generator.frozen() if fast else None
+        self._run = generator.frozen() if fast else generator
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Translator":
@@ -82,10 +82,7 @@ class Translator:
             shear = normalise_shear(shear_sensor)
             if shear.shape != (len(sim), 6):
                 raise ValueError(f"shear_sensor must be (B, 6) = ({len(sim)}, 6), got {tuple(shear.shape)}")
-        if self._run is None:
-            out = self.generator(sim, shear)
-        else:
-            out = self._run(sim, shear) if shear is not None else self._run(sim)
+        out = self._run(sim, shear) if shear is not None else self._run(sim)
         return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
 
 
