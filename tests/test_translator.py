@@ -159,3 +159,19 @@ def test_fast_translator_matches_the_eager_generator(shear_dim, shear_decoder, d
     if shear_dim:
         with pytest.raises(ValueError, match=r"shear_sensor must be \(B, 6\)"):
             fast(sim, shear[:2])
+
+
+@pytest.mark.parametrize("in_channels, out_channels, size_px, bias", [(8, 8, 1, False), (16, 4, 4, False),
+                                                                       (6, 1, 16, True), (4, 3, 5, True)])
+def test_column_transposed_conv_equals_the_transposed_convolution(in_channels, out_channels, size_px, bias):
+    from simshear_gym.models.unet import _ColumnTransposedConv
+
+    torch.manual_seed(0)
+    upsample = torch.nn.ConvTranspose2d(in_channels, out_channels, 4, stride=2, padding=1, bias=bias)
+    x = torch.randn(3, in_channels, size_px, size_px)
+    with torch.no_grad():
+        expected, got = upsample(x), _ColumnTransposedConv(upsample)(x)
+    assert got.shape == expected.shape == (3, out_channels, 2 * size_px, 2 * size_px)
+    assert torch.allclose(got, expected, atol=1e-5)
+    with pytest.raises(ValueError, match="plain stride-2"):
+        _ColumnTransposedConv(torch.nn.ConvTranspose2d(4, 4, 3, stride=1, padding=1))

@@ -24,13 +24,15 @@ def write_translator_card(weights: Path, train_command: str, translation_results
         f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp16, {params / 1e6:.2f} M parameters)",
         f"- Date: {date}",
         f"- Architecture: U-Net generator, {config.get('image_size_px')} px, base {config.get('base_channels')} "
-        f"channels (max {config.get('max_channels')}), learned at-rest template "
+        f"channels (max {config.get('max_channels')}), decoder at {config.get('decoder_scale', 1.0)} x the "
+        f"encoder's width, learned at-rest template "
         f"{'on' if config.get('template') else 'off'}, shear at the bottleneck "
         f"{'on' if arch == 'shpix2pix' else 'off (pix2pix baseline)'}.",
         f"- Data: our sim renders of the real tactip331 `{contact}` training rows (tap and shear, "
         f"`simshear collect --replay-all`), paired with the real images; {config.get('holdout', 0) * 100:.0f}% of "
         "them held out for early stopping. The real validation sets were not used in training or selection.",
-        f"- Objective: L1 x {config.get('l1_weight')} + LSGAN x {config.get('gan_weight')}; Adam lr {config.get('lr')}, "
+        f"- Objective: L1 x {config.get('l1_weight')} + LSGAN x {config.get('gan_weight')}; Adam lr {config.get('lr')} "
+        f"({config.get('lr_schedule', 'constant')}), "
         f"batch {config.get('batch_size')}, seed {config.get('seed')}, {config.get('threads')} CPU thread(s).",
         f"- Training: {best.get('epoch')} epochs, best holdout MAPE {best.get('holdout_l1', float('nan')):.4f} at "
         f"{best.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU (budget {config.get('max_minutes')} min).",
