@@ -124,6 +124,10 @@ def test_bad_names_and_inputs_raise_clear_errors():
         CoLiftSceneConfig(squeeze_mm=-1.0)
     with pytest.raises(ValueError, match="substeps"):
         CoLiftSceneConfig(substeps=0)
+    with pytest.raises(ValueError, match="skin_shear_stiffness_npm must be >= 0 N/m, got -1"):
+        CoLiftSceneConfig(skin_shear_stiffness_npm=-1.0)
+    with pytest.raises(ValueError, match="tip rolling arm -2.0 mm"):
+        CoLiftSceneConfig(tip_rolling_arm_mm=-2.0)
     with CoLiftScene() as scene:
         with pytest.raises(RuntimeError, match="reset"):
             scene.step(T_WORLD_PLATE, T_WORLD_PLATE)
@@ -133,28 +137,70 @@ def test_bad_names_and_inputs_raise_clear_errors():
             scene.reset(T_WORLD_PLATE, squeeze_mm=25.0)
 
 
-def test_shear_is_the_sensor_motion_relative_to_the_object():
+def test_shear_is_the_skins_deflection_while_it_sticks_to_the_object():
     with CoLiftScene(CoLiftSceneConfig(object_name="prism")) as scene:
         T_world_sensor = scene.reset(T_WORLD_PLATE)
         assert np.allclose(scene.shear_sensor(), 0.0)
         T_plate_sensor = invert(T_WORLD_PLATE) @ T_world_sensor
-        follow(scene, T_plate_sensor, duration_s=1.0)  # carried together: no shear
-        assert np.abs(scene.shear_sensor()[:3]).max() < 0.1 and np.abs(scene.shear_sensor()[3:]).max() < 0.5
+        follow(scene, T_plate_sensor, duration_s=1.0)  # carried together: the skin takes a share of the weight
+        shear = scene.shear_sensor()
+        assert abs(shear[0]) < 0.1 and abs(shear[2]) < 0.1 and abs(shear[1]) < 1.0 and np.abs(shear[3:]).max() < 0.5
 
         T_world_plate = _translation(*leader_path_mm(1.0)) @ T_WORLD_PLATE
         T_world_sensor = T_world_plate @ T_plate_sensor
         T_object_sensor0 = invert(scene.object_pose()) @ scene.sensor_pose()
-        shear0 = scene.shear_sensor()
-        # the tip alone slides 2 mm along its own +x: it drags the prism, which rolls about its vertical
-        # axis against the plate, so the sensor moves less than 2 mm over the object
+        shear0, slip0 = scene.shear_sensor(), scene.object_slip_mm()
+        # the sensor alone moves 2 mm along its own +x: the skin shears, the prism stays on the plate
         for k in range(1, 11):
             scene.step(T_world_plate, T_world_sensor @ _translation(x=0.2 * k))
         assert not scene.dropped()
+        assert scene.object_slip_mm() - slip0 < 0.1
         T_object_sensor = invert(scene.object_pose()) @ scene.sensor_pose()
         moved_sensor_mm = (invert(T_object_sensor0) @ T_object_sensor)[:3, 3]  # in the sensor's earlier axes
         shear = scene.shear_sensor() - shear0
-        assert 0.05 < shear[0] < 2.0
-        assert shear[:3] == pytest.approx(moved_sensor_mm, abs=0.02)
+        assert 1.5 < shear[0] < 2.1
+        assert shear[:3] == pytest.approx(moved_sensor_mm, abs=0.1)  # the skin creeps < 0.1 mm on the object
+        skin_mm = (invert(scene.sensor_pose()) @ scene.skin_pose())[:3, 3]
+        assert skin_mm[0] < -1.0  # the skin stayed behind on the object
+
+
+@pytest.mark.parametrize("name", ["prism", "egg", "brain", "ducky"])
+def test_a_lagging_sensor_shears_the_skin_and_leaves_the_object_on_the_plate(name):
+    """3 mm of lag across the grip or downwards (the follower's errors in closed loop): every object stays put
+    (< 0.5 mm) and the skin's shear shows most of the lag."""
+    for axis in (0, 1):
+        with CoLiftScene(CoLiftSceneConfig(object_name=name)) as scene:
+            T_world_sensor = scene.reset(T_WORLD_PLATE)
+            for k in range(1, 21):
+                lag_mm = 0.3 * min(k, 10)
+                scene.step(T_WORLD_PLATE, T_world_sensor @ _translation(**{"xy"[axis]: lag_mm}))
+            assert not scene.dropped() and scene.object_slip_mm() < 0.5, (name, axis)
+            assert 2.0 < scene.shear_sensor()[axis] < 3.1, (name, axis, scene.shear_sensor())
+
+
+def test_a_plate_turning_under_a_round_object_rolls_it_unseen():
+    """Why the co-lift paths do not turn the plate by default: a 10 deg turn about the vertical rolls the egg
+    3-4 mm along the plate (its orientation held by the skin's patch) while the skin shows no shear."""
+    turn = np.eye(4)
+    with CoLiftScene(CoLiftSceneConfig(object_name="egg")) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        for k in range(1, 21):
+            angle = np.radians(min(k, 10))
+            turn[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
+            T_world_plate = T_WORLD_PLATE.copy()
+            T_world_plate[:3, :3] = turn[:3, :3] @ T_WORLD_PLATE[:3, :3]
+            scene.step(T_world_plate, T_world_sensor)
+        assert 2.5 < scene.object_slip_mm() < 5.0 and np.abs(scene.shear_sensor()[:2]).max() < 0.5
+
+
+def test_a_rigid_tip_drags_the_object_along_the_plate():
+    """Without the skin's compliance (and rolling resistance) the tip's lag moves the object, not the skin."""
+    config = CoLiftSceneConfig(object_name="egg", skin_shear_stiffness_npm=0.0, tip_rolling_arm_mm=0.0)
+    with CoLiftScene(config) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        for k in range(1, 11):
+            scene.step(T_WORLD_PLATE, T_world_sensor @ _translation(x=0.3 * k))
+        assert scene.object_slip_mm() > 1.0 and scene.shear_sensor()[0] < 0.5
 
 
 def test_same_inputs_give_the_same_run():

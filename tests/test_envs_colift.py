@@ -192,7 +192,7 @@ def test_a_refused_arm_target_terminates_the_episode_without_crashing():
 
 
 def test_the_leaders_path_and_the_targets_are_in_the_info():
-    env = make("oracle", trajectory="star", speed_mm_s=5.0)
+    env = make("oracle", trajectory="star", speed_mm_s=5.0, rotation_deg=10.0)
     env.reset(seed=0)
     trajectory = Trajectory(TrajectoryConfig("star", speed_mm_s=5.0, rotation_deg=10.0))
     start = env.unwrapped._T_world_plate_start[:3, 3].copy()

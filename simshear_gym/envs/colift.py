@@ -41,7 +41,7 @@ T_FLANGE_PLATE = upright_plate(np.array([50.0, 0.0, -60.0]), yaw_deg=-90.0)
 # The follower faces the leader 750 mm away: with the plate face at x = 330 mm, an object 30-42 mm thick and the
 # TacTip 95 mm long, its flange starts 286-298 mm out, mid-way in the MG400's reach.
 FOLLOWER_T_WORLD_BASE = pose_to_matrix(np.array([750.0, 0.0, 0.0, 0.0, 0.0, 180.0]))
-ROTATION_DEG = 10.0  # amplitude of the leader's turn about the vertical along a trajectory
+ROTATION_LIMIT_DEG = 10.0  # largest amplitude of the leader's optional turn about the vertical (reach-checked)
 START_OFFSET_LIMIT_MM = 40.0
 # Co-lift ends on a drop. Beyond that: the follower 50 mm off its target (farther than any object's size: it has
 # lost the object), or the object 10 mm into the 20 mm dome (physical depth; 3 mm at the start). lost_contact_mm
@@ -88,7 +88,8 @@ class SimShearCoLiftEnv(SimShearEnv):
     50 mm beyond and 60 mm below its flange, facing the follower) and moves it along ``trajectory`` (see
     :mod:`simshear_gym.envs.trajectories`: ``circular_wave``, a horizontal circle with vertical waves, moving the
     object along and across the grip axis; ``star``, a star outline in the vertical plane of the plate, lifting
-    it; both turn the plate about the vertical by up to 10 deg). The **follower** carries the TacTip lying
+    it; like the paper's, both are translations: ``rotation_deg`` adds a turn of the plate about the vertical).
+    The **follower** carries the TacTip lying
     horizontally (:class:`HorizontalTacTipMount`: axis along its flange's x, 60 mm below it, apex 95 mm ahead)
     and squeezes the object (``object_name``: ``prism`` 30 x 40 x 30 mm box, rigid ``egg``, soft ``brain``
     ellipsoid, ``ducky``; 30 g unless ``mass_kg``) against the plate. Nothing but friction holds the object: if
@@ -103,6 +104,10 @@ class SimShearCoLiftEnv(SimShearEnv):
     ``substeps`` physics steps at about 240 Hz, 24 at 10 Hz). The tip's contact is soft (500 N/m, 5 N s/m:
     about a real TacTip's few newtons over a few millimetres), so the 3 mm squeeze is the dome's deformation and
     presses the object with about 1.5 N; the plate's contact is rigid; the soft brain adds its own compliance.
+    The skin is compliant across the optical axis too (a 100 N/m spring between the sensor and the tip body,
+    plus rolling and spinning friction for the contact patch, and friction anchors so contacts under load do not
+    creep), so when the follower lags, the skin shears over the object, which stays on the plate, and the image
+    shows the lag as shear.
     The tactile **image** is not the physics contact: it is the TacTip's render of the object's penetration
     into the *undeformed* dome at the follower's TCP (a visual copy of the object in the env's own world, moved
     to the physics object's pose each step); with a soft contact that overlap is the deformation.
@@ -145,9 +150,9 @@ class SimShearCoLiftEnv(SimShearEnv):
     ===================  ==========================  ============================================================
 
     Why the oracle's shear is taken over the face *as carried by the plate* while ``info["shear_sensor_mm_deg"]``
-    (which also conditions the translator) is over the object itself: a controller that follows the object lets
-    it creep - each millimetre the object slides, the tip follows, and the grip no longer holds it in place - so
-    the oracle holds the grip where the plate says; while the object holds its place the two agree.
+    (which also conditions the translator) is the skin's deflection: the contact error is relative to the plate,
+    so the oracle holds the grip where the plate says. The skin shears instead of moving the object (see the
+    physics above), so the two agree to within the object's creep on the plate (< 0.5 mm in the scene's tests).
 
     **Reward** ``1 - min(e / 5 mm, 2) - 1[tip not touching the object]`` with ``e`` the contact error
     (``RewardConfig``); a drop ends the episode, forfeiting the rest of the alive bonus.
@@ -177,14 +182,21 @@ class SimShearCoLiftEnv(SimShearEnv):
             (defaults ``"real"``, 128, 10 Hz, None).
         reference_depth_mm: the depth to keep (label convention): 5.2 mm = a 3 mm squeeze.
         speed_mm_s: the leader's speed along its path.
-        randomise: per reset, draw the trajectory's scale (x0.7-1.3), speed (x0.7-1.3), turn (-1..1 x 10 deg) and
-            the leader's start place (+-10 mm in world x, y, z) from the reset's seed.
+        rotation_deg: amplitude of the plate's turn about the vertical along the path (``rotation_deg *
+            sin(2 pi s)``, s the fraction travelled; within +-10 deg); 0 (default): the paper's translations.
+            A turn is not observable by touch on a round object: the egg, brain and duck roll on the rigid plate
+            as it turns under them (the object keeps its orientation to the skin, whose contact patch holds it),
+            so the follower sees no shear while the plate carries its target away (a 10 deg turn: 3.3-3.7 mm,
+            ``tests/test_colift_scene.py``); only the prism's flat face turns with the plate.
+        randomise: per reset, draw the trajectory's scale (x0.7-1.3), speed (x0.7-1.3), turn (-1..1 x
+            ``rotation_deg``) and the leader's start place (+-10 mm in world x, y, z) from the reset's seed.
         options of ``reset``: ``{"start_offset_mm": (x, y, z)}`` sets the leader's start place (world mm, within
             +-40 mm).
         Other keyword arguments (``action_scale``, ``reward``, ``termination``, ``arm_config``, ``mount``, ...) go
         to the base; ``mount`` must be a :class:`HorizontalTacTipMount`.
 
-    Version history: v0 (initial).
+    Version history: v0 (initial; before the first release: the skin's shear compliance and friction anchors,
+    so a lag shears the skin instead of moving the object, and no turn of the plate unless ``rotation_deg``).
     """
 
     estimator_posenet = "colift"  # the shipped GDNN trained on this env's own images (simshear collect-env)
@@ -192,12 +204,13 @@ class SimShearCoLiftEnv(SimShearEnv):
     def __init__(self, trajectory: str = "circular_wave", object_name: str = "prism", mass_kg: float | None = None,
                  obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = SURFACE_DEPTH_MM + 3.0,
-                 speed_mm_s: float = 5.0, randomise: bool = False,
+                 speed_mm_s: float = 5.0, rotation_deg: float = 0.0, randomise: bool = False,
                  mount: HorizontalTacTipMount = HorizontalTacTipMount(),
                  termination: TerminationConfig = COLIFT_TERMINATION, **base_kwargs) -> None:
         EzPickle.__init__(self, trajectory=trajectory, object_name=object_name, mass_kg=mass_kg, obs_mode=obs_mode,
                           image_size_px=image_size_px, control_rate_hz=control_rate_hz, render_mode=render_mode,
-                          reference_depth_mm=reference_depth_mm, speed_mm_s=speed_mm_s, randomise=randomise,
+                          reference_depth_mm=reference_depth_mm, speed_mm_s=speed_mm_s,
+                          rotation_deg=rotation_deg, randomise=randomise,
                           mount=mount, termination=termination, **base_kwargs)
         if trajectory not in TRAJECTORY_CHOICES:
             raise ValueError(f"unknown trajectory {trajectory!r}; expected one of {TRAJECTORY_CHOICES}")
@@ -205,6 +218,8 @@ class SimShearCoLiftEnv(SimShearEnv):
             raise ValueError(f"unknown object_name {object_name!r}; expected one of {OBJECT_NAMES}")
         if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
             raise ValueError(f"speed_mm_s must be > 0, got {speed_mm_s!r}")
+        if not (isinstance(rotation_deg, (int, float)) and abs(rotation_deg) <= ROTATION_LIMIT_DEG):
+            raise ValueError(f"rotation_deg must be within +-{ROTATION_LIMIT_DEG} deg, got {rotation_deg!r}")
         if not isinstance(mount, HorizontalTacTipMount):
             raise ValueError(f"the co-lift TacTip lies horizontally: mount must be a HorizontalTacTipMount, "
                              f"got {type(mount).__name__}")
@@ -212,6 +227,7 @@ class SimShearCoLiftEnv(SimShearEnv):
         self.object_name = object_name
         self.mass_kg = mass_kg
         self.speed_mm_s = float(speed_mm_s)
+        self.rotation_deg = float(rotation_deg)
         self.randomise = bool(randomise)
         self.trajectory: Trajectory | None = None
         self._fresh_scene = False
@@ -257,7 +273,7 @@ class SimShearCoLiftEnv(SimShearEnv):
         name = self.trajectory_name
         if name == "random":
             name = COLIFT_TRAJECTORIES[int(rng.integers(len(COLIFT_TRAJECTORIES)))]
-        scale, speed, rotation, offset = 1.0, self.speed_mm_s, ROTATION_DEG, np.zeros(3)
+        scale, speed, rotation, offset = 1.0, self.speed_mm_s, self.rotation_deg, np.zeros(3)
         if self.randomise:
             scale = float(rng.uniform(0.7, 1.3))
             speed *= float(rng.uniform(0.7, 1.3))

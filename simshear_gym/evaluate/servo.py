@@ -3,7 +3,8 @@
 ``simshear evaluate servo`` runs :class:`~simshear_gym.control.servo.ServoController` (tactile image -> GDNN + filter
 -> PI law; it never reads ground truth) on every trajectory of ``SimShearTracking-v0`` and every object x
 trajectory of ``SimShearCoLift-v0``, in a nominal run and randomised runs (one per seed: the env draws the
-trajectory's scale, speed, rotation and the start place), with estimator variants:
+trajectory's scale, speed, turn and the start place; co-lift turns the plate only with
+``--colift-rotation-deg``), with estimator variants:
 
 - ``shpix2pix``: the env's translated images (``obs_mode="real"``), the shipped GDNN (trained on shPix2pix images);
 - ``pix2pix``: the same images, a GDNN trained on pix2pix-generated images (``--posenet-pix2pix``);
@@ -162,6 +163,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="tracking trajectories")
     parser.add_argument("--objects", nargs="+", default=None, help="co-lift objects (default all)")
     parser.add_argument("--colift-trajectories", nargs="+", default=None, help="co-lift trajectories (default all)")
+    parser.add_argument("--colift-rotation-deg", type=float, default=0.0,
+                        help="the co-lift plate's turn about the vertical along the path (default 0: the paper's "
+                             "translations; see SimShearCoLiftEnv's rotation_deg)")
     parser.add_argument("--variants", nargs="+", default=["shpix2pix"], choices=VARIANTS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2],
                         help="seeds of the randomised runs (trajectory scale, speed, rotation, start place), each "
@@ -197,7 +201,8 @@ def run(args: argparse.Namespace) -> int:
 
         for trajectory in args.colift_trajectories or COLIFT_TRAJECTORIES:
             for name in args.objects or OBJECT_NAMES:
-                settings.append(("colift", f"{name}_{trajectory}", {"trajectory": trajectory, "object_name": name}))
+                settings.append(("colift", f"{name}_{trajectory}", {"trajectory": trajectory, "object_name": name,
+                                                                     "rotation_deg": args.colift_rotation_deg}))
     env_ids = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
     start = time.perf_counter()
     results: dict = {}
@@ -236,6 +241,7 @@ def run(args: argparse.Namespace) -> int:
                   if "tracking" in args.tasks and list(args.trajectories) != list(TRACKING_TRAJECTORIES) else "")
                + (" --objects " + " ".join(args.objects) if args.objects else "")
                + (" --colift-trajectories " + " ".join(args.colift_trajectories) if args.colift_trajectories else "")
+               + (f" --colift-rotation-deg {args.colift_rotation_deg:g}" if args.colift_rotation_deg else "")
                + " --variants " + " ".join(args.variants)
                + " --seeds " + " ".join(str(s) for s in args.seeds)
                + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)

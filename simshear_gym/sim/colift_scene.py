@@ -29,13 +29,30 @@ friction only (no constraint ever attaches it).
       the dome's deformation: at 3 mm the grip force is about 1.5 N, five times what a 30 g object needs at
       friction 1 on two faces. The plate's contact is Bullet's rigid one; a soft object (the brain) adds its
       own compliance in series on both sides.
-    * Torsion: a soft fingertip's contact patch resists the object turning about the grip axis; Bullet's
-      single contact point does not, so a convex object (egg, duck) gripped at two points pivots like a
-      pendulum. The grippers therefore carry spinning friction (``tip_torsion_arm_mm``,
-      ``plate_torsion_arm_mm``) plus a negligible rolling friction, without which Bullet ignores spinning
-      friction altogether.
+    * Torsion and rolling: a soft fingertip's contact patch (about 11 mm in radius at a 3 mm squeeze) resists
+      the object turning about the grip axis and rolling over the skin; Bullet's single contact point does
+      not, so a convex object (egg, duck) gripped at two points pivots like a pendulum and rolls along the
+      plate when the tip moves across it. The tip therefore carries spinning friction
+      (``tip_torsion_arm_mm``) and rolling friction (``tip_rolling_arm_mm``), the plate a small spinning
+      friction (``plate_torsion_arm_mm``) plus a negligible rolling friction, without which Bullet ignores
+      spinning friction altogether.
+    * Skin shear: a TacTip's skin is compliant across its axis as well: when the sensor lags the object, the
+      skin stays on the object and shears (the markers move: what the image shows), pulling on the object
+      with a force that grows with the shear, well below what the plate's friction holds. The tip body is
+      therefore the skin's contact surface: along the optical axis it is driven to the commanded sensor pose
+      like the plate, across it a critically damped spring (``skin_shear_stiffness_npm``, 100 N/m) holds it
+      to the commanded pose. :meth:`CoLiftScene.sensor_pose` is the sensor (the commanded pose, rigid on the
+      arm), :meth:`CoLiftScene.skin_pose` the tip body, and the shear is the skin's deflection (the sensor in
+      the skin's frame). With a rigid tip (stiffness 0, no rolling friction) a 3 mm lag instead rolls or
+      slides the object 1.5 mm along the plate and shows as 0.2-0.4 mm of shear, so the image cannot tell the
+      follower how far it lags; with the skin, 3 mm of lag across or down leaves every object within 0.5 mm of
+      its place and shows as 2-3 mm of shear (``tests/test_colift_scene.py``).
+    * Friction anchors (``frictionAnchor``) on every body: Bullet's velocity-level friction otherwise lets a
+      contact under a steady tangential load creep (the prism crept 1-3 mm along the plate under the skin's
+      pull); an anchor holds the contact point until the friction cone is exceeded.
+    * The soft brain's own contact patches resist rolling (:data:`~simshear_gym.sim.objects.OBJECTS`).
     * The TacTip image is **not** the physics contact: it is :class:`TacTip`'s render of the object's
-      penetration into the undeformed dome at the tip body's actual pose. The tip body has a fully
+      penetration into the undeformed dome at the sensor's pose. The tip body has a fully
       transparent visual shape, which PyBullet's TinyRenderer skips (with no visual shape it would render the
       collision sphere, i.e. the dome itself). Because the contact is soft, the overlap of object and dome is
       the deformation and is what the image shows; :meth:`CoLiftScene.contact_depth_mm` reads the same overlap
@@ -82,6 +99,12 @@ class CoLiftSceneConfig:
             dome's contact patch resists the object turning about the grip axis (uniform pressure on a patch
             of radius a gives 2a/3, about 7 mm at a 3 mm squeeze; 5 mm is conservative).
         plate_torsion_arm_mm: the same for the plate (a rigid plate on a convex object: a small patch).
+        tip_rolling_arm_mm: Bullet's rolling friction of the tip (torque limit / normal force, mm): the same patch
+            resists the object rolling over the skin (turning about an axis across the grip).
+        skin_shear_stiffness_npm: tangential stiffness of the skin between the sensor and its contact surface
+            (N/m): the tip body is held to the commanded sensor pose by this spring (critically damped) across
+            the optical axis, so a follower lag shears the skin instead of dragging the object along the plate;
+            0 = a rigid tip (the tip body follows the commanded pose exactly).
         plate_size_mm: plate extent (x, y, thickness z).
         drive_mass_kg: mass of each driven body (plate, tip); large against the object so it is not pushed.
         settle_s: time the grip is held still at reset so the contacts reach equilibrium.
@@ -103,6 +126,9 @@ class CoLiftSceneConfig:
     plate_friction: float = 1.0
     tip_torsion_arm_mm: float = 5.0
     plate_torsion_arm_mm: float = 1.0
+    tip_rolling_arm_mm: float = 10.0
+    plate_rolling_arm_mm: float = 0.0
+    skin_shear_stiffness_npm: float = 100.0
     plate_size_mm: tuple[float, float, float] = (60.0, 60.0, 6.0)
     drive_mass_kg: float = 1.0
     settle_s: float = 0.25
@@ -125,10 +151,14 @@ class CoLiftSceneConfig:
                 "tip contact needs stiffness > 0 N/m and damping >= 0 N s/m, got "
                 f"{self.tip_contact_stiffness_npm} and {self.tip_contact_damping_nspm}"
             )
-        if min(self.tip_friction, self.plate_friction, self.tip_torsion_arm_mm, self.plate_torsion_arm_mm) < 0:
+        if self.skin_shear_stiffness_npm < 0:
+            raise ValueError(f"skin_shear_stiffness_npm must be >= 0 N/m, got {self.skin_shear_stiffness_npm}")
+        if min(self.tip_friction, self.plate_friction, self.tip_torsion_arm_mm, self.plate_torsion_arm_mm,
+               self.tip_rolling_arm_mm, self.plate_rolling_arm_mm) < 0:
             raise ValueError(
                 f"friction must be >= 0, got tip {self.tip_friction}, plate {self.plate_friction}, torsion arms "
-                f"{self.tip_torsion_arm_mm} mm and {self.plate_torsion_arm_mm} mm"
+                f"{self.tip_torsion_arm_mm} mm and {self.plate_torsion_arm_mm} mm, tip rolling arm "
+                f"{self.tip_rolling_arm_mm} mm, plate rolling arm {self.plate_rolling_arm_mm} mm"
             )
         if len(self.plate_size_mm) != 3 or min(self.plate_size_mm) <= 0:
             raise ValueError(f"plate_size_mm must be three positive extents, got {self.plate_size_mm}")
@@ -208,9 +238,11 @@ class CoLiftScene:
         self._shear_sensor = np.zeros(6)
         self._T_world_plate_cmd = np.eye(4)
         self._T_world_sensor_cmd = np.eye(4)
+        self._sensor_step_m = np.zeros(3)
         self._T_plate_sensor0 = np.eye(4)
         self._T_plate_object0 = np.eye(4)
         self._T_object_work = np.eye(4)
+        self._T_skin_work = np.eye(4)
         self._dropped = False
         self._gravity_step_mps = np.zeros(3)
 
@@ -223,7 +255,8 @@ class CoLiftScene:
 
     # -- building -----------------------------------------------------------------------------------------
 
-    def _create_driven(self, collision: int, visual: int, lateral_friction: float, torsion_arm_mm: float) -> int:
+    def _create_driven(self, collision: int, visual: int, lateral_friction: float, torsion_arm_mm: float,
+                       rolling_arm_mm: float = 0.0) -> int:
         client = self.world.client
         body = client.createMultiBody(
             baseMass=self.config.drive_mass_kg, baseCollisionShapeIndex=collision, baseVisualShapeIndex=visual,
@@ -233,8 +266,8 @@ class CoLiftScene:
         # (1 um: 1e-6 N m per N) switches it on.
         client.changeDynamics(
             body, -1, lateralFriction=lateral_friction, spinningFriction=torsion_arm_mm / 1000.0,
-            rollingFriction=_ROLLING_FRICTION_M, linearDamping=0.0, angularDamping=0.0,
-            activationState=pybullet.ACTIVATION_STATE_DISABLE_SLEEPING,
+            rollingFriction=max(rolling_arm_mm / 1000.0, _ROLLING_FRICTION_M), linearDamping=0.0, angularDamping=0.0,
+            activationState=pybullet.ACTIVATION_STATE_DISABLE_SLEEPING, frictionAnchor=1,
         )
         return body
 
@@ -246,7 +279,8 @@ class CoLiftScene:
         visual = client.createVisualShape(
             pybullet.GEOM_BOX, halfExtents=half_m, visualFramePosition=centre_m, rgbaColor=[0.3, 0.3, 0.3, 1.0]
         )
-        return self._create_driven(collision, visual, self.config.plate_friction, self.config.plate_torsion_arm_mm)
+        return self._create_driven(collision, visual, self.config.plate_friction, self.config.plate_torsion_arm_mm,
+                                   self.config.plate_rolling_arm_mm)
 
     def _create_tip(self) -> int:
         client = self.world.client
@@ -256,7 +290,8 @@ class CoLiftScene:
         visual = client.createVisualShape(  # transparent: TinyRenderer skips it (see the module docstring)
             pybullet.GEOM_SPHERE, radius=radius_m, visualFramePosition=centre_m, rgbaColor=[1.0, 1.0, 1.0, 0.0]
         )
-        body = self._create_driven(collision, visual, self.config.tip_friction, self.config.tip_torsion_arm_mm)
+        body = self._create_driven(collision, visual, self.config.tip_friction, self.config.tip_torsion_arm_mm,
+                                   self.config.tip_rolling_arm_mm)
         client.changeDynamics(
             body, -1, contactStiffness=self.config.tip_contact_stiffness_npm,
             contactDamping=self.config.tip_contact_damping_nspm,
@@ -291,7 +326,8 @@ class CoLiftScene:
         self._place(self._tip, T_world_plate @ far @ far @ _T_PLATE_SENSOR_TURN)
         self._place(self._plate, T_world_plate)
         self._object = spawn_object(self._world, self.spec, T_world_plate @ far)
-        client.changeDynamics(self._object, -1, activationState=pybullet.ACTIVATION_STATE_DISABLE_SLEEPING)
+        client.changeDynamics(self._object, -1, activationState=pybullet.ACTIVATION_STATE_DISABLE_SLEEPING,
+                              frictionAnchor=1)
 
         # the object touches the plate: move it in by its distance to the face
         gap_mm = self._distance_mm(self._plate, self._object)
@@ -309,8 +345,10 @@ class CoLiftScene:
         T_world_sensor = T_world_object @ _translation(z_mm=offset_mm) @ _T_PLATE_SENSOR_TURN
 
         self._T_world_plate_cmd, self._T_world_sensor_cmd = T_world_plate, T_world_sensor
+        self._sensor_step_m = T_world_sensor[:3, 3] / 1000.0
         self._T_plate_sensor0 = invert(T_world_plate) @ T_world_sensor
         self._T_object_work = invert(T_world_object) @ T_world_sensor @ _translation(z_mm=-squeeze_mm)
+        self._T_skin_work = _translation(z_mm=-squeeze_mm)  # the skin body sits at the sensor pose at placement
         self._shear.reset()
         self._dropped = False
         self._hold(T_world_plate, T_world_sensor, round(self.config.settle_s * self.config.physics_rate_hz))
@@ -349,9 +387,32 @@ class CoLiftScene:
         for body, (position_m, quaternion) in ((self._plate, plate), (self._tip, sensor)):
             now_m, now_quaternion = client.getBasePositionAndOrientation(body)
             turn = _quaternion_multiply(quaternion, _quaternion_conjugate(now_quaternion))
-            velocity_mps = (position_m - now_m) * rate + self._gravity_step_mps
-            client.resetBaseVelocity(body, velocity_mps.tolist(), (_quaternion_to_rotvec(turn) * rate).tolist())
+            velocity_mps = (position_m - now_m) * rate
+            if body == self._tip and self.config.skin_shear_stiffness_npm > 0:
+                velocity_mps = self._skin_velocity_mps(np.asarray(now_m), position_m, quaternion, velocity_mps)
+            client.resetBaseVelocity(body, (velocity_mps + self._gravity_step_mps).tolist(),
+                                     (_quaternion_to_rotvec(turn) * rate).tolist())
+        self._sensor_step_m = sensor[0]
         client.stepSimulation()
+
+    def _skin_velocity_mps(self, now_m: np.ndarray, target_m: np.ndarray, quaternion: np.ndarray,
+                           drive_mps: np.ndarray) -> np.ndarray:
+        """The tip's velocity for the next physics step with a compliant skin: along the optical axis it is
+        driven to the target as a rigid tip; across it, its velocity (which carries the contact impulses of the
+        last step) is accelerated by a critically damped spring to the commanded sensor position (semi-implicit
+        Euler, stable for sqrt(k / m) * dt << 1: 0.07 at 300 N/m, 1 kg, 240 Hz)."""
+        config = self.config
+        dt = config.time_step_s
+        axis = np.reshape(self.world.client.getMatrixFromQuaternion(quaternion), (3, 3))[:, 2]
+        velocity = np.asarray(self.world.client.getBaseVelocity(self._tip)[0])
+        sensor_velocity = (target_m - self._sensor_step_m) / dt
+        stiffness, mass = config.skin_shear_stiffness_npm, config.drive_mass_kg
+        damping = 2.0 * np.sqrt(stiffness * mass)
+        offset = now_m - target_m
+        accel = (-stiffness * offset - damping * (velocity - sensor_velocity)) / mass
+        across = velocity + accel * dt
+        across -= np.dot(across, axis) * axis
+        return across + np.dot(drive_mps, axis) * axis
 
     def _place(self, body: int, T_world_body: np.ndarray) -> None:
         position_m, quaternion = matrix_to_pybullet(T_world_body)
@@ -365,7 +426,10 @@ class CoLiftScene:
         return 1000.0 * min(point[8] for point in points)
 
     def _update_shear(self) -> None:
-        T_world_work = self.object_pose() @ self._T_object_work
+        if self.config.skin_shear_stiffness_npm > 0:  # the skin's own deflection is the shear the markers show
+            T_world_work = self.skin_pose() @ self._T_skin_work
+        else:
+            T_world_work = self.object_pose() @ self._T_object_work
         pose_work = matrix_to_pose(invert(T_world_work) @ self.sensor_pose())
         self._shear_sensor = self._shear.update(pose_work, self.contact_depth_mm() > 0.0)
 
@@ -383,7 +447,13 @@ class CoLiftScene:
         return self._body_pose(self._object)
 
     def sensor_pose(self) -> np.ndarray:
-        """T_world_sensor (4x4, mm) of the tip body now (the commanded pose up to ~0.03 mm)."""
+        """T_world_sensor (4x4, mm): the sensor body (camera and dome base, rigid on the arm) at its latest
+        commanded pose."""
+        return self._T_world_sensor_cmd.copy()
+
+    def skin_pose(self) -> np.ndarray:
+        """T_world of the tip body now (4x4, mm): the skin's contact surface, off the sensor pose by the skin's
+        shear (and by ~0.03 mm along the axis, the soft contact's push)."""
         return self._body_pose(self._tip)
 
     def plate_pose(self) -> np.ndarray:
@@ -411,7 +481,7 @@ class CoLiftScene:
         points = self.world.client.getClosestPoints(self._tip, self._object, 0.0)
         if not points:
             return 0.0
-        axis = self.sensor_pose()[:3, 2]
+        axis = self.skin_pose()[:3, 2]
         depth_m = max(float(np.dot(np.subtract(point[5], point[6]), axis)) for point in points)
         return max(1000.0 * depth_m, 0.0)
 

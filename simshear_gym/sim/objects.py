@@ -101,6 +101,7 @@ OBJECTS: dict[str, ObjectSpec] = {
     "egg": ObjectSpec("egg", "egg", (42.0, 54.0, 42.0), rgba=(0.95, 0.9, 0.8, 1.0)),
     "brain": ObjectSpec(
         "brain", "ellipsoid", (46.0, 36.0, 40.0), contact_stiffness_npm=600.0, contact_damping_nspm=3.0,
+        rolling_friction=0.01,  # a soft body's own contact patches (1-2 cm across when squeezed) resist rolling
         rgba=(0.9, 0.6, 0.65, 1.0),
     ),
     "ducky": ObjectSpec("ducky", "duck", (50.0, 46.0, 35.0), rgba=(1.0, 0.85, 0.2, 1.0)),
