@@ -73,16 +73,21 @@ def test_servo_controller_gives_bounded_actions(tiny_posenet):
         controller({"tcp_pose": np.zeros(4)})
 
 
-def test_for_env_reads_each_env_with_its_own_shipped_gdnn():
-    """Tracking images are read with the shipped surface GDNN, co-lift images with the one trained on co-lift."""
+def test_for_env_reads_each_env_with_its_own_shipped_gdnn_and_process_noise():
+    """Tracking images are read with the shipped surface GDNN, co-lift images with the one trained on co-lift; the
+    co-lift filter allows for its faster, reversing plate; an explicit setting wins."""
     import gymnasium as gym
 
     import simshear_gym.envs  # noqa: F401
+    from simshear_gym.control.estimator import EstimatorConfig
 
-    for env_id, variables in (("SimShearTracking-v0", "surface"), ("SimShearCoLift-v0", "env")):
+    for env_id, variables, process_mm in (("SimShearTracking-v0", "surface", None), ("SimShearCoLift-v0", "env", 1.5)):
         env = gym.make(env_id, obs_mode="sim")
         try:
             controller = ServoController.for_env(env)
             assert controller.estimator.model.variables.name == variables, env_id
+            assert controller.estimator.config.process_std_mm == process_mm, env_id
+            explicit = ServoController.for_env(env, estimator=EstimatorConfig(process_std_mm=0.7))
+            assert explicit.estimator.config.process_std_mm == 0.7
         finally:
             env.close()

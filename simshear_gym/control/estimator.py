@@ -26,6 +26,8 @@ import numpy as np
 
 STATE_VARIABLES = ("z_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 """The estimated state, in order (GDNN variable names): depth, shear x, shear y, shear Rz."""
+DEFAULT_PROCESS_STD_MM = 0.4
+"""Process noise when neither the config nor the env gives one: the tracking contact's 4 mm/s at 10 Hz."""
 
 
 @dataclass(frozen=True)
@@ -34,20 +36,22 @@ class EstimatorConfig:
 
     Attributes:
         posenet: a GDNN weights file (``best.pt`` of ``simshear train posenet``); None: the shipped ``surface`` one.
-        process_std_mm: per-step std of the contact's unknown motion, for depth and shear x, y (mm).
+        process_std_mm: per-step std of the contact's unknown motion, for depth and shear x, y (mm); None:
+            :data:`DEFAULT_PROCESS_STD_MM` (``ServoController.for_env`` takes the env's
+            ``estimator_process_std_mm`` where it has one).
         process_std_deg: the same for shear Rz (deg).
         filtered: fuse over time with the Bayesian filter; False: the raw GDNN reading each step.
         threads: torch threads for the GDNN (None: leave torch's setting).
     """
 
     posenet: str | None = None
-    process_std_mm: float = 0.4
+    process_std_mm: float | None = None
     process_std_deg: float = 0.8
     filtered: bool = True
     threads: int | None = None
 
     def __post_init__(self) -> None:
-        if not (self.process_std_mm > 0 and self.process_std_deg > 0):
+        if not ((self.process_std_mm is None or self.process_std_mm > 0) and self.process_std_deg > 0):
             raise ValueError(f"process stds must be > 0, got {self.process_std_mm} mm, {self.process_std_deg} deg")
 
 
@@ -72,7 +76,8 @@ class TactileEstimator:
                              f"(missing {missing})")
         self._index = [names.index(name) for name in STATE_VARIABLES]
         specs = [self.model.variables.variables[i] for i in self._index]
-        process = (config.process_std_mm,) * 3 + (config.process_std_deg,)
+        process_mm = DEFAULT_PROCESS_STD_MM if config.process_std_mm is None else config.process_std_mm
+        process = (process_mm,) * 3 + (config.process_std_deg,)
         self._filter = DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
             specs, process, prior_std=(math.inf,) * 4))
         self._size = self.model.config.image_size_px

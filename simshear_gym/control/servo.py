@@ -47,7 +47,9 @@ class ServoController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through).
 
         Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
-        (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none)."""
+        (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none); without
+        ``estimator.process_std_mm`` it takes the env's ``estimator_process_std_mm`` (how far its contact moves
+        in a step unknown to the follower), if it has one."""
         from dataclasses import replace
 
         from simshear_gym.models.posenet_io import shipped_posenet_path
@@ -56,6 +58,8 @@ class ServoController:
         if estimator.posenet is None:
             name = getattr(base, "estimator_posenet", "surface")
             estimator = replace(estimator, posenet=str(shipped_posenet_path(name)))
+        if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
+            estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
         return cls(base.reference_depth_mm, base.action_scale.as_array(), gains, estimator)
 
     def reset(self) -> None:

@@ -200,6 +200,10 @@ class SimShearCoLiftEnv(SimShearEnv):
     """
 
     estimator_posenet = "colift"  # the shipped GDNN trained on this env's own images (simshear collect-env)
+    # The servo estimator's process noise (mm per step): the plate moves up to 6.5 mm/s (randomised speed) and
+    # the star reverses at its corners, so the filter must let a reading move the state by more than the
+    # tracking default of 0.4 mm (with 0.4 the state lagged a star corner until the skin slipped).
+    estimator_process_std_mm = 1.5
 
     def __init__(self, trajectory: str = "circular_wave", object_name: str = "prism", mass_kg: float | None = None,
                  obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
