@@ -73,3 +73,13 @@ def test_the_servo_controller_can_drive_the_collection(tmp_path):
     assert np.abs(found.targets["z_mm"] - 4.0).max() < 1.5  # the servo keeps the tracking reference depth
     with pytest.raises(ValueError, match="driver must be one of"):
         EnvCollectConfig(driver="ppo")
+
+
+def test_the_noise_goes_only_where_the_driver_steers(tmp_path):
+    """The servo controller does not steer the co-lift yaw, so its collection adds no noise there: the yaw stays
+    at its start instead of random-walking while the shear takes the noise."""
+    config = EnvCollectConfig(task="colift", rows=12, episode_steps=12, noise=0.5, driver="servo", seed=3)
+    assert collect(config, tmp_path, progress=False) == 12
+    targets = read_set(tmp_path, required_columns=STATE_COLUMNS).targets
+    assert np.abs(targets["shear_rz_deg"]).max() < 0.5
+    assert np.abs(targets[["shear_x_mm", "shear_y_mm"]].to_numpy()).max() > 0.2

@@ -10,10 +10,11 @@ Which states: by default (``driver="oracle"``) the follower is driven by the ora
 (a slow sine with a random phase per episode), plus Gaussian action noise, so the follower lags, overshoots and
 loses its place the way a learned controller does, not only the oracle's near-zero errors. With
 ``driver="servo"`` the image-based :class:`~simshear_gym.control.servo.ServoController` (``posenet``: its GDNN)
-drives, plus the noise: the states that controller visits, labelled with the truth (one round of DAgger: train
-on oracle-driven sets, collect where the trained estimator takes the follower, train again on both). Episodes run over the task's objects and trajectories in turn, with the
-env's randomisation of scale, speed and start; an episode that ends early (a drop, a limit) is followed by the
-next.
+drives, plus the noise on the components it steers (it does not steer the yaw, where noise would random-walk the
+sensor far from any state the controller visits): the states that controller visits, labelled with the truth (one
+round of DAgger: train on oracle-driven sets, collect where the trained estimator takes the follower, train again
+on both). Episodes run over the task's objects and trajectories in turn, with the env's randomisation of scale,
+speed and start; an episode that ends early (a drop, a limit) is followed by the next.
 
 Output: a set directory (``images/image_N.png`` 128 px, ``targets.csv``, ``meta.json``) like the data's own sets;
 ``targets.csv`` columns: ``sensor_image``, ``episode``, ``step``, ``object_name``, ``trajectory``, the four
@@ -118,13 +119,15 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
                 envs[key] = env, (ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
                                   if config.driver == "servo" else OracleController.for_env(env))
             env, controller = envs[key]
+            gains = controller.law.gains  # noise only where the driver steers: an unsteered yaw would random-walk
+            steered = np.array([kp > 0 or ki > 0 for kp, ki in zip(gains.kp, gains.ki)], dtype=np.float64)
             observation, _ = env.reset(seed=int(rng.integers(2 ** 31)))
             controller.reset()
             phase = rng.uniform(0.0, 2.0 * math.pi)
             for step in range(config.episode_steps):
                 gain = 1.0 if config.driver == "servo" else config.gain_min + (1.0 - config.gain_min) * 0.5 * (
                     1.0 + math.sin(phase + 2.0 * math.pi * step / config.gain_period_steps))
-                action = gain * controller(observation) + rng.normal(0.0, config.noise, 4)
+                action = gain * controller(observation) + rng.normal(0.0, config.noise, 4) * steered
                 observation, _, terminated, truncated, info = env.step(np.clip(action, -1, 1).astype(np.float32))
                 name = image_name(len(rows))
                 write_image(images_dir, name, observation["tactile"][0])
