@@ -1,6 +1,6 @@
 """RL training: a tiny PPO run end to end, resume, the servo benchmark's policy variant, bad settings."""
 
-from argparse import Namespace
+from argparse import ArgumentParser
 
 import pytest
 import torch
@@ -33,9 +33,10 @@ def test_tiny_ppo_trains_resumes_and_runs_in_the_benchmark(tmp_path):
     from simshear_gym.evaluate import servo
 
     out = tmp_path / "results"
-    args = Namespace(tasks=["tracking"], trajectories=["circle"], objects=None, colift_trajectories=None,
-                     variants=["policy"], seeds=[1], posenet_shpix2pix=None, posenet_pix2pix=None, posenet_sim=None,
-                     policy=str(run_dir / "model.zip"), max_steps=5, threads=1, out=out, name="servo")
+    parser = ArgumentParser()
+    servo.add_arguments(parser)
+    args = parser.parse_args(["--tasks", "tracking", "--trajectories", "circle", "--variants", "policy", "--seeds", "1",
+                              "--policy", str(run_dir / "model.zip"), "--max-steps", "5", "--out", str(out)])
     assert servo.run(args) == 0
     import json
 

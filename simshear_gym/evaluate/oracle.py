@@ -112,7 +112,7 @@ def run_colift(args: argparse.Namespace) -> int:
     payload = {
         "command": f"simshear evaluate oracle --tasks colift --seeds {args.seeds}",
         "env": "SimShearCoLift-v0, obs_mode='oracle', 500 steps at 10 Hz, 30 g objects; nominal trajectory (seed 0) "
-               "plus seeds 0.. with randomise=True (scale, speed x0.7-1.3, turn +-10 deg, leader start +-10 mm)",
+               "plus seeds 0.. with randomise=True (scale, speed x0.7-1.3, leader start +-10 mm; no turn of the plate)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
         "goal_mean_mm": COLIFT_GOAL_MEAN_MM, "goal": "mean contact error <= 1.0 mm and no episode ended early",
         "all_goals_met": all(row["goal_met"] for row in rows.values()),

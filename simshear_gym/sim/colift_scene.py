@@ -101,6 +101,7 @@ class CoLiftSceneConfig:
         plate_torsion_arm_mm: the same for the plate (a rigid plate on a convex object: a small patch).
         tip_rolling_arm_mm: Bullet's rolling friction of the tip (torque limit / normal force, mm): the same patch
             resists the object rolling over the skin (turning about an axis across the grip).
+        plate_rolling_arm_mm: the same for the plate (0: a rigid plate under a rigid object; a pad would add some).
         skin_shear_stiffness_npm: tangential stiffness of the skin between the sensor and its contact surface
             (N/m): the tip body is held to the commanded sensor pose by this spring (critically damped) across
             the optical axis, so a follower lag shears the skin instead of dragging the object along the plate;
