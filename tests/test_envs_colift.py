@@ -13,7 +13,7 @@ import pytest
 import simshear_gym.envs
 from simshear_gym.control.oracle import OracleController
 from simshear_gym.envs.base import SURFACE_DEPTH_MM
-from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES, HorizontalTacTipMount
+from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES, ROTATION_LIMIT_DEG, HorizontalTacTipMount
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.sim.mg400_arm import MG400ArmConfig
 from simshear_gym.sim.mg400_kinematics import MG400Limits
@@ -220,6 +220,8 @@ def test_bad_kwargs_and_options_raise_clear_errors():
         make(trajectory="circle")
     with pytest.raises(ValueError, match="mass_kg"):
         make(mass_kg=-1.0)
+    with pytest.raises(ValueError, match=r"rotation_deg must be within \+-10.0 deg, got 15.0"):
+        make(rotation_deg=15.0)
     with pytest.raises(ValueError, match="HorizontalTacTipMount"):
         from simshear_gym.envs.base import TacTipMount
 
@@ -255,7 +257,7 @@ def test_the_largest_randomised_trajectories_stay_within_both_arms_limits(name):
     for offset in ((10.0, 10.0, 10.0), (-10.0, -10.0, -10.0), (10.0, -10.0, -10.0), (-10.0, 10.0, 10.0)):
         env.reset(seed=0, options={"start_offset_mm": offset})
         T_plate_sensor = np.linalg.inv(env._T_world_plate_start) @ env.follower.T_world_tool()
-        for rotation in (10.0, -10.0):
+        for rotation in (ROTATION_LIMIT_DEG, -ROTATION_LIMIT_DEG):
             env.trajectory = Trajectory(TrajectoryConfig(name, scale=1.3, rotation_deg=rotation))
             for time_s in np.linspace(0.0, env.trajectory.duration_s, 60):
                 T_world_plate = env._T_world_plate_at(time_s)
