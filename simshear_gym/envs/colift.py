@@ -186,8 +186,8 @@ class SimShearCoLiftEnv(SimShearEnv):
             sin(2 pi s)``, s the fraction travelled; within +-10 deg); 0 (default): the paper's translations.
             A turn is not observable by touch on a round object: the egg, brain and duck roll on the rigid plate
             as it turns under them (the object keeps its orientation to the skin, whose contact patch holds it),
-            so the follower sees no shear while the plate carries its target away (a 10 deg turn: 3.3-3.7 mm,
-            ``tests/test_colift_scene.py``); only the prism's flat face turns with the plate.
+            so the follower sees no shear while the plate carries its target away (a 10 deg turn rolls the egg
+            3.7 mm, ``tests/test_colift_scene.py``); only the prism's flat face turns with the plate.
         randomise: per reset, draw the trajectory's scale (x0.7-1.3), speed (x0.7-1.3), turn (-1..1 x
             ``rotation_deg``) and the leader's start place (+-10 mm in world x, y, z) from the reset's seed.
         options of ``reset``: ``{"start_offset_mm": (x, y, z)}`` sets the leader's start place (world mm, within
