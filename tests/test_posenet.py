@@ -157,6 +157,7 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     assert evaluate_posenet.run(args) == 0
     result = json.loads((out / "posenet.json").read_text())
     assert "--contact surface" in result["command"] and (out / "posenet_surface.png").is_file()
+    assert f"--out {out}" in result["command"]  # the recorded command writes where this run wrote
     figures = result["contacts"]["surface"]["models"]["tiny"]
     assert figures["rows"] == 5 and set(figures["variables"]) == set(variable_set("surface").names)
 

@@ -228,7 +228,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  shpix2pix MAE <= 1.2 x real MAE on every variable real reads: "
                   f"{sections[contact]['acceptance']['met']}")
     command = ("simshear evaluate posenet --contact " + " ".join(contacts) + " "
-               + " ".join(f"--model {s}" for s in args.model) + (f" --rows {args.rows}" if args.rows else ""))
+               + " ".join(f"--model {s}" for s in args.model) + (f" --rows {args.rows}" if args.rows else "")
+               + (f" --name {args.name}" if args.name != "posenet" else "")
+               + (f" --out {args.out}" if args.out != Path("results") else ""))
     write_json(args.out / f"{args.name}.json", {
         "command": command,
         "metrics": "MAE in mm/deg (angles wrapped); chance = always the range centre (0 for a periodic angle); "
