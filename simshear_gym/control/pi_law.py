@@ -42,6 +42,11 @@ class PIGains:
         if self.integral_limit < 0:
             raise ValueError(f"PIGains.integral_limit must be >= 0, got {self.integral_limit}")
 
+    @property
+    def controlled(self) -> np.ndarray:
+        """(4,) bool: the components the law steers (a component whose gains are both 0 is not controlled)."""
+        return (np.asarray(self.kp) > 0) | (np.asarray(self.ki) > 0)
+
 
 class PILaw:
     """The servo law of the module docstring; ``action_scale`` is the env's full scale (x, y, z mm, Rz deg)."""

@@ -119,8 +119,7 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
                 envs[key] = env, (ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
                                   if config.driver == "servo" else OracleController.for_env(env))
             env, controller = envs[key]
-            gains = controller.law.gains  # noise only where the driver steers: an unsteered yaw would random-walk
-            steered = np.array([kp > 0 or ki > 0 for kp, ki in zip(gains.kp, gains.ki)], dtype=np.float64)
+            steered = controller.law.gains.controlled  # noise there only: an unsteered yaw would random-walk
             observation, _ = env.reset(seed=int(rng.integers(2 ** 31)))
             controller.reset()
             phase = rng.uniform(0.0, 2.0 * math.pi)

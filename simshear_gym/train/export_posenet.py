@@ -67,6 +67,16 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
     """``<weights>.md``: data, exact commands, metrics, date."""
     config = card.get("train_config", {})
     params = card.get("parameters")
+    holdout = f"{100 * config.get('holdout', 0):.0f} % of them held out for early stopping."
+    if config.get("source") == "env":
+        data_line = (f"- Data: the env sets {config.get('paired_dirs')} of `simshear collect-env` (the images the env "
+                     "emitted, translated by the surface shPix2pix shipped when each set was collected, labelled with "
+                     f"the env's true state); {holdout}")
+    else:
+        data_line = (f"- Data: images from source `{config.get('source')}` of the paired sets "
+                     f"{config.get('paired_dirs')} (our sim renders of the real tactip331 training rows; `shpix2pix` = "
+                     f"translated by the shipped shPix2pix of this contact type); {holdout} The real validation images "
+                     "were not used in training or selection.")
     lines = [
         f"# Pose-and-shear GDNN, {card['contact']} contacts",
         "",
@@ -75,15 +85,7 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
         f"- Architecture: GDNN, {config.get('image_size_px')} px input, conv channels {config.get('conv_channels')} "
         f"kernels {config.get('conv_kernels')}, dense {config.get('dense')}; outputs mean and std per variable "
         f"({', '.join(card.get('variables', []))}).",
-        (f"- Data: the env sets {config.get('paired_dirs')} of `simshear collect-env` (the images the env emitted, "
-         "translated by the surface shPix2pix shipped when each set was collected, labelled with the env's true "
-         "state)" if config.get("source") == "env" else
-         f"- Data: images from source `{config.get('source')}` of the paired sets {config.get('paired_dirs')} "
-         "(our sim renders of the real tactip331 training rows; `shpix2pix` = translated by the shipped shPix2pix of "
-         "this contact type)")
-        + f"; {100 * config.get('holdout', 0):.0f} % of them held out for early stopping."
-        + ("" if config.get("source") == "env" else
-           " The real validation images were not used in training or selection."),
+        data_line,
         f"- Objective: beta-NLL (beta {config.get('beta')}); Adam lr {config.get('lr')}, batch "
         f"{config.get('batch_size')}, shift augmentation {config.get('shift')}, seed {config.get('seed')}, "
         f"{config.get('threads')} CPU thread(s).",
