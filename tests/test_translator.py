@@ -31,6 +31,25 @@ def test_generator_rejects_wrong_inputs():
         UNetConfig(image_size_px=100)
     with pytest.raises(ValueError, match="shear_decoder needs shear_dim"):
         UNetConfig(shear_dim=0, shear_decoder=True)
+    with pytest.raises(ValueError, match="needs template=True"):
+        UNetConfig(template=False, flow_px=32)
+    with pytest.raises(ValueError, match="flow_px must be a power of two from 4 to 64"):
+        UNetConfig(image_size_px=128, depth=6, flow_px=128)
+
+
+def test_warp_starts_at_rest_and_moves_the_template_by_the_field():
+    torch.manual_seed(0)
+    generator = UNetGenerator(UNetConfig(image_size_px=32, depth=5, base_channels=4, max_channels=16, flow_px=8))
+    template = torch.rand(32, 32)
+    generator.init_template(template)
+    out = generator(torch.rand(2, 1, 32, 32), torch.rand(2, 6))
+    assert torch.allclose(out, template.clamp(0.02, 0.98).expand_as(out), atol=1e-5)  # zero field, zero residual
+    field = torch.zeros(1, 2, 8, 8)
+    field[:, 0] = 3.0  # every output pixel samples the template 3 px to its right
+    warped = generator._warped_template(field)[0, 0]
+    logit = generator.output_logit[0, 0]
+    assert torch.allclose(warped[:, :-3], logit[:, 3:], atol=1e-5)
+    assert torch.allclose(warped[:, -3:], logit[:, -1:].expand(-1, 3), atol=1e-5)  # border padding
 
 
 def test_cosine_schedule_decays_to_zero_over_the_run(tmp_path):
@@ -80,11 +99,11 @@ def test_tiny_training_run_end_to_end(tmp_path, gan_weight):
     assert out.shape == (3, 32, 32) and out.dtype == np.uint8
 
 
-@pytest.mark.parametrize("shear_decoder", [False, True])
-def test_shear_changes_trained_shpix2pix_output(tmp_path, shear_decoder):
+@pytest.mark.parametrize("shear_decoder, flow_px", [(False, 0), (True, 0), (False, 8)])
+def test_shear_changes_trained_shpix2pix_output(tmp_path, shear_decoder, flow_px):
     """On data where the real image follows the shear, a trained shPix2pix moves its output with the shear."""
-    trainer = TranslatorTrainer(tiny_config(epochs=10, shear_decoder=shear_decoder), tmp_path / "run",
-                                toy_pairs(n=192))
+    trainer = TranslatorTrainer(tiny_config(epochs=10, shear_decoder=shear_decoder, flow_px=flow_px),
+                                tmp_path / "run", toy_pairs(n=192))
     trainer.fit(progress=False)
     translator = Translator(trainer.generator)
     sim = toy_pairs(n=2).sim.numpy()
@@ -137,17 +156,20 @@ def test_fp16_weights_round_trip(tmp_path):
         load_generator(tmp_path / "missing.pt")
 
 
-@pytest.mark.parametrize("shear_dim, shear_decoder, decoder_scale", [(0, False, 1.0), (6, False, 1.0),
-                                                                      (6, True, 0.5)])
-def test_fast_translator_matches_the_eager_generator(shear_dim, shear_decoder, decoder_scale):
+@pytest.mark.parametrize("shear_dim, shear_decoder, decoder_scale, flow_px", [
+    (0, False, 1.0, 0), (6, False, 1.0, 0), (6, True, 0.5, 0), (6, False, 0.5, 16)])
+def test_fast_translator_matches_the_eager_generator(shear_dim, shear_decoder, decoder_scale, flow_px):
     torch.manual_seed(0)
     generator = UNetGenerator(UNetConfig(image_size_px=64, depth=6, base_channels=4, max_channels=16,
                                          shear_dim=shear_dim, shear_decoder=shear_decoder,
-                                         decoder_scale=decoder_scale))
+                                         decoder_scale=decoder_scale, flow_px=flow_px))
     for module in generator.modules():  # non-trivial batch-norm statistics, so folding them is tested
         if isinstance(module, torch.nn.BatchNorm2d):
             module.running_mean.uniform_(-0.5, 0.5)
             module.running_var.uniform_(0.5, 2.0)
+    if flow_px:  # a non-zero field and template, so the warp is tested
+        generator.output_logit.data.uniform_(-3.0, 3.0)
+        generator.flow.weight.data.normal_(0.0, 0.5)
     rng = np.random.default_rng(0)
     sim = rng.integers(0, 60, (3, 64, 64), dtype=np.uint8)
     shear = rng.uniform(-5, 5, (3, 6)).astype(np.float32)

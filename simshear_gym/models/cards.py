@@ -26,7 +26,9 @@ def write_translator_card(weights: Path, train_command: str, translation_results
         f"- Architecture: U-Net generator, {config.get('image_size_px')} px, base {config.get('base_channels')} "
         f"channels (max {config.get('max_channels')}), decoder at {config.get('decoder_scale', 1.0)} x the "
         f"encoder's width, learned at-rest template "
-        f"{'on' if config.get('template') else 'off'}, shear at the bottleneck "
+        f"{'on' if config.get('template') else 'off'}"
+        + (f", warped by a {config['flow_px']} px displacement field" if config.get("flow_px") else "")
+        + ", shear at the bottleneck "
         f"{'on' if arch == 'shpix2pix' else 'off (pix2pix baseline)'}.",
         f"- Data: our sim renders of the real tactip331 `{contact}` training rows (tap and shear, "
         f"`simshear collect --replay-all`), paired with the real images; {config.get('holdout', 0) * 100:.0f}% of "

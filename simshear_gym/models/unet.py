@@ -18,6 +18,12 @@ mostly-black sim inputs otherwise has to rebuild it from nothing at every pixel;
 sees where the markers are (convolutions alone cannot know position) and the decoder only learns how the image
 deviates from the sensor at rest. :meth:`UNetGenerator.init_template` sets both from the mean real training
 image and zeroes the last layer, so an untrained generator already outputs the mean image.
+
+Optionally (``flow_px > 0``, with the template) the decoder's feature map at ``flow_px`` pixels square also gives
+a displacement field (2 channels, pixels), upsampled bilinearly to the output size, that warps the at-rest logit
+before the decoder's own output is added. Shear and deep contacts move the whole marker grid; drawn by
+convolutions alone, a marker that moves has to be erased in one place and drawn in another, which an L1-trained
+decoder that is unsure of the shift answers with black; the warp moves it instead. The field starts at zero.
 """
 
 from __future__ import annotations
@@ -46,6 +52,8 @@ class UNetConfig:
             (needs ``shear_dim > 0``).
         decoder_scale: decoder levels output this share of their mirrored encoder level's channels (1 = the
             symmetric pix2pix U-Net; 0.5 halves the decoder's cost, where most of the compute is).
+        flow_px: size of the displacement field that warps the at-rest template (0 = no warp; needs
+            ``template``; a power of two, the size of a decoder level's output before the last).
     """
 
     image_size_px: int = 128
@@ -58,6 +66,7 @@ class UNetConfig:
     template: bool = True
     shear_decoder: bool = False
     decoder_scale: float = 1.0
+    flow_px: int = 0
 
     def __post_init__(self) -> None:
         size = self.image_size_px
@@ -75,6 +84,13 @@ class UNetConfig:
             raise ValueError(f"decoder_scale must be in (0, 1], got {self.decoder_scale}")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"dropout must be in [0, 1), got {self.dropout}")
+        if self.flow_px:
+            if not self.template:
+                raise ValueError("flow_px warps the at-rest template: it needs template=True")
+            flow = self.flow_px
+            if flow & (flow - 1) or not size >> (self.depth - 1) <= flow <= size // 2:
+                raise ValueError(f"flow_px must be a power of two from {size >> (self.depth - 1)} to {size // 2} "
+                                 f"(the size of a decoder level's features), got {flow}")
 
     def channels(self) -> list[int]:
         return [min(self.base_channels * 2 ** level, self.max_channels) for level in range(self.depth)]
@@ -86,6 +102,11 @@ class UNetConfig:
     @property
     def bottleneck_px(self) -> int:
         return self.image_size_px >> self.depth
+
+    @property
+    def flow_level(self) -> int:
+        """Encoder level whose mirrored decoder level outputs the ``flow_px`` feature map."""
+        return (self.image_size_px // self.flow_px).bit_length() - 1
 
 
 class UNetGenerator(nn.Module):
@@ -124,6 +145,14 @@ class UNetGenerator(nn.Module):
                 if config.dropout and config.depth - 1 - level < config.dropout_levels:
                     layers.append(nn.Dropout(config.dropout))
             self.decoder.append(nn.Sequential(*layers))
+        if config.flow_px:
+            self.flow = nn.Conv2d(decoder_out[config.flow_level], 2, 3, padding=1)
+            nn.init.zeros_(self.flow.weight)
+            nn.init.zeros_(self.flow.bias)
+            size = config.image_size_px
+            ramp = (torch.arange(size, dtype=torch.float32) + 0.5) * (2.0 / size) - 1.0
+            grid = torch.stack(torch.meshgrid(ramp, ramp, indexing="xy"), dim=-1)  # (H, W, 2): x then y
+            self.register_buffer("identity_grid", grid.unsqueeze(0), persistent=False)
 
     def forward(self, sim: torch.Tensor, shear: torch.Tensor | None = None) -> torch.Tensor:
         config = self.config
@@ -148,14 +177,28 @@ class UNetGenerator(nn.Module):
             flat = torch.cat([x.flatten(1), shear.to(x.dtype)], dim=1)
             x = self.bottleneck(flat).view_as(x)
         planes = shear.to(x.dtype)[:, :, None, None] if config.shear_decoder else None
+        flow = None
         for index, layer in enumerate(self.decoder):
             parts = [x] if index == 0 else [x, skips[-1 - index]]
             if planes is not None:
                 parts.append(planes.expand(-1, -1, x.shape[2], x.shape[3]))
             x = layer(torch.cat(parts, dim=1) if len(parts) > 1 else x)
-        if config.template:
+            if config.flow_px and index == config.depth - 1 - config.flow_level:
+                flow = self.flow(x)
+        if config.flow_px:
+            x = x + self._warped_template(flow)
+        elif config.template:
             x = x + self.output_logit
         return torch.sigmoid(x)
+
+    def _warped_template(self, flow_px: torch.Tensor) -> torch.Tensor:
+        """The at-rest logit sampled at each output pixel displaced by ``flow_px`` (B, 2, h, w), in pixels."""
+        size = self.config.image_size_px
+        if flow_px.shape[-1] != size:
+            flow_px = F.interpolate(flow_px, size=(size, size), mode="bilinear", align_corners=False)
+        grid = self.identity_grid + flow_px.permute(0, 2, 3, 1) * (2.0 / size)
+        template = self.output_logit.expand(flow_px.shape[0], -1, -1, -1)
+        return F.grid_sample(template, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
     def frozen(self) -> nn.Module:
         """A copy for CPU inference, called as ``copy(sim, shear)`` (``copy(sim)`` without shear): the same

@@ -50,6 +50,7 @@ class TranslatorTrainConfig:
     template: bool = True
     shear_decoder: bool = False
     decoder_scale: float = 1.0
+    flow_px: int = 0
     epochs: int = 100
     batch_size: int = 16
     lr: float = 1e-3
@@ -83,7 +84,7 @@ class TranslatorTrainConfig:
         return UNetConfig(image_size_px=self.image_size_px, depth=depth, base_channels=self.base_channels,
                           max_channels=self.max_channels, shear_dim=6 if self.arch == "shpix2pix" else 0,
                           template=self.template, shear_decoder=self.shear_decoder,
-                          decoder_scale=self.decoder_scale)
+                          decoder_scale=self.decoder_scale, flow_px=self.flow_px)
 
     def lr_at(self, progress: float) -> float:
         """Learning rate after ``progress`` (0..1) of the run."""
@@ -322,6 +323,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cosine: decay to 0 over the time budget (or the epochs)")
     parser.add_argument("--shear-decoder", action="store_true",
                         help="shpix2pix: also feed the shear vector to every decoder level")
+    parser.add_argument("--flow", dest="flow_px", type=int, default=defaults.flow_px,
+                        help="warp the at-rest template by a displacement field of this many pixels square "
+                             "(0 = no warp)")
     for name in ("image_size_px", "base_channels", "max_channels", "decoder_scale", "epochs", "batch_size", "lr", "l1_weight",
                  "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
         value = getattr(defaults, name)
@@ -337,7 +341,8 @@ def run(args: argparse.Namespace) -> int:
     config = TranslatorTrainConfig(
         arch=args.arch, paired_dirs=tuple(str(d) for d in args.paired), image_size_px=args.image_size_px,
         base_channels=args.base_channels, max_channels=args.max_channels, template=not args.no_template,
-        shear_decoder=args.shear_decoder, decoder_scale=args.decoder_scale, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+        shear_decoder=args.shear_decoder, decoder_scale=args.decoder_scale, flow_px=args.flow_px,
+        epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
