@@ -13,6 +13,8 @@ from simshear_gym.data.tactile_set import image_name, write_image, write_targets
 from simshear_gym.evaluate import posenet as evaluate_posenet
 from simshear_gym.models.gdnn import variable_set
 from simshear_gym.models.posenet_io import load_posenet
+from simshear_gym.models.translator import save_generator
+from simshear_gym.models.unet import UNetConfig, UNetGenerator
 from simshear_gym.train.posenet import (
     LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_shift,
 )
@@ -63,6 +65,17 @@ def test_tiny_training_run_resume_and_weights(tmp_path):
     assert mean.shape == std.shape == (2, 6) and (std > 0).all()
 
 
+def test_training_on_several_renditions_per_row(tmp_path):
+    """Rows with two renditions (a bright one and a dim one): training draws both; the holdout reads the first."""
+    data = toy_labelled(n=64)
+    views = LabelledImages(torch.stack([data.images, data.images // 2], dim=1), data.labels)
+    trainer = PosenetTrainer(tiny_config(), tmp_path / "run", views)
+    assert trainer.holdout_data.images.shape[1] == 2
+    before = trainer.holdout_nll()
+    summary = trainer.fit(progress=False)
+    assert summary["epochs"] == 3 and summary["best_holdout_nll"] < before
+
+
 def test_random_shift_keeps_shape_and_is_identity_at_zero():
     images = torch.rand(4, 1, SIZE, SIZE)
     generator = torch.Generator().manual_seed(0)
@@ -110,6 +123,24 @@ def test_load_source_real_and_sim_from_sets_on_disk(tmp_path):
     np.testing.assert_allclose(sim.labels[:, 3], moves[:, 0], rtol=1e-6)
     with pytest.raises(ValueError, match="'surface' paired set"):
         load_source("sim", "edge", [str(tmp_path / "paired")], image_size_px=SIZE)
+
+    # several translators: one rendition per generator, drawn at random per row in training
+    weights = []
+    for index, (grey, shear_dim) in enumerate([(0.2, 6), (0.8, 6), (0.5, 0)]):
+        generator = UNetGenerator(UNetConfig(image_size_px=SIZE, depth=4, base_channels=2, max_channels=4,
+                                             shear_dim=shear_dim))
+        generator.init_template(torch.full((SIZE, SIZE), grey))  # outputs the grey level everywhere
+        weights.append(save_generator(tmp_path / f"g{index}.pt", generator))
+    both = load_source("shpix2pix", "surface", [str(tmp_path / "paired")], image_size_px=SIZE,
+                       translators=weights[:2])
+    assert both.images.shape == (n, 2, SIZE, SIZE)
+    assert both.first.unique().tolist() == [51] and both.images[:, 1].unique().tolist() == [204]
+    drawn = torch.stack([both.drawn(np.random.default_rng(seed)) for seed in range(8)])  # (8, n, H, W)
+    assert drawn.unique().tolist() == [51, 204] and drawn.shape[1:] == (n, SIZE, SIZE)
+    with pytest.raises(ValueError, match="a pix2pix generator, but --source shpix2pix"):
+        load_source("shpix2pix", "surface", [str(tmp_path / "paired")], image_size_px=SIZE, translators=weights)
+    with pytest.raises(ValueError, match="generator weights for a translator source"):
+        load_source("sim", "surface", [str(tmp_path / "paired")], image_size_px=SIZE, translators=weights[:1])
 
 
 @pytest.mark.parametrize("contact", ["surface", "edge"])

@@ -73,10 +73,12 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
                      "emitted, translated by the surface shPix2pix shipped when each set was collected, labelled with "
                      f"the env's true state); {holdout}")
     else:
+        translated = (f"translated by each of the generators {list(config['translators'])}, a randomly drawn one "
+                      "each time a row is drawn (the holdout by the first)" if config.get("translators")
+                      else "translated by the shipped shPix2pix of this contact type")
         data_line = (f"- Data: images from source `{config.get('source')}` of the paired sets "
                      f"{config.get('paired_dirs')} (our sim renders of the real tactip331 training rows; `shpix2pix` = "
-                     f"translated by the shipped shPix2pix of this contact type); {holdout} The real validation images "
-                     "were not used in training or selection.")
+                     f"{translated}); {holdout} The real validation images were not used in training or selection.")
     lines = [
         f"# Pose-and-shear GDNN, {card['contact']} contacts",
         "",

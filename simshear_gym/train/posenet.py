@@ -7,7 +7,9 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
 - ``real``: the real images the paired sets replay (the real-to-real reference);
 - ``sim``: the paired sets' own sim renders;
 - ``shpix2pix`` / ``pix2pix``: the sim renders (and shear) through the shipped translator of that architecture
-  and contact type, generated once at the start and kept in memory;
+  and contact type, generated once at the start and kept in memory; with ``--translators W [W ...]`` through
+  each of those generator weights instead, every training row then shown through a randomly drawn one each time
+  it is drawn (the holdout through the first), so the network cannot lean on one generator's mistakes;
 - ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
   emitted (already translated) with its true state; with ``--contact env`` (its variable set).
 
@@ -69,6 +71,7 @@ class PosenetTrainConfig:
     max_minutes: float | None = None
     seed: int = 0
     threads: int = 2
+    translators: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -108,25 +111,28 @@ def label_matrix(table: Mapping[str, np.ndarray], variables: VariableSet) -> np.
 
 
 def resize_images(images: np.ndarray, size_px: int) -> np.ndarray:
-    """uint8 (N, H, W) -> uint8 (N, size, size) (area interpolation); unchanged if already that size."""
-    if images.shape[1:] == (size_px, size_px):
+    """uint8 (..., H, W) -> uint8 (..., size, size) (area interpolation); unchanged if already that size."""
+    if images.shape[-2:] == (size_px, size_px):
         return images
     import cv2
 
-    return np.stack([cv2.resize(image, (size_px, size_px), interpolation=cv2.INTER_AREA) for image in images])
+    flat = images.reshape(-1, *images.shape[-2:])
+    resized = np.stack([cv2.resize(image, (size_px, size_px), interpolation=cv2.INTER_AREA) for image in flat])
+    return resized.reshape(*images.shape[:-2], size_px, size_px)
 
 
 @dataclass(frozen=True, eq=False)
 class LabelledImages:
-    """In-memory training rows: images uint8 (N, H, W), labels float32 (N, V) in the variables' units."""
+    """In-memory training rows: images uint8 (N, H, W), or (N, K, H, W) for K renditions of each row (one per
+    translator), and labels float32 (N, V) in the variables' units."""
 
     images: torch.Tensor
     labels: torch.Tensor
 
     def __post_init__(self) -> None:
-        if self.images.dim() != 3 or self.labels.dim() != 2 or len(self.images) != len(self.labels):
-            raise ValueError(f"need images (N, H, W) and labels (N, V), got {tuple(self.images.shape)} and "
-                             f"{tuple(self.labels.shape)}")
+        if self.images.dim() not in (3, 4) or self.labels.dim() != 2 or len(self.images) != len(self.labels):
+            raise ValueError(f"need images (N, H, W) or (N, K, H, W) and labels (N, V), got "
+                             f"{tuple(self.images.shape)} and {tuple(self.labels.shape)}")
 
     def __len__(self) -> int:
         return len(self.images)
@@ -135,10 +141,24 @@ class LabelledImages:
         index = torch.as_tensor(index)
         return LabelledImages(self.images[index], self.labels[index])
 
+    @property
+    def first(self) -> torch.Tensor:
+        """(N, H, W): each row's first rendition."""
+        return self.images if self.images.dim() == 3 else self.images[:, 0]
+
+    def drawn(self, rng: np.random.Generator) -> torch.Tensor:
+        """(N, H, W): a randomly drawn rendition of each row (the images themselves when there is one)."""
+        if self.images.dim() == 3:
+            return self.images
+        views = torch.from_numpy(rng.integers(0, self.images.shape[1], len(self)))
+        return self.images[torch.arange(len(self)), views]
+
 
 def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
-                image_size_px: int = 128, batch: int = 64) -> LabelledImages:
-    """Images of ``source`` (see module docstring) and labels of the paired sets' rows."""
+                image_size_px: int = 128, batch: int = 64,
+                translators: tuple[str, ...] | list[str] = ()) -> LabelledImages:
+    """Images of ``source`` (see module docstring) and labels of the paired sets' rows; ``translators``: generator
+    weights to use instead of the shipped one (several give (N, K, H, W) renditions)."""
     from simshear_gym.data.collect import load_paired
     from simshear_gym.data.labels import SHEAR_COLUMNS
 
@@ -147,11 +167,18 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     variables = variable_set(contact)
     if source == "env":
         return _load_env_sets(paired_dirs, variables, image_size_px)
-    translator = None
+    if translators and source not in ("shpix2pix", "pix2pix"):
+        raise ValueError(f"translators are generator weights for a translator source, not {source!r}")
+    chosen = []
     if source in ("shpix2pix", "pix2pix"):
-        from simshear_gym.models.translator import load_shipped
+        from simshear_gym.models.translator import Translator, load_shipped
 
-        translator = load_shipped(source, contact)
+        chosen = [Translator.load(path) for path in translators] or [load_shipped(source, contact)]
+        wants_shear = source == "shpix2pix"
+        for path, translator in zip(translators, chosen):
+            if bool(translator.generator.config.shear_dim) != wants_shear:
+                raise ValueError(f"translator {path}: a {'pix2pix' if wants_shear else 'shpix2pix'} generator, "
+                                 f"but --source {source}")
     images, labels = [], []
     for directory in paired_dirs:
         paired, real = load_paired(directory, data)
@@ -164,10 +191,11 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
             stack = real.load_images()
         else:
             stack = paired.load_images()
-            if translator is not None:
+            if chosen:
                 shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
-                stack = np.concatenate([translator(stack[i:i + batch], shear[i:i + batch])
-                                        for i in range(0, len(stack), batch)])
+                views = [np.concatenate([translator(stack[i:i + batch], shear[i:i + batch])
+                                         for i in range(0, len(stack), batch)]) for translator in chosen]
+                stack = views[0] if len(views) == 1 else np.stack(views, axis=1)
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
@@ -269,7 +297,7 @@ class PosenetTrainer:
         with torch.inference_mode():
             for start in range(0, len(self.holdout_data), 64):
                 part = self.holdout_data.subset(np.arange(start, min(start + 64, len(self.holdout_data))))
-                mean, std = self.model(to_input(part.images))
+                mean, std = self.model(to_input(part.first))
                 total += gaussian_nll(mean, std, self.variables.encode(part.labels), reduction="none").sum().item()
         self.model.train()
         return total / len(self.holdout_data)
@@ -307,7 +335,7 @@ class PosenetTrainer:
                     if len(index) < 2:  # batch norm needs two rows
                         continue
                     part = self.train_data.subset(index)
-                    images = random_shift(to_input(part.images), config.shift, self.shift_rng)
+                    images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
                     running.append(self.train_step(images, self.variables.encode(part.labels)))
                     self.step += 1
                     if self.step % 20 == 0:
@@ -362,6 +390,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
                             default=value, help=f"default {value}")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--translators", nargs="+", default=(),
+                        help="generator weights (.pt) to translate with instead of the shipped one; several: each "
+                             "row through a randomly drawn one each time")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
 
 
@@ -371,11 +402,13 @@ def run(args: argparse.Namespace) -> int:
         image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, beta=args.beta,
         holdout=args.holdout, patience_epochs=args.patience_epochs, shift=args.shift,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+        translators=tuple(str(path) for path in args.translators),
     )
     if (args.out / "checkpoint.pt").exists() and not args.resume:
         raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
     torch.set_num_threads(config.threads)
-    data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px)
+    data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
+                       translators=config.translators)
     trainer = PosenetTrainer(config, args.out, data)
     if args.resume and trainer.resume():
         print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
