@@ -76,6 +76,14 @@ def test_training_on_several_renditions_per_row(tmp_path):
     assert summary["epochs"] == 3 and summary["best_holdout_nll"] < before
 
 
+def test_cosine_schedule_decays_the_learning_rate_over_the_run(tmp_path):
+    trainer = PosenetTrainer(tiny_config(lr_schedule="cosine"), tmp_path / "run", toy_labelled())
+    trainer.fit(progress=False)
+    assert 0.0 < trainer.optimiser.param_groups[0]["lr"] < 0.1 * trainer.config.lr
+    with pytest.raises(ValueError, match="lr_schedule must be one of"):
+        tiny_config(lr_schedule="step")
+
+
 def test_random_shift_keeps_shape_and_is_identity_at_zero():
     images = torch.rand(4, 1, SIZE, SIZE)
     generator = torch.Generator().manual_seed(0)

@@ -88,7 +88,8 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
         f"kernels {config.get('conv_kernels')}, dense {config.get('dense')}; outputs mean and std per variable "
         f"({', '.join(card.get('variables', []))}).",
         data_line,
-        f"- Objective: beta-NLL (beta {config.get('beta')}); Adam lr {config.get('lr')}, batch "
+        f"- Objective: beta-NLL (beta {config.get('beta')}); Adam lr {config.get('lr')} "
+        f"({config.get('lr_schedule', 'constant')}), batch "
         f"{config.get('batch_size')}, shift augmentation {config.get('shift')}, seed {config.get('seed')}, "
         f"{config.get('threads')} CPU thread(s).",
         f"- Training: best holdout NLL {card.get('holdout_nll', float('nan')):.3f} at epoch {card.get('epoch')}, "

@@ -42,7 +42,9 @@ from torch.nn import functional as F
 from simshear_gym.io import write_json
 from simshear_gym.models.gdnn import GDNN, GDNNConfig, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.posenet_io import save_posenet
-from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
+from simshear_gym.train.runs import (
+    LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
+)
 
 SOURCES = ("real", "sim", "shpix2pix", "pix2pix", "env")
 CONTACTS = ("surface", "edge", "env")
@@ -66,6 +68,7 @@ class PosenetTrainConfig:
     epochs: int = 50
     batch_size: int = 64
     lr: float = 1e-3
+    lr_schedule: str = "constant"
     holdout: float = 0.1
     patience_epochs: int = 8
     max_minutes: float | None = None
@@ -93,6 +96,8 @@ class PosenetTrainConfig:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:
@@ -334,6 +339,9 @@ class PosenetTrainer:
                                   leave=False):
                     if len(index) < 2:  # batch norm needs two rows
                         continue
+                    progress = run_progress(self.elapsed_s, budget_s, self.step, config.epochs * len(batches))
+                    for group in self.optimiser.param_groups:
+                        group["lr"] = scheduled_lr(config.lr, config.lr_schedule, progress)
                     part = self.train_data.subset(index)
                     images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
                     running.append(self.train_step(images, self.variables.encode(part.labels)))
@@ -390,6 +398,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
                             default=value, help=f"default {value}")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default=defaults.lr_schedule,
+                        help="cosine: decay to 0 over the time budget (or the epochs)")
     parser.add_argument("--translators", nargs="+", default=(),
                         help="generator weights (.pt) to translate with instead of the shipped one; several: each "
                              "row through a randomly drawn one each time")
@@ -399,7 +409,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = PosenetTrainConfig(
         source=args.source, contact=args.contact, paired_dirs=tuple(str(d) for d in args.paired),
-        image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr, beta=args.beta,
+        image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
+        lr_schedule=args.lr_schedule, beta=args.beta,
         holdout=args.holdout, patience_epochs=args.patience_epochs, shift=args.shift,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
         translators=tuple(str(path) for path in args.translators),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict
 from pathlib import Path
 
@@ -9,6 +10,23 @@ import numpy as np
 import torch
 
 from simshear_gym.io import atomic_write, write_json
+
+
+LR_SCHEDULES = ("constant", "cosine")
+
+
+def scheduled_lr(lr: float, schedule: str, progress: float) -> float:
+    """Learning rate after ``progress`` (0..1) of a run: ``constant``, or ``cosine`` (decays to 0 at the end)."""
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {schedule!r}")
+    if schedule == "constant":
+        return lr
+    return lr * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))
+
+
+def run_progress(elapsed_s: float, budget_s: float, step: int, total_steps: int) -> float:
+    """Share of a run done: of its time budget when it has one (``budget_s`` finite), else of its steps."""
+    return elapsed_s / budget_s if math.isfinite(budget_s) else step / max(total_steps, 1)
 
 
 def split_holdout(n_rows: int, share: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -31,10 +31,11 @@ from simshear_gym.data.labels import SHEAR_COLUMNS
 from simshear_gym.io import write_json
 from simshear_gym.models.translator import normalise_shear, normalise_sim, save_generator
 from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetConfig, UNetGenerator
-from simshear_gym.train.runs import check_same_settings, save_checkpoint, split_holdout
+from simshear_gym.train.runs import (
+    LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
+)
 
 ARCHS = ("shpix2pix", "pix2pix")
-LR_SCHEDULES = ("constant", "cosine")
 _RESUME_FREE = ("epochs", "max_minutes", "patience_epochs")  # settings a resumed run may change
 
 
@@ -88,9 +89,7 @@ class TranslatorTrainConfig:
 
     def lr_at(self, progress: float) -> float:
         """Learning rate after ``progress`` (0..1) of the run."""
-        if self.lr_schedule == "constant":
-            return self.lr
-        return self.lr * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))
+        return scheduled_lr(self.lr, self.lr_schedule, progress)
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,11 +292,7 @@ class TranslatorTrainer:
 
     def _set_lr(self, budget_s: float, batches_per_epoch: int) -> None:
         config = self.config
-        if math.isfinite(budget_s):
-            progress = self.elapsed_s / budget_s
-        else:
-            progress = self.step / (config.epochs * batches_per_epoch)
-        lr = config.lr_at(progress)
+        lr = config.lr_at(run_progress(self.elapsed_s, budget_s, self.step, config.epochs * batches_per_epoch))
         for optimiser in (self.opt_g, self.opt_d):
             for group in optimiser.param_groups if optimiser is not None else ():
                 group["lr"] = lr
