@@ -96,8 +96,7 @@ class PosenetTrainConfig:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:

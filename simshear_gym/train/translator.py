@@ -67,8 +67,7 @@ class TranslatorTrainConfig:
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
         if self.shear_decoder and self.arch != "shpix2pix":
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:
