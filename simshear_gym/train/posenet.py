@@ -45,6 +45,7 @@ from simshear_gym.models.posenet_io import save_posenet
 from simshear_gym.train.runs import (
     LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
 )
+from simshear_gym.train.translator import ARCHS
 
 SOURCES = ("real", "sim", "shpix2pix", "pix2pix", "env")
 CONTACTS = ("surface", "edge", "env")
@@ -171,10 +172,11 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     variables = variable_set(contact)
     if source == "env":
         return _load_env_sets(paired_dirs, variables, image_size_px)
-    if translators and source not in ("shpix2pix", "pix2pix"):
+    translated = source in ARCHS  # the sim renders through translators of that architecture
+    if translators and not translated:
         raise ValueError(f"translators are generator weights for a translator source, not {source!r}")
     chosen = []
-    if source in ("shpix2pix", "pix2pix"):
+    if translated:
         from simshear_gym.models.translator import Translator, load_shipped
 
         chosen = [Translator.load(path) for path in translators] or [load_shipped(source, contact)]
