@@ -197,3 +197,49 @@ def test_column_transposed_conv_equals_the_transposed_convolution(in_channels, o
     assert torch.allclose(got, expected, atol=1e-5)
     with pytest.raises(ValueError, match="plain stride-2"):
         _ColumnTransposedConv(torch.nn.ConvTranspose2d(4, 4, 3, stride=1, padding=1))
+
+
+def test_pose_consistency_trains_the_generator_through_a_frozen_gdnn(tmp_path):
+    """Pose loss alone (L1 weight 0): the generator learns to show the frozen reader the rows' labels."""
+    from simshear_gym.models.gdnn import GDNN, GDNNConfig
+    from simshear_gym.models.posenet_io import save_posenet
+    from simshear_gym.train.pose_consistency import PoseConsistency
+
+    torch.manual_seed(0)
+    reader = GDNN(GDNNConfig(image_size_px=16, conv_channels=(4,), conv_kernels=(3,), dense=(8,))).eval()
+    save_posenet(tmp_path / "reader.pt", reader)
+    pose = PoseConsistency(tmp_path / "reader.pt")
+    pairs = toy_pairs(n=96)
+    with torch.no_grad():  # labels the reader gives the real images: reachable by a generator that draws them
+        labels = reader(torch.nn.functional.interpolate(pairs.real.unsqueeze(1).float() / 255, size=16,
+                                                        mode="area"))[0]
+    pairs = PairedTensors(pairs.sim, pairs.shear, pairs.real, labels)
+    config = tiny_config(epochs=8, l1_weight=0.0, pose_weight=1.0, pose_net=str(tmp_path / "reader.pt"))
+    trainer = TranslatorTrainer(config, tmp_path / "run", pairs, pose)
+    before_weights = {k: v.clone() for k, v in pose.gdnn.state_dict().items()}
+
+    def pose_loss():
+        sim, shear, _, encoded = pairs.batch(np.arange(len(pairs)))
+        with torch.no_grad():
+            return pose.loss(trainer.generator(sim, shear), encoded).item()
+
+    before = pose_loss()
+    trainer.fit(progress=False)
+    assert pose_loss() < 0.5 * before
+    for key, value in pose.gdnn.state_dict().items():
+        torch.testing.assert_close(value, before_weights[key])  # the reader stays frozen
+    assert pose.encoded_labels({"pose_3": [2.0, 5.5], "pose_4": [0.0, 15.0], "pose_5": [0.0, -15.0],
+                                "shear_sensor_x_mm": [0.0, 7.5], "shear_sensor_y_mm": [0.0, 0.0],
+                                "shear_sensor_rz_deg": [0.0, 0.0]}).tolist() == [
+        [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0], [1.0, 1.0, -1.0, 1.0, 0.0, 0.0]]
+
+
+def test_pose_consistency_settings_must_agree(tmp_path):
+    with pytest.raises(ValueError, match="pose_weight 1.0 must be >= 0, and above 0 exactly when a pose_net"):
+        tiny_config(pose_weight=1.0)
+    with pytest.raises(ValueError, match="needs its PoseConsistency and pairs loaded with it"):
+        TranslatorTrainer(tiny_config(pose_weight=1.0, pose_net="reader.pt"), tmp_path / "run", toy_pairs())
+    from simshear_gym.train.pose_consistency import PoseConsistency
+
+    with pytest.raises(FileNotFoundError, match="missing.pt not found"):
+        PoseConsistency(tmp_path / "missing.pt")

@@ -3,7 +3,9 @@
 ``simshear train translator --arch shpix2pix --paired DIR [DIR ...] --out RUN_DIR`` trains on paired sets
 (:mod:`simshear_gym.data.collect`). A share of the training rows (``--holdout``) is held out for early stopping
 on L1, so the real validation sets stay unseen until ``simshear evaluate translation``. Objective: ``l1_weight *
-L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained).
+L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained), plus
+``pose_weight *`` the pose-consistency loss of a frozen real-image GDNN (``--pose-net``,
+:mod:`simshear_gym.train.pose_consistency`) when ``--pose-weight`` is above 0.
 Learning rate: constant, or ``--lr-schedule cosine``: ``lr * (1 + cos(pi * p)) / 2`` where ``p`` is the share of
 the time budget (``--max-minutes``) used so far, or of the epochs when there is no budget, so a budgeted run ends
 at a small learning rate whenever its time runs out.
@@ -31,6 +33,7 @@ from simshear_gym.data.labels import SHEAR_COLUMNS
 from simshear_gym.io import write_json
 from simshear_gym.models.translator import normalise_shear, normalise_sim, save_generator
 from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetConfig, UNetGenerator
+from simshear_gym.train.pose_consistency import PoseConsistency
 from simshear_gym.train.runs import (
     LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
 )
@@ -63,6 +66,8 @@ class TranslatorTrainConfig:
     max_minutes: float | None = None
     seed: int = 0
     threads: int = 2
+    pose_weight: float = 0.0
+    pose_net: str = ""
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
@@ -78,6 +83,9 @@ class TranslatorTrainConfig:
             raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
         if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0:
             raise ValueError("lr must be > 0 and the loss weights >= 0")
+        if self.pose_weight < 0 or (self.pose_weight > 0) != bool(self.pose_net):
+            raise ValueError(f"pose_weight {self.pose_weight} must be >= 0, and above 0 exactly when a pose_net "
+                             f"(real-image GDNN) is given, got pose_net {self.pose_net!r}")
 
     def generator_config(self) -> UNetConfig:
         depth = int(math.log2(self.image_size_px))
@@ -93,29 +101,34 @@ class TranslatorTrainConfig:
 
 @dataclass(frozen=True, eq=False)
 class PairedTensors:
-    """In-memory pairs: sim uint8 (N, H, W), shear float32 (N, 6) sensor frame, real uint8 (N, H, W)."""
+    """In-memory pairs: sim uint8 (N, H, W), shear float32 (N, 6) sensor frame, real uint8 (N, H, W), and for
+    the pose-consistency loss the rows' labels on its GDNN's normalised scale, float32 (N, D), or None."""
 
     sim: torch.Tensor
     shear: torch.Tensor
     real: torch.Tensor
+    pose_labels: torch.Tensor | None = None
 
     def __len__(self) -> int:
         return len(self.sim)
 
     def subset(self, index: np.ndarray) -> "PairedTensors":
         index = torch.as_tensor(index)
-        return PairedTensors(self.sim[index], self.shear[index], self.real[index])
+        return PairedTensors(self.sim[index], self.shear[index], self.real[index],
+                             None if self.pose_labels is None else self.pose_labels[index])
 
-    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Model-ready float tensors of the rows ``index``."""
+    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Model-ready float tensors of the rows ``index``: sim, shear, real, pose labels (or None)."""
         index = torch.as_tensor(index)
         real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
-        return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real
+        labels = None if self.pose_labels is None else self.pose_labels[index]
+        return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real, labels
 
 
-def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None) -> PairedTensors:
-    """Load replayed paired sets (sim render, shear, real image) into memory."""
-    sims, shears, reals = [], [], []
+def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
+               pose: PoseConsistency | None = None) -> PairedTensors:
+    """Load replayed paired sets (sim render, shear, real image; the labels ``pose`` reads, if given) into memory."""
+    sims, shears, reals, labels = [], [], [], []
     for directory in paired_dirs:
         paired, real = load_paired(directory, data)
         if real is None:
@@ -123,18 +136,25 @@ def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None
         sims.append(paired.load_images())
         shears.append(paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32))
         reals.append(real.load_images())
+        if pose is not None:
+            labels.append(pose.encoded_labels(paired.targets))
         if sims[-1].shape != reals[-1].shape:
             raise ValueError(f"{directory}: sim images {sims[-1].shape[1:]} and real images "
                              f"{reals[-1].shape[1:]} differ in size")
     return PairedTensors(torch.from_numpy(np.concatenate(sims)), torch.from_numpy(np.concatenate(shears)),
-                         torch.from_numpy(np.concatenate(reals)))
+                         torch.from_numpy(np.concatenate(reals)), torch.cat(labels) if pose is not None else None)
 
 
 class TranslatorTrainer:
     """Owns the models, optimisers and run directory of one training run."""
 
-    def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors) -> None:
+    def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors,
+                 pose: PoseConsistency | None = None) -> None:
+        if (pose is not None) != (config.pose_weight > 0) or (pose is not None and pairs.pose_labels is None):
+            raise ValueError("a pose-consistency run (pose_weight > 0) needs its PoseConsistency and pairs loaded "
+                             "with it (load_pairs(..., pose=...)); a run without one takes neither")
         self.config = config
+        self.pose = pose
         self.run_dir = Path(run_dir)
         torch.manual_seed(config.seed)
         train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
@@ -195,13 +215,15 @@ class TranslatorTrainer:
         total = 0.0
         with torch.inference_mode():
             for start in range(0, len(self.holdout_pairs), 64):
-                sim, shear, real = self.holdout_pairs.batch(np.arange(start, min(start + 64, len(self.holdout_pairs))))
+                sim, shear, real, _ = self.holdout_pairs.batch(
+                    np.arange(start, min(start + 64, len(self.holdout_pairs))))
                 total += (self.generator(sim, shear if self.generator.config.shear_dim else None) - real
                           ).abs().mean(dim=(1, 2, 3)).sum().item()
         self.generator.train()
         return total / len(self.holdout_pairs)
 
-    def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor) -> dict[str, float]:
+    def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor,
+                   pose_labels: torch.Tensor | None = None) -> dict[str, float]:
         config = self.config
         shear_in = shear if self.generator.config.shear_dim else None
         fake = self.generator(sim, shear_in)
@@ -220,6 +242,10 @@ class TranslatorTrainer:
             gan = ((self.discriminator(sim, fake) - 1) ** 2).mean()
             loss = loss + config.gan_weight * gan
             losses["g_gan"] = gan.item()
+        if self.pose is not None:
+            pose_loss = self.pose.loss(fake, pose_labels)
+            loss = loss + config.pose_weight * pose_loss
+            losses["pose"] = pose_loss.item()
         loss.backward()
         self.opt_g.step()
         losses["l1"] = l1.item()
@@ -297,7 +323,7 @@ class TranslatorTrainer:
                 group["lr"] = lr
 
     def _log_images(self, writer) -> None:
-        sim, shear, real = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
+        sim, shear, real, _ = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
         self.generator.eval()
         with torch.inference_mode():
             fake = self.generator(sim, shear if self.generator.config.shear_dim else None)
@@ -326,6 +352,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
                             default=value, help=f"default {value}")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
+    parser.add_argument("--pose-net", default="", help="pose-consistency loss: a GDNN trained on the real images "
+                        "(best.pt of simshear train posenet --source real) of the same contact type")
+    parser.add_argument("--pose-weight", type=float, default=0.0,
+                        help="weight of the pose-consistency loss (needs --pose-net; default 0: off)")
     parser.add_argument("--no-template", action="store_true", help="no learned at-rest template input")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
@@ -339,10 +369,12 @@ def run(args: argparse.Namespace) -> int:
         epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
-        max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+        max_minutes=args.max_minutes, seed=args.seed, threads=args.threads, pose_weight=args.pose_weight,
+        pose_net=args.pose_net,
     )
-    pairs = load_pairs(config.paired_dirs, args.data)
-    trainer = TranslatorTrainer(config, args.out, pairs)
+    pose = PoseConsistency(config.pose_net) if config.pose_weight > 0 else None
+    pairs = load_pairs(config.paired_dirs, args.data, pose)
+    trainer = TranslatorTrainer(config, args.out, pairs, pose)
     if args.resume and trainer.resume():
         print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
     elif (args.out / "checkpoint.pt").exists():

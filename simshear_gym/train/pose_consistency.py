@@ -1,0 +1,60 @@
+"""Pose-consistency loss for translator training: a generated image should show its row's contact to a GDNN
+that reads real images.
+
+A GDNN trained on the **real** training images (way 3 of :mod:`simshear_gym.train.posenet`) is frozen and reads
+each generated image; the loss is the squared error between its predicted means and the row's labels, both on the
+GDNN's normalised scale (:meth:`~simshear_gym.models.gdnn.VariableSet.encode`: each range maps to [-1, 1]), averaged
+over rows and encoded components. Pixel L1 treats every marker pixel alike; this term weighs the image the way a
+pose reader does, so a generator that moves the contact's markers to the wrong place pays for it even where the
+pixel error is small. Only the training rows' real images and labels enter it (the real-image GDNN saw no
+validation image).
+
+The generated image (B, 1, S, S) in [0, 1] is brought to the GDNN's input size by area averaging, as
+:func:`simshear_gym.train.posenet.resize_images` does for uint8 images (without its rounding to uint8).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from simshear_gym.models.gdnn import VariableSet
+
+
+class PoseConsistency:
+    """Owns a frozen real-image GDNN and scores generated images against their rows' labels."""
+
+    def __init__(self, posenet_path: str | os.PathLike) -> None:
+        from simshear_gym.models.posenet_io import load_posenet
+
+        path = Path(posenet_path)
+        if not path.is_file():
+            raise FileNotFoundError(f"pose-consistency GDNN {path} not found (a best.pt of simshear train posenet "
+                                    f"--source real)")
+        self.gdnn, self.card = load_posenet(path)
+        self.gdnn.eval()
+        for parameter in self.gdnn.parameters():
+            parameter.requires_grad_(False)
+
+    @property
+    def variables(self) -> VariableSet:
+        return self.gdnn.variables
+
+    def encoded_labels(self, table: Mapping[str, np.ndarray]) -> torch.Tensor:
+        """(N, D) float32 labels of a paired set's targets table on the GDNN's normalised scale."""
+        from simshear_gym.train.posenet import label_matrix
+
+        return self.variables.encode(label_matrix(table, self.variables)).to(torch.float32)
+
+    def loss(self, generated: torch.Tensor, encoded_labels: torch.Tensor) -> torch.Tensor:
+        """Mean squared error of the GDNN's means on ``generated`` (B, 1, S, S) against ``encoded_labels`` (B, D)."""
+        size = self.gdnn.config.image_size_px
+        image = generated if generated.shape[-1] == size else F.interpolate(generated, size=(size, size),
+                                                                            mode="area")
+        mean, _ = self.gdnn(image)
+        return ((mean - encoded_labels) ** 2).mean()
