@@ -1,9 +1,11 @@
 """Translation evaluation: metrics, model specs, and a small run on real validation rows."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from simshear_gym.evaluate.translation import evaluate, mape, parse_models, ssim
+from simshear_gym.evaluate.translation import evaluate, mape, parse_models, parse_readers, ssim
 from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 
@@ -25,6 +27,9 @@ def test_model_specs():
         parse_models(["nopath"])
     with pytest.raises(ValueError, match="contact must be one of"):
         parse_models(["a:cylinder=x.pt"])
+    assert parse_readers(["surface=r.pt"]) == {"surface": Path("r.pt")}
+    with pytest.raises(ValueError, match="expected CONTACT=PATH"):
+        parse_readers(["r.pt"])
 
 
 @pytest.mark.data
@@ -32,8 +37,12 @@ def test_model_specs():
 def test_small_evaluation_on_real_rows(data_root, tmp_path):
     generator = UNetGenerator(UNetConfig(image_size_px=128, base_channels=4, max_channels=8)).eval()
     save_generator(tmp_path / "g.pt", generator)
-    results, stacks = evaluate(data_root, {"tiny": {"surface": tmp_path / "g.pt", "edge": tmp_path / "g.pt"}},
-                               rows=4, workers=1)
+    from simshear_gym.models.posenet_io import shipped_posenet_path
+
+    reader = shipped_posenet_path("surface")
+    results, reader_floor, stacks = evaluate(
+        data_root, {"tiny": {"surface": tmp_path / "g.pt", "edge": tmp_path / "g.pt"}}, rows=4, workers=1,
+        readers={"surface": reader})
     assert set(results) == {"surface_shear", "surface_tap", "edge_shear", "edge_tap"}
     for methods in results.values():
         assert set(methods) == {"nearest-label retrieval", "tiny", "tiny (published sim input)"}
@@ -42,3 +51,9 @@ def test_small_evaluation_on_real_rows(data_root, tmp_path):
         # an untrained generator is far worse than retrieving the nearest real training image
         assert methods["tiny"]["mape"] > methods["nearest-label retrieval"]["mape"]
     assert stacks["edge_tap"]["real"].shape == (4, 128, 128)
+    # the reader reads the real images' depth far better than an untrained generator's images
+    assert set(reader_floor) == {"surface_shear", "surface_tap"}
+    for set_name, floor in reader_floor.items():
+        assert set(floor) == {"z_mm", "rx_deg", "ry_deg", "shear_x_mm", "shear_y_mm", "shear_rz_deg"}
+        assert results[set_name]["tiny"]["reader_mae"]["z_mm"] > floor["z_mm"]
+    assert "reader_mae" not in results["edge_tap"]["tiny"]

@@ -11,6 +11,12 @@ Reference rows: ``nearest-label retrieval`` (the real training image whose label
 their ranges, the edge angle as sin/cos), and each model fed the **published** Tactile Gym sim images of the same
 rows instead of ours. ``simshear evaluate translation --model shpix2pix=PATH --model pix2pix=PATH`` writes
 ``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real).
+
+Pose fidelity (``--reader CONTACT=PATH``, optional): a GDNN trained on the **real** training images of that contact
+(``simshear train posenet --source real``) reads every method's images of the val contacts; its per-variable MAE
+against the val rows' labels (``reader_mae``, mm / deg) says whether a generated image shows *its* contact the way
+a real one would, which pixel MAPE cannot tell apart from marker noise. The reader's MAE on the real val images
+themselves is the floor (``reader.real_images``).
 """
 
 from __future__ import annotations
@@ -64,6 +70,16 @@ def nearest_label_images(train: TactileSet, val: TactileSet, contact: str) -> np
     return train.load_images()[nearest]
 
 
+def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float]:
+    """Per-variable MAE (mm / deg) of a GDNN reading uint8 (N, H, W) images whose contacts have labels ``truth``."""
+    from simshear_gym.evaluate.posenet import errors, predict
+
+    mean_encoded, std_encoded = predict(reader, images)
+    mean, _ = reader.variables.decode(mean_encoded, std_encoded)
+    absolute = np.abs(errors(mean.numpy(), truth, reader.variables)).mean(axis=0)
+    return {spec.name: float(value) for spec, value in zip(reader.variables.variables, absolute)}
+
+
 def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -> np.ndarray:
     return np.concatenate([translator(sim[i:i + batch], shear[i:i + batch]) for i in range(0, len(sim), batch)])
 
@@ -83,17 +99,33 @@ def parse_models(specs: list[str]) -> dict[str, dict[str, Path]]:
     return models
 
 
+def parse_readers(specs: list[str]) -> dict[str, Path]:
+    """``CONTACT=PATH`` -> {contact: path}."""
+    readers: dict[str, Path] = {}
+    for spec in specs:
+        contact, _, path = spec.partition("=")
+        if contact not in CONTACT_TYPES or not path:
+            raise ValueError(f"--reader {spec!r}: expected CONTACT=PATH with CONTACT one of {CONTACT_TYPES}")
+        readers[contact] = Path(path)
+    return readers
+
+
 def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = None, workers: int = 2,
-             published_input: bool = True) -> tuple[dict, dict]:
-    """Figures per set and method; also returns image stacks for the figure."""
+             published_input: bool = True, readers: dict[str, Path] | None = None) -> tuple[dict, dict, dict]:
+    """Figures per set and method, the readers' MAE on the real val images per set (empty without readers),
+    and image stacks for the figure."""
     from simshear_gym.data.collect import replay_shear
+    from simshear_gym.evaluate.posenet import truth_labels
+    from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator import Translator
     from simshear_gym.sim.replay import render_poses
     from simshear_gym.sim.shear import ShearTrackerConfig
 
     translators = {(name, contact): Translator.load(path) for name, per in models.items()
                    for contact, path in per.items()}
+    reader_models = {contact: load_posenet(path)[0] for contact, path in (readers or {}).items()}
     results: dict = {}
+    reader_floor: dict = {}
     stacks: dict = {}
     contacts = [c for c in CONTACT_TYPES if all(c in per for per in models.values())]
     if not contacts:
@@ -118,8 +150,14 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
             results[set_name] = {method: {"mape": float(mape(images, real).mean()),
                                           "ssim": float(ssim(images, real).mean())}
                                  for method, images in generated.items()}
+            if contact in reader_models:
+                reader = reader_models[contact]
+                truth = truth_labels(val, reader.variables)[select]
+                reader_floor[set_name] = reader_mae(reader, real, truth)
+                for method, images in generated.items():
+                    results[set_name][method]["reader_mae"] = reader_mae(reader, images, truth)
             stacks[set_name] = {"sim": sim, **{m: g for m, g in generated.items() if "(" not in m}, "real": real}
-    return results, stacks
+    return results, reader_floor, stacks
 
 
 def figure(stacks: dict, path: Path, per_set: int = 3) -> None:
@@ -157,6 +195,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("results"))
     parser.add_argument("--name", default="translation", help="base name of the json and png written")
+    parser.add_argument("--reader", action="append", default=[], metavar="CONTACT=PATH",
+                        help="a GDNN trained on that contact's real images, to read every method's images "
+                             "(pose fidelity); repeat per contact type")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,11 +205,14 @@ def run(args: argparse.Namespace) -> int:
 
     specs = args.model or [f"{name}:{contact}={path}" for (name, contact), path in shipped_models().items()]
     models = parse_models(specs)
+    readers = parse_readers(args.reader)
     start = time.perf_counter()
-    results, stacks = evaluate(data_root(args.data), models, args.rows, args.workers)
+    results, reader_floor, stacks = evaluate(data_root(args.data), models, args.rows, args.workers,
+                                             readers=readers)
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
     command = "simshear evaluate translation " + " ".join(f"--model {s}" for s in args.model)
+    command += "".join(f" --reader {spec}" for spec in args.reader)
     if args.rows:
         command += f" --rows {args.rows}"
     write_json(args.out / f"{args.name}.json", {
@@ -176,9 +220,18 @@ def run(args: argparse.Namespace) -> int:
         "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
         "models": {name: {c: str(p) for c, p in per.items()} for name, per in models.items()},
         "sets": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),
+        **({"reader": {"models": {c: str(p) for c, p in readers.items()}, "real_images": reader_floor,
+                       "metric": "reader_mae: MAE (mm / deg) of a GDNN trained on the real training images "
+                                 "reading each method's images, against the val rows' labels"}}
+           if readers else {}),
     })
     for set_name, methods in results.items():
         for method, figures in methods.items():
-            print(f"{set_name:14s} {method:40s} MAPE {figures['mape']:.4f}  SSIM {figures['ssim']:.3f}")
+            read = "  reader " + " ".join(f"{k} {v:.3f}" for k, v in figures["reader_mae"].items()) \
+                if "reader_mae" in figures else ""
+            print(f"{set_name:14s} {method:40s} MAPE {figures['mape']:.4f}  SSIM {figures['ssim']:.3f}{read}")
+        if set_name in reader_floor:
+            print(f"{set_name:14s} {'(reader on the real images)':40s} "
+                  + " ".join(f"{k} {v:.3f}" for k, v in reader_floor[set_name].items()))
     print(f"wrote {args.out / (args.name + '.json')} and {png}")
     return 0
