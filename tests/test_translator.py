@@ -243,3 +243,25 @@ def test_pose_consistency_settings_must_agree(tmp_path):
 
     with pytest.raises(FileNotFoundError, match="missing.pt not found"):
         PoseConsistency(tmp_path / "missing.pt")
+
+
+def test_pose_consistency_compares_only_the_chosen_variables(tmp_path):
+    from simshear_gym.models.gdnn import GDNN, GDNNConfig
+    from simshear_gym.models.posenet_io import save_posenet
+    from simshear_gym.train.pose_consistency import PoseConsistency
+
+    reader = GDNN(GDNNConfig(image_size_px=16, conv_channels=(4,), conv_kernels=(3,), dense=(8,),
+                             variables="edge")).eval()
+    save_posenet(tmp_path / "reader.pt", reader)
+    images = torch.rand(3, 1, 32, 32)
+    with torch.no_grad():
+        mean = reader(torch.nn.functional.interpolate(images, size=16, mode="area"))[0]
+    wrong_shear = mean.clone()
+    wrong_shear[:, 4:] += 1.0  # encoded: y, z, sin, cos of the edge angle, then shear x, y, Rz
+    pose_only = PoseConsistency(tmp_path / "reader.pt", ("y_mm", "z_mm", "edge_angle_deg"))
+    assert pose_only.columns.tolist() == [0, 1, 2, 3]
+    with torch.no_grad():
+        assert pose_only.loss(images, wrong_shear).item() == pytest.approx(0.0, abs=1e-10)
+        assert PoseConsistency(tmp_path / "reader.pt").loss(images, wrong_shear).item() == pytest.approx(3 / 7)
+    with pytest.raises(ValueError, match=r"variables \['rx_deg'\] are not outputs"):
+        PoseConsistency(tmp_path / "reader.pt", ("rx_deg",))

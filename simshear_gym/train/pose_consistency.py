@@ -4,7 +4,7 @@ that reads real images.
 A GDNN trained on the **real** training images (way 3 of :mod:`simshear_gym.train.posenet`) is frozen and reads
 each generated image; the loss is the squared error between its predicted means and the row's labels, both on the
 GDNN's normalised scale (:meth:`~simshear_gym.models.gdnn.VariableSet.encode`: each range maps to [-1, 1]), averaged
-over rows and encoded components. Pixel L1 treats every marker pixel alike; this term weighs the image the way a
+over rows and the encoded components of the chosen variables (all of the GDNN's by default). Pixel L1 treats every marker pixel alike; this term weighs the image the way a
 pose reader does, so a generator that moves the contact's markers to the wrong place pays for it even where the
 pixel error is small. Only the training rows' real images and labels enter it (the real-image GDNN saw no
 validation image).
@@ -29,7 +29,7 @@ from simshear_gym.models.gdnn import VariableSet
 class PoseConsistency:
     """Owns a frozen real-image GDNN and scores generated images against their rows' labels."""
 
-    def __init__(self, posenet_path: str | os.PathLike) -> None:
+    def __init__(self, posenet_path: str | os.PathLike, variables: tuple[str, ...] = ()) -> None:
         from simshear_gym.models.posenet_io import load_posenet
 
         path = Path(posenet_path)
@@ -40,6 +40,17 @@ class PoseConsistency:
         self.gdnn.eval()
         for parameter in self.gdnn.parameters():
             parameter.requires_grad_(False)
+        names = self.variables.names
+        unknown = sorted(set(variables) - set(names))
+        if unknown:
+            raise ValueError(f"pose-consistency variables {unknown} are not outputs of {path} ({list(names)})")
+        columns, start = [], 0
+        for spec in self.variables.variables:
+            if not variables or spec.name in variables:
+                columns.extend(range(start, start + spec.encoded_dim))
+            start += spec.encoded_dim
+        self.columns = torch.tensor(columns)
+        """Encoded components the loss compares."""
 
     @property
     def variables(self) -> VariableSet:
@@ -57,4 +68,4 @@ class PoseConsistency:
         image = generated if generated.shape[-1] == size else F.interpolate(generated, size=(size, size),
                                                                             mode="area")
         mean, _ = self.gdnn(image)
-        return ((mean - encoded_labels) ** 2).mean()
+        return ((mean - encoded_labels)[:, self.columns] ** 2).mean()

@@ -68,6 +68,7 @@ class TranslatorTrainConfig:
     threads: int = 2
     pose_weight: float = 0.0
     pose_net: str = ""
+    pose_variables: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
@@ -356,6 +357,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(best.pt of simshear train posenet --source real) of the same contact type")
     parser.add_argument("--pose-weight", type=float, default=0.0,
                         help="weight of the pose-consistency loss (needs --pose-net; default 0: off)")
+    parser.add_argument("--pose-variables", nargs="+", default=[], metavar="NAME",
+                        help="pose-consistency loss on these of the GDNN's variables only (default: all)")
     parser.add_argument("--no-template", action="store_true", help="no learned at-rest template input")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
@@ -370,9 +373,9 @@ def run(args: argparse.Namespace) -> int:
         lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads, pose_weight=args.pose_weight,
-        pose_net=args.pose_net,
+        pose_net=args.pose_net, pose_variables=tuple(args.pose_variables),
     )
-    pose = PoseConsistency(config.pose_net) if config.pose_weight > 0 else None
+    pose = PoseConsistency(config.pose_net, config.pose_variables) if config.pose_weight > 0 else None
     pairs = load_pairs(config.paired_dirs, args.data, pose)
     trainer = TranslatorTrainer(config, args.out, pairs, pose)
     if args.resume and trainer.resume():
