@@ -211,12 +211,12 @@ def run(args: argparse.Namespace) -> int:
                                              readers=readers)
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
-    command = "simshear evaluate translation " + " ".join(f"--model {s}" for s in args.model)
-    command += "".join(f" --reader {spec}" for spec in args.reader)
-    if args.rows:
-        command += f" --rows {args.rows}"
+    command = " ".join(["simshear evaluate translation", *(f"--model {s}" for s in args.model),
+                        *(f"--reader {s}" for s in args.reader), *([f"--rows {args.rows}"] if args.rows else []),
+                        *([f"--out {args.out}"] if args.out != Path("results") else []),
+                        *([f"--name {args.name}"] if args.name != "translation" else [])])
     write_json(args.out / f"{args.name}.json", {
-        "command": command.strip(), "rows_per_set": args.rows or "all (2000)",
+        "command": command, "rows_per_set": args.rows or "all (2000)",
         "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
         "models": {name: {c: str(p) for c, p in per.items()} for name, per in models.items()},
         "sets": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),
