@@ -200,6 +200,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(pose fidelity); repeat per contact type")
 
 
+def _maes_text(maes: dict[str, float]) -> str:
+    return " ".join(f"{name} {value:.3f}" for name, value in maes.items())
+
+
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.models.translator import shipped_models
 
@@ -227,11 +231,10 @@ def run(args: argparse.Namespace) -> int:
     })
     for set_name, methods in results.items():
         for method, figures in methods.items():
-            read = "  reader " + " ".join(f"{k} {v:.3f}" for k, v in figures["reader_mae"].items()) \
-                if "reader_mae" in figures else ""
+            read = "  reader " + _maes_text(figures["reader_mae"]) if "reader_mae" in figures else ""
             print(f"{set_name:14s} {method:40s} MAPE {figures['mape']:.4f}  SSIM {figures['ssim']:.3f}{read}")
         if set_name in reader_floor:
             print(f"{set_name:14s} {'(reader on the real images)':40s} "
-                  + " ".join(f"{k} {v:.3f}" for k, v in reader_floor[set_name].items()))
+                  + _maes_text(reader_floor[set_name]))
     print(f"wrote {args.out / (args.name + '.json')} and {png}")
     return 0

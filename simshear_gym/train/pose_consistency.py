@@ -4,9 +4,9 @@ that reads real images.
 A GDNN trained on the **real** training images (way 3 of :mod:`simshear_gym.train.posenet`) is frozen and reads
 each generated image; the loss is the squared error between its predicted means and the row's labels, both on the
 GDNN's normalised scale (:meth:`~simshear_gym.models.gdnn.VariableSet.encode`: each range maps to [-1, 1]), averaged
-over rows and the encoded components of the chosen variables (all of the GDNN's by default). Pixel L1 treats every marker pixel alike; this term weighs the image the way a
-pose reader does, so a generator that moves the contact's markers to the wrong place pays for it even where the
-pixel error is small. Only the training rows' real images and labels enter it (the real-image GDNN saw no
+over rows and the encoded components of the chosen variables (all of the GDNN's by default). Pixel L1 treats
+every marker pixel alike; this term weighs the image the way a pose reader does, so a generator that moves the
+contact's markers to the wrong place pays for it even where the pixel error is small. Only the training rows' real images and labels enter it (the real-image GDNN saw no
 validation image).
 
 The generated image (B, 1, S, S) in [0, 1] is brought to the GDNN's input size by area averaging, as
@@ -49,8 +49,7 @@ class PoseConsistency:
             if not variables or spec.name in variables:
                 columns.extend(range(start, start + spec.encoded_dim))
             start += spec.encoded_dim
-        self.columns = torch.tensor(columns)
-        """Encoded components the loss compares."""
+        self.columns = torch.tensor(columns)  # the encoded components the loss compares
 
     @property
     def variables(self) -> VariableSet:
