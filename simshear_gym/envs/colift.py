@@ -92,9 +92,10 @@ class SimShearCoLiftEnv(SimShearEnv):
     The **follower** carries the TacTip lying horizontally (:class:`HorizontalTacTipMount`: axis along its
     flange's x, 60 mm below it, apex 95 mm ahead) and squeezes the object (``object_name``: ``prism`` 30 x 40 x
     30 mm box, rigid ``egg``, soft ``brain`` ellipsoid, ``ducky``; 30 g unless ``mass_kg``) against the plate.
-    Nothing but friction holds the object: if the grip loosens or the follower lags, it slips and falls. The task: keep the squeeze (the reference depth)
-    and the sensor's place relative to the plate (variables: depth z, shear x, shear y, yaw). Holding still
-    does not work: the leader carries the object away from the tip, or drags it across the dome until it falls.
+    Nothing but friction holds the object: if the grip loosens or the follower lags, it slips and falls. The
+    task: keep the squeeze (the reference depth) and the sensor's place relative to the plate (variables: depth z,
+    shear x, shear y, yaw). Holding still does not work: the leader carries the object away from the tip, or drags
+    it across the dome until it falls.
 
     **Physics** (:class:`~simshear_gym.sim.colift_scene.CoLiftScene`, its own PyBullet world, rebuilt at each
     reset): the object is a free body; the plate and the tip (a sphere of the dome's radius) are heavy bodies

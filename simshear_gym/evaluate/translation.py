@@ -72,12 +72,10 @@ def nearest_label_images(train: TactileSet, val: TactileSet, contact: str) -> np
 
 def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Per-variable MAE (mm / deg) of a GDNN reading uint8 (N, H, W) images whose contacts have labels ``truth``."""
-    from simshear_gym.evaluate.posenet import errors, predict
+    from simshear_gym.evaluate.posenet import metrics, predict
 
-    mean_encoded, std_encoded = predict(reader, images)
-    mean, _ = reader.variables.decode(mean_encoded, std_encoded)
-    absolute = np.abs(errors(mean.numpy(), truth, reader.variables)).mean(axis=0)
-    return {spec.name: float(value) for spec, value in zip(reader.variables.variables, absolute)}
+    figures = metrics(*predict(reader, images), truth, reader.variables)
+    return {name: per["mae"] for name, per in figures["variables"].items()}
 
 
 def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -> np.ndarray:

@@ -36,8 +36,7 @@ class PoseConsistency:
         if not path.is_file():
             raise FileNotFoundError(f"pose-consistency GDNN {path} not found (a best.pt of simshear train posenet "
                                     f"--source real)")
-        self.gdnn, self.card = load_posenet(path)
-        self.gdnn.eval()
+        self.gdnn, self.card = load_posenet(path)  # in eval mode
         for parameter in self.gdnn.parameters():
             parameter.requires_grad_(False)
         names = self.variables.names
