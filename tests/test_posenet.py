@@ -16,7 +16,8 @@ from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 from simshear_gym.train.posenet import (
-    LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_shift,
+    LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_blur,
+    random_shift,
 )
 
 SIZE = 16
@@ -92,9 +93,25 @@ def test_random_shift_keeps_shape_and_is_identity_at_zero():
     assert shifted.shape == images.shape and not torch.allclose(shifted, images)
 
 
+def test_random_blur_is_a_per_image_gaussian_with_edges_repeated():
+    import cv2
+
+    images = torch.rand(5, 1, SIZE, SIZE)
+    assert torch.equal(random_blur(images, 0.0, torch.Generator().manual_seed(0)), images)
+    blurred = random_blur(images, 1.5, torch.Generator().manual_seed(3))
+    sigmas = torch.rand(5, 1, generator=torch.Generator().manual_seed(3)) * 1.5  # the draws random_blur makes
+    for image, sigma, result in zip(images, sigmas, blurred):
+        expected = cv2.GaussianBlur(image[0].numpy(), (11, 11), float(sigma), borderType=cv2.BORDER_REPLICATE)
+        np.testing.assert_allclose(result[0].numpy(), expected, atol=1e-5)
+    flat = torch.full((2, 1, SIZE, SIZE), 0.4)
+    torch.testing.assert_close(random_blur(flat, 2.0, torch.Generator().manual_seed(0)), flat)
+
+
 def test_config_and_labels_reject_bad_input():
     with pytest.raises(ValueError, match="source must be one of"):
         tiny_config(source="cyclegan")
+    with pytest.raises(ValueError, match="blur_px must be in"):
+        tiny_config(blur_px=-1.0)
     with pytest.raises(ValueError, match="missing"):
         label_matrix(pd.DataFrame({"pose_3": [1.0]}), variable_set("surface"))
 

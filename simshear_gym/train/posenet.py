@@ -17,7 +17,9 @@ Images enter the network as uint8 / 255, resized to ``--image-size`` (64 px by d
 costs 20x more on a 2-core CPU for no measured gain in pose error). Loss: beta-NLL
 (:func:`simshear_gym.models.gdnn.beta_nll`, ``--beta``, default 0.5; 0 is the plain Gaussian NLL), which keeps the
 mean learning where the network is unsure; early stopping and reports use the plain NLL. Augmentation: every training image is shifted by a random offset of up
-to ``shift`` (a share of the image size, default 2.5 %) in x and y, edges repeated. A share of the rows
+to ``shift`` (a share of the image size, default 2.5 %) in x and y, edges repeated; with ``--blur B`` each is
+then blurred by a Gaussian of std drawn uniformly from [0, B] px (at the input size), so that the network cannot
+lean on how sharp the markers are (a generator's images are softer than the real ones). A share of the rows
 (``--holdout``) is held out for early stopping on the Gaussian NLL; the real validation set stays unseen until
 ``simshear evaluate posenet``.
 
@@ -66,6 +68,7 @@ class PosenetTrainConfig:
     dropout: float = GDNNConfig.dropout
     beta: float = 0.5
     shift: float = 0.025
+    blur_px: float = 0.0
     epochs: int = 50
     batch_size: int = 64
     lr: float = 1e-3
@@ -93,6 +96,8 @@ class PosenetTrainConfig:
             raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
         if not 0.0 <= self.shift < 0.5:
             raise ValueError(f"shift must be in [0, 0.5) of the image size, got {self.shift}")
+        if not 0.0 <= self.blur_px <= 4.0:
+            raise ValueError(f"blur_px must be in [0, 4] px (a Gaussian std at the input size), got {self.blur_px}")
         if not 0.0 <= self.beta <= 1.0:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
@@ -239,6 +244,24 @@ def random_shift(images: torch.Tensor, max_share: float, generator: torch.Genera
     return F.grid_sample(images, grid, mode="bilinear", padding_mode="border", align_corners=False)
 
 
+def random_blur(images: torch.Tensor, max_sigma_px: float, generator: torch.Generator) -> torch.Tensor:
+    """Blur each image of (B, 1, H, W) with a Gaussian of std drawn uniformly from [0, ``max_sigma_px``] px,
+    edge pixels repeated; std 0 leaves an image unchanged."""
+    if max_sigma_px <= 0:
+        return images
+    batch = images.shape[0]
+    radius = int(np.ceil(3 * max_sigma_px))
+    sigma = torch.rand(batch, 1, generator=generator) * max_sigma_px
+    offsets = torch.arange(-radius, radius + 1, dtype=torch.float32)
+    weights = torch.where(sigma > 0, torch.exp(-0.5 * (offsets / sigma.clamp_min(1e-6)) ** 2),
+                          (offsets == 0).to(torch.float32).expand(batch, -1))
+    weights = weights / weights.sum(dim=1, keepdim=True)
+    padded = F.pad(images.transpose(0, 1), (radius, radius, radius, radius), mode="replicate")  # (1, B, H', W')
+    rows = F.conv2d(padded, weights.view(batch, 1, 1, -1), groups=batch)
+    both = F.conv2d(rows, weights.view(batch, 1, -1, 1), groups=batch)
+    return both.transpose(0, 1)
+
+
 # -------------------------------------------------------------------------------------------------- training
 class PosenetTrainer:
     """Owns the model, optimiser and run directory of one posenet training run."""
@@ -345,6 +368,7 @@ class PosenetTrainer:
                         group["lr"] = scheduled_lr(config.lr, config.lr_schedule, progress)
                     part = self.train_data.subset(index)
                     images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
+                    images = random_blur(images, config.blur_px, self.shift_rng)
                     running.append(self.train_step(images, self.variables.encode(part.labels)))
                     self.step += 1
                     if self.step % 20 == 0:
@@ -398,6 +422,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         value = getattr(defaults, name)
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
                             default=value, help=f"default {value}")
+    parser.add_argument("--blur", dest="blur_px", type=float, default=defaults.blur_px,
+                        help="augmentation: blur each training image with a Gaussian of std drawn from [0, BLUR] px "
+                             f"(at the input size); default {defaults.blur_px}")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default=defaults.lr_schedule,
                         help="cosine: decay to 0 over the time budget (or the epochs)")
@@ -413,7 +440,7 @@ def run(args: argparse.Namespace) -> int:
         image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         lr_schedule=args.lr_schedule, beta=args.beta,
         holdout=args.holdout, patience_epochs=args.patience_epochs, shift=args.shift,
-        max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+        blur_px=args.blur_px, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
         translators=tuple(str(path) for path in args.translators),
     )
     if (args.out / "checkpoint.pt").exists() and not args.resume:
