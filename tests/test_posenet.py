@@ -17,7 +17,7 @@ from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 from simshear_gym.train.posenet import (
     LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_blur,
-    random_shift,
+    random_erase, random_shift,
 )
 
 SIZE = 16
@@ -107,11 +107,24 @@ def test_random_blur_is_a_per_image_gaussian_with_edges_repeated():
     torch.testing.assert_close(random_blur(flat, 2.0, torch.Generator().manual_seed(0)), flat)
 
 
+def test_random_erase_blacks_out_one_disc_within_the_radius():
+    images = torch.ones(64, 1, 32, 32)
+    assert torch.equal(random_erase(images, 0.0, torch.Generator().manual_seed(0)), images)
+    erased = random_erase(images, 0.2, torch.Generator().manual_seed(0))
+    dark_share = (erased == 0).float().mean(dim=(1, 2, 3))
+    assert torch.all(dark_share <= np.pi * 0.2 ** 2 + 0.01)  # at most the largest disc
+    assert (dark_share > 0).float().mean() > 0.8 and dark_share.std() > 0  # random sizes, rarely empty
+    assert torch.all((erased == 0) | (erased == 1))  # untouched outside the disc
+    assert torch.all(erased[:, :, [0, -1], :] == 1) and torch.all(erased[:, :, :, [0, -1]] == 1)  # away from borders
+
+
 def test_config_and_labels_reject_bad_input():
     with pytest.raises(ValueError, match="source must be one of"):
         tiny_config(source="cyclegan")
     with pytest.raises(ValueError, match="blur_px must be in"):
         tiny_config(blur_px=-1.0)
+    with pytest.raises(ValueError, match="erase must be in"):
+        tiny_config(erase=0.6)
     with pytest.raises(ValueError, match="missing"):
         label_matrix(pd.DataFrame({"pose_3": [1.0]}), variable_set("surface"))
 

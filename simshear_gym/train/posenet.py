@@ -19,7 +19,9 @@ costs 20x more on a 2-core CPU for no measured gain in pose error). Loss: beta-N
 mean learning where the network is unsure; early stopping and reports use the plain NLL. Augmentation: every training image is shifted by a random offset of up
 to ``shift`` (a share of the image size, default 2.5 %) in x and y, edges repeated; with ``--blur B`` each is
 then blurred by a Gaussian of std drawn uniformly from [0, B] px (at the input size), so that the network cannot
-lean on how sharp the markers are (a generator's images are softer than the real ones). A share of the rows
+lean on how sharp the markers are (a generator's images are softer than the real ones); with ``--erase R`` a
+black disc of radius up to R (a share of the image size) is then blanked in each, so that it cannot lean on the
+dark patches a generator leaves where it cannot place the markers of a deep, sheared contact. A share of the rows
 (``--holdout``) is held out for early stopping on the Gaussian NLL; the real validation set stays unseen until
 ``simshear evaluate posenet``.
 
@@ -69,6 +71,7 @@ class PosenetTrainConfig:
     beta: float = 0.5
     shift: float = 0.025
     blur_px: float = 0.0
+    erase: float = 0.0
     epochs: int = 50
     batch_size: int = 64
     lr: float = 1e-3
@@ -98,6 +101,8 @@ class PosenetTrainConfig:
             raise ValueError(f"shift must be in [0, 0.5) of the image size, got {self.shift}")
         if not 0.0 <= self.blur_px <= 4.0:
             raise ValueError(f"blur_px must be in [0, 4] px (a Gaussian std at the input size), got {self.blur_px}")
+        if not 0.0 <= self.erase < 0.5:
+            raise ValueError(f"erase must be in [0, 0.5) of the image size (a disc radius), got {self.erase}")
         if not 0.0 <= self.beta <= 1.0:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
@@ -262,6 +267,20 @@ def random_blur(images: torch.Tensor, max_sigma_px: float, generator: torch.Gene
     return both.transpose(0, 1)
 
 
+def random_erase(images: torch.Tensor, max_radius_share: float, generator: torch.Generator) -> torch.Tensor:
+    """Black out one disc in each image of (B, 1, H, W): radius uniform in [0, ``max_radius_share``] of the image
+    size, centre uniform over the middle half of the image (where contacts are)."""
+    if max_radius_share <= 0:
+        return images
+    batch, _, height, width = images.shape
+    radius = torch.rand(batch, 1, 1, generator=generator) * max_radius_share
+    centre = 0.25 + 0.5 * torch.rand(batch, 2, 1, 1, generator=generator)
+    y = (torch.arange(height, dtype=torch.float32).view(1, -1, 1) + 0.5) / height
+    x = (torch.arange(width, dtype=torch.float32).view(1, 1, -1) + 0.5) / width
+    inside = (y - centre[:, 0]) ** 2 + (x - centre[:, 1]) ** 2 < radius ** 2
+    return images.masked_fill(inside.unsqueeze(1), 0.0)
+
+
 # -------------------------------------------------------------------------------------------------- training
 class PosenetTrainer:
     """Owns the model, optimiser and run directory of one posenet training run."""
@@ -369,6 +388,7 @@ class PosenetTrainer:
                     part = self.train_data.subset(index)
                     images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
                     images = random_blur(images, config.blur_px, self.shift_rng)
+                    images = random_erase(images, config.erase, self.shift_rng)
                     running.append(self.train_step(images, self.variables.encode(part.labels)))
                     self.step += 1
                     if self.step % 20 == 0:
@@ -425,6 +445,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--blur", dest="blur_px", type=float, default=defaults.blur_px,
                         help="augmentation: blur each training image with a Gaussian of std drawn from [0, BLUR] px "
                              f"(at the input size); default {defaults.blur_px}")
+    parser.add_argument("--erase", type=float, default=defaults.erase,
+                        help="augmentation: black out a disc of radius up to ERASE (a share of the image size) in each "
+                             f"training image; default {defaults.erase}")
     parser.add_argument("--max-minutes", type=float, default=None, help="stop after this much training time")
     parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default=defaults.lr_schedule,
                         help="cosine: decay to 0 over the time budget (or the epochs)")
@@ -440,7 +463,7 @@ def run(args: argparse.Namespace) -> int:
         image_size_px=args.image_size_px, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
         lr_schedule=args.lr_schedule, beta=args.beta,
         holdout=args.holdout, patience_epochs=args.patience_epochs, shift=args.shift,
-        blur_px=args.blur_px, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
+        blur_px=args.blur_px, erase=args.erase, max_minutes=args.max_minutes, seed=args.seed, threads=args.threads,
         translators=tuple(str(path) for path in args.translators),
     )
     if (args.out / "checkpoint.pt").exists() and not args.resume:
