@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS, SHEAR_COLUMNS
+from simshear_gym.data.paths import cache_dir
 from simshear_gym.data.tactile_set import image_name, write_image, write_targets
 from simshear_gym.evaluate import posenet as evaluate_posenet
 from simshear_gym.models.gdnn import variable_set
@@ -136,7 +137,8 @@ def _write_set(directory, images, targets, meta):
     write_targets(directory, targets, meta)
 
 
-def test_load_source_real_and_sim_from_sets_on_disk(tmp_path):
+def test_load_source_real_and_sim_from_sets_on_disk(tmp_path, monkeypatch):
+    monkeypatch.setenv("SIMSHEAR_CACHE", str(tmp_path / "cache"))  # this test's own cache
     n, rng = 6, np.random.default_rng(1)
     poses = np.zeros((n, 6))
     poses[:, 2], poses[:, 3] = rng.uniform(2, 5, n), rng.uniform(-10, 10, n)
@@ -175,6 +177,14 @@ def test_load_source_real_and_sim_from_sets_on_disk(tmp_path):
     assert both.first.unique().tolist() == [51] and both.images[:, 1].unique().tolist() == [204]
     drawn = torch.stack([both.drawn(np.random.default_rng(seed)) for seed in range(8)])  # (8, n, H, W)
     assert drawn.unique().tolist() == [51, 204] and drawn.shape[1:] == (n, SIZE, SIZE)
+    # the translations are cached: a second load reads the files instead of running the generators
+    cached = sorted(cache_dir().glob("translated-*.npy"))
+    assert len(cached) == 2
+    for path in cached:
+        np.save(path, np.zeros_like(np.load(path)))
+    again = load_source("shpix2pix", "surface", [str(tmp_path / "paired")], image_size_px=SIZE,
+                        translators=weights[:2])
+    assert again.images.unique().tolist() == [0]
     with pytest.raises(ValueError, match="a pix2pix generator, but --source shpix2pix"):
         load_source("shpix2pix", "surface", [str(tmp_path / "paired")], image_size_px=SIZE, translators=weights)
     with pytest.raises(ValueError, match="generator weights for a translator source"):

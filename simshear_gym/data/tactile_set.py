@@ -60,7 +60,7 @@ class TactileSet:
 
     def load_images(self, use_cache: bool = True) -> np.ndarray:
         """All images as uint8 (N, H, W), in ``targets`` order. Every image must have the same size."""
-        key = self._cache_key() if use_cache else None
+        key = self.cache_key() if use_cache else None
         cache_file = cache_dir() / f"images-{key}.npy" if key else None
         if cache_file is not None and cache_file.exists():
             images = np.load(cache_file)
@@ -71,7 +71,8 @@ class TactileSet:
             atomic_write(cache_file, lambda path: np.save(path, images), suffix=".npy")
         return images
 
-    def _cache_key(self) -> str:
+    def cache_key(self) -> str:
+        """A key that changes when the set's files do (the decoded-image cache's file name)."""
         targets_file = self.root / "targets.csv"
         stat = targets_file.stat()
         images_stat = self.images_dir.stat()

@@ -7,7 +7,7 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
 - ``real``: the real images the paired sets replay (the real-to-real reference);
 - ``sim``: the paired sets' own sim renders;
 - ``shpix2pix`` / ``pix2pix``: the sim renders (and shear) through the shipped translator of that architecture
-  and contact type, generated once at the start and kept in memory; with ``--translators W [W ...]`` through
+  and contact type, generated once at the start (cached on disk per set and generator) and kept in memory; with ``--translators W [W ...]`` through
   each of those generator weights instead, every training row then shown through a randomly drawn one each time
   it is drawn (the holdout through the first), so the network cannot lean on one generator's mistakes;
 - ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
@@ -209,12 +209,38 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
             stack = paired.load_images()
             if chosen:
                 shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
-                views = [np.concatenate([translator(stack[i:i + batch], shear[i:i + batch])
-                                         for i in range(0, len(stack), batch)]) for translator in chosen]
+                views = [translated_rows(translator, paired, stack, shear, image_size_px, batch)
+                         for translator in chosen]
                 stack = views[0] if len(views) == 1 else np.stack(views, axis=1)
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
+
+
+def translated_rows(translator, paired, sim_uint8: np.ndarray, shear: np.ndarray, image_size_px: int,
+                    batch: int = 64) -> np.ndarray:
+    """uint8 (N, size, size): a paired set's sim renders through ``translator``, resized; cached on disk (keyed by
+    the set's files and the generator's weights), since translating a set through several generators costs
+    minutes on a CPU."""
+    import hashlib
+
+    from simshear_gym.data.paths import cache_dir
+    from simshear_gym.io import atomic_write
+
+    weights = hashlib.sha1()
+    for name, tensor in translator.generator.state_dict().items():
+        weights.update(name.encode())
+        weights.update(tensor.detach().cpu().numpy().tobytes())
+    key = hashlib.sha1(f"{paired.cache_key()}|{weights.hexdigest()}|{image_size_px}".encode()).hexdigest()[:16]
+    cache_file = cache_dir() / f"translated-{key}.npy"
+    if cache_file.exists():
+        cached = np.load(cache_file)
+        if cached.shape == (len(sim_uint8), image_size_px, image_size_px):
+            return cached
+    images = resize_images(np.concatenate([translator(sim_uint8[i:i + batch], shear[i:i + batch])
+                                           for i in range(0, len(sim_uint8), batch)]), image_size_px)
+    atomic_write(cache_file, lambda path: np.save(path, images), suffix=".npy")
+    return images
 
 
 def _load_env_sets(directories, variables: VariableSet, image_size_px: int) -> LabelledImages:
