@@ -7,9 +7,10 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
 - ``real``: the real images the paired sets replay (the real-to-real reference);
 - ``sim``: the paired sets' own sim renders;
 - ``shpix2pix`` / ``pix2pix``: the sim renders (and shear) through the shipped translator of that architecture
-  and contact type, generated once at the start (cached on disk per set and generator) and kept in memory; with ``--translators W [W ...]`` through
-  each of those generator weights instead, every training row then shown through a randomly drawn one each time
-  it is drawn (the holdout through the first), so the network cannot lean on one generator's mistakes;
+  and contact type, generated once at the start (cached on disk per set and generator) and kept in memory; with
+  ``--translators W [W ...]`` through each of those generator weights instead, every training row then shown
+  through a randomly drawn one each time it is drawn (the holdout through the first), so the network cannot lean
+  on one generator's mistakes;
 - ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
   emitted (already translated) with its true state; with ``--contact env`` (its variable set).
 
