@@ -229,7 +229,8 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     run_dir = tmp_path / "run"
     PosenetTrainer(tiny_config(epochs=1), run_dir, toy_labelled()).fit(progress=False)
     out = tmp_path / "results"
-    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}", f"real={tmp_path / 'r{contact}n' / 'best.pt'}"],
+    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}", f"real={tmp_path / 'r{contact}n' / 'best.pt'}",
+                            f"edge_only:edge={tmp_path / 'missing.pt'}"],  # another contact's: not loaded
                      contact=["surface"], data=root, rows=5, out=out, name="posenet")
     (tmp_path / "rsurfacen").mkdir()
     (tmp_path / "rsurfacen" / "best.pt").write_bytes((run_dir / "best.pt").read_bytes())
@@ -237,6 +238,7 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     result = json.loads((out / "posenet.json").read_text())
     assert "--contact surface" in result["command"] and (out / "posenet_surface.png").is_file()
     assert f"--out {out}" in result["command"]  # the recorded command writes where this run wrote
+    assert set(result["contacts"]["surface"]["models"]) == {"tiny", "real"}
     figures = result["contacts"]["surface"]["models"]["tiny"]
     assert figures["rows"] == 5 and set(figures["variables"]) == set(variable_set("surface").names)
 

@@ -1,6 +1,6 @@
 """Pose-and-shear GDNNs measured on the **real** validation images of a contact type's shear set.
 
-``simshear evaluate posenet --model NAME=PATH [--model NAME=PATH ...] --contact surface|edge`` runs each GDNN
+``simshear evaluate posenet --model NAME[:CONTACT]=PATH [--model ...] --contact surface|edge`` runs each GDNN
 (``best.pt`` of ``simshear train posenet``) on ``tactip331/real/<task>/shear/csv_val`` and reports per variable:
 
 - ``mae``: mean |predicted mean - truth| in mm / deg (a periodic angle's error wrapped to [-180, 180));
@@ -22,6 +22,7 @@ import numpy as np
 from simshear_gym.data.labels import POSE_COLUMNS, SHEAR_COLUMNS
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
 
 CONTACTS = ("surface", "edge")
@@ -162,17 +163,6 @@ def figure(arrays: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def parse_models(specs: list[str]) -> dict[str, Path]:
-    """``NAME=PATH`` -> {name: path}."""
-    models: dict[str, Path] = {}
-    for spec in specs:
-        name, sep, path = spec.partition("=")
-        if not sep or not name or not path:
-            raise ValueError(f"--model {spec!r}: expected NAME=PATH")
-        models[name] = Path(path)
-    return models
-
-
 READ_SHARE = 0.5
 """A variable counts as read where its MAE is at most this share of the chance MAE."""
 
@@ -193,9 +183,9 @@ def acceptance(models: dict, reference: str = "real", candidate: str = "shpix2pi
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", action="append", required=True, metavar="NAME=PATH",
+    parser.add_argument("--model", action="append", required=True, metavar="NAME[:CONTACT]=PATH",
                         help="a posenet best.pt to evaluate; repeat for several; '{contact}' in PATH is replaced "
-                             "by each --contact")
+                             "by each --contact; NAME:CONTACT=PATH names the model of one contact type")
     parser.add_argument("--contact", choices=CONTACTS, nargs="+", required=True)
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of the val set (default all)")
@@ -212,8 +202,8 @@ def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     sections = {}
     for contact in contacts:
-        models = {name: Path(str(path).replace("{contact}", contact))
-                  for name, path in parse_models(args.model).items()}
+        models = {name: Path(str(paths[contact]).replace("{contact}", contact))
+                  for name, paths in parse_models(args.model).items() if contact in paths}
         results, arrays = evaluate(data_root(args.data), models, contact, args.rows)
         png = args.out / f"{args.name}_{contact}.png"
         figure(arrays, png)

@@ -232,13 +232,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default="posenet_filter")
 
 
+def _parse_models(specs: list[str]) -> dict[str, Path]:
+    """``CONTACT=PATH`` -> {contact: path}."""
+    models: dict[str, Path] = {}
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            raise ValueError(f"--model {spec!r}: expected CONTACT=PATH")
+        models[name] = Path(path)
+    return models
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from simshear_gym.evaluate.posenet import parse_models
-
     torch.set_num_threads(args.threads)
-    models = parse_models(args.model)
+    models = _parse_models(args.model)
     for contact, path in list(models.items()):
         if contact not in CONTACTS:
             raise ValueError(f"--model {contact}=...: the name must be a contact type, one of {CONTACTS}")

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.data.labels import CONTACT_TYPES
+from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
 from simshear_gym.io import write_json
@@ -80,21 +81,6 @@ def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float
 
 def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -> np.ndarray:
     return np.concatenate([translator(sim[i:i + batch], shear[i:i + batch]) for i in range(0, len(sim), batch)])
-
-
-def parse_models(specs: list[str]) -> dict[str, dict[str, Path]]:
-    """``NAME=PATH`` (one model for all contacts) or ``NAME:CONTACT=PATH`` -> {name: {contact: path}}."""
-    models: dict[str, dict[str, Path]] = {}
-    for spec in specs:
-        if "=" not in spec:
-            raise ValueError(f"--model {spec!r}: expected NAME=PATH or NAME:CONTACT=PATH")
-        key, path = spec.split("=", 1)
-        name, _, contact = key.partition(":")
-        if contact and contact not in CONTACT_TYPES:
-            raise ValueError(f"--model {spec!r}: contact must be one of {CONTACT_TYPES}")
-        for each in ([contact] if contact else CONTACT_TYPES):
-            models.setdefault(name, {})[each] = Path(path)
-    return models
 
 
 def parse_readers(specs: list[str]) -> dict[str, Path]:
