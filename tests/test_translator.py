@@ -99,6 +99,33 @@ def test_tiny_training_run_end_to_end(tmp_path, gan_weight):
     assert out.shape == (3, 32, 32) and out.dtype == np.uint8
 
 
+def test_density_loss_asks_for_the_marker_brightness_where_their_places_are_uncertain(tmp_path):
+    """Real images: a grid of 2 px markers at a 4 px pitch, shifted by a random phase whatever the input (markers
+    of a sheared contact, where the generator cannot know their exact places). Every pixel is bright a quarter of
+    the time, so L1 alone draws black (its median); the density term asks for the grid's mean brightness."""
+    from torch.nn import functional as F
+
+    rng = np.random.default_rng(0)
+    n, size = 96, 32
+    real = np.zeros((n, size, size), np.uint8)
+    for i, (dx, dy) in enumerate(rng.integers(0, 4, (n, 2))):
+        for y in range(dy, size, 4):
+            for x in range(dx, size, 4):
+                real[i, y:y + 2, x:x + 2] = 255
+    pairs = PairedTensors(torch.zeros(n, size, size, dtype=torch.uint8), torch.zeros(n, 6), torch.from_numpy(real))
+    brightness = {}
+    for density_weight in (0.0, 300.0):
+        trainer = TranslatorTrainer(tiny_config(arch="pix2pix", epochs=8, density_weight=density_weight),
+                                    tmp_path / f"run{density_weight}", pairs)
+        trainer.fit(progress=False)
+        out = Translator(trainer.generator)(np.zeros((1, size, size), np.uint8)).astype(float) / 255
+        brightness[density_weight] = float(F.avg_pool2d(torch.from_numpy(out)[None], 8).mean())
+    assert brightness[0.0] < 0.1  # L1's median: black, where the real grid has a mean brightness of 0.25
+    assert abs(brightness[300.0] - 0.25) < 0.1
+    with pytest.raises(ValueError, match="loss weights >= 0"):
+        tiny_config(density_weight=-1.0)
+
+
 @pytest.mark.parametrize("shear_decoder, flow_px", [(False, 0), (True, 0), (False, 8)])
 def test_shear_changes_trained_shpix2pix_output(tmp_path, shear_decoder, flow_px):
     """On data where the real image follows the shear, a trained shPix2pix moves its output with the shear."""

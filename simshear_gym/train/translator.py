@@ -4,6 +4,9 @@
 (:mod:`simshear_gym.data.collect`). A share of the training rows (``--holdout``) is held out for early stopping
 on L1, so the real validation sets stay unseen until ``simshear evaluate translation``. Objective: ``l1_weight *
 L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained), plus
+``density_weight *`` the L1 of both images averaged over 8 px squares (``--density-weight``): plain L1 rewards
+black where a marker's place is uncertain (its median), which blanks the markers of deep, sheared contacts; the
+pooled term asks for the right amount of marker there instead; plus
 ``pose_weight *`` the pose-consistency loss of a frozen real-image GDNN (``--pose-net``,
 :mod:`simshear_gym.train.pose_consistency`) when ``--pose-weight`` is above 0.
 Learning rate: constant, or ``--lr-schedule cosine``: ``lr * (1 + cos(pi * p)) / 2`` where ``p`` is the share of
@@ -27,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn import functional as F
 
 from simshear_gym.data.collect import load_paired
 from simshear_gym.data.labels import SHEAR_COLUMNS
@@ -39,6 +43,9 @@ from simshear_gym.train.runs import (
 )
 
 ARCHS = ("shpix2pix", "pix2pix")
+DENSITY_POOL_PX = 8
+"""Square (px at the image size) over which the density loss compares the mean brightness: about two marker
+pitches at 128 px."""
 _RESUME_FREE = ("epochs", "max_minutes", "patience_epochs")  # settings a resumed run may change
 
 
@@ -60,6 +67,7 @@ class TranslatorTrainConfig:
     lr: float = 1e-3
     lr_schedule: str = "constant"
     l1_weight: float = 100.0
+    density_weight: float = 0.0
     gan_weight: float = 0.0
     holdout: float = 0.05
     patience_epochs: int = 8
@@ -82,7 +90,7 @@ class TranslatorTrainConfig:
             raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
         if not 0.0 < self.holdout < 0.5:
             raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
-        if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0:
+        if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0 or self.density_weight < 0:
             raise ValueError("lr must be > 0 and the loss weights >= 0")
         if self.pose_weight < 0 or (self.pose_weight > 0) != bool(self.pose_net):
             raise ValueError(f"pose_weight {self.pose_weight} must be >= 0, and above 0 exactly when a pose_net "
@@ -239,6 +247,10 @@ class TranslatorTrainer:
         self.opt_g.zero_grad(set_to_none=True)
         l1 = (fake - real).abs().mean()
         loss = config.l1_weight * l1
+        if config.density_weight > 0:
+            density = (F.avg_pool2d(fake, DENSITY_POOL_PX) - F.avg_pool2d(real, DENSITY_POOL_PX)).abs().mean()
+            loss = loss + config.density_weight * density
+            losses["density"] = density.item()
         if self.discriminator is not None:
             gan = ((self.discriminator(sim, fake) - 1) ** 2).mean()
             loss = loss + config.gan_weight * gan
@@ -348,7 +360,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="warp the at-rest template by a displacement field of this many pixels square "
                              "(0 = no warp)")
     for name in ("image_size_px", "base_channels", "max_channels", "decoder_scale", "epochs", "batch_size", "lr", "l1_weight",
-                 "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
+                 "density_weight", "gan_weight", "holdout", "patience_epochs", "seed", "threads"):
         value = getattr(defaults, name)
         parser.add_argument(f"--{name.replace('_px', '').replace('_', '-')}", dest=name, type=type(value),
                             default=value, help=f"default {value}")
@@ -370,7 +382,7 @@ def run(args: argparse.Namespace) -> int:
         base_channels=args.base_channels, max_channels=args.max_channels, template=not args.no_template,
         shear_decoder=args.shear_decoder, decoder_scale=args.decoder_scale, flow_px=args.flow_px,
         epochs=args.epochs, batch_size=args.batch_size, lr=args.lr,
-        lr_schedule=args.lr_schedule, l1_weight=args.l1_weight,
+        lr_schedule=args.lr_schedule, l1_weight=args.l1_weight, density_weight=args.density_weight,
         gan_weight=args.gan_weight, holdout=args.holdout, patience_epochs=args.patience_epochs,
         max_minutes=args.max_minutes, seed=args.seed, threads=args.threads, pose_weight=args.pose_weight,
         pose_net=args.pose_net, pose_variables=tuple(args.pose_variables),
