@@ -208,6 +208,18 @@ def test_metrics_of_a_perfect_and_of_a_constant_predictor(contact):
     assert guess["mean_nll"] > perfect["mean_nll"]
 
 
+def test_mae_by_depth_puts_each_row_in_its_third_by_true_depth():
+    variables = variable_set("surface")
+    truth = np.zeros((90, variables.dim))
+    truth[:, 0] = np.linspace(2.5, 5.5, 90)  # z_mm
+    absolute = np.zeros_like(truth)
+    absolute[60:, 1] = 1.0  # errors only on the deepest third's rx
+    bins = evaluate_posenet.mae_by_depth(absolute, truth, variables)
+    assert [b["rows"] for b in bins] == [30, 30, 30]
+    assert bins[0]["depth_mm"][0] == 2.5 and bins[-1]["depth_mm"][1] == 5.5
+    assert [b["mae"]["rx_deg"] for b in bins] == [0.0, 0.0, 1.0] and bins[2]["mae"]["z_mm"] == 0.0
+
+
 def test_periodic_errors_wrap():
     variables = variable_set("edge")
     predicted, truth = np.zeros((1, variables.dim)), np.zeros((1, variables.dim))

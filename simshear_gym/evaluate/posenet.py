@@ -6,6 +6,7 @@
 - ``mae``: mean |predicted mean - truth| in mm / deg (a periodic angle's error wrapped to [-180, 180));
 - ``chance_mae``: the same for always predicting the range centre (for a periodic angle: predicting 0);
 - ``within_1_std`` / ``within_2_std``: share of rows whose error is at most 1 / 2 predicted std;
+- ``mae_by_depth``: the MAEs within each third of the rows by true depth z (shallow, middle, deep);
 
 and ``mean_nll``: the Gaussian NLL per row over the encoded components (nats), as in training. Writes
 ``results/posenet.json`` (with the command) and ``results/posenet.png`` (predicted against true per variable).
@@ -65,7 +66,23 @@ def metrics(mean_encoded, std_encoded, truth: np.ndarray, variables) -> dict:
                     "within_2_std": float((absolute[:, i] <= 2 * std[:, i]).mean())}
         for i, spec in enumerate(variables.variables)
     }
-    return {"rows": int(len(truth)), "mean_nll": float(nll.mean()), "variables": per_variable}
+    return {"rows": int(len(truth)), "mean_nll": float(nll.mean()), "variables": per_variable,
+            "mae_by_depth": mae_by_depth(absolute, truth, variables)}
+
+
+DEPTH_VARIABLE = "z_mm"
+DEPTH_BINS = 3
+
+
+def mae_by_depth(absolute: np.ndarray, truth: np.ndarray, variables) -> list[dict]:
+    """MAE per variable within each third of the rows by true contact depth (shallow to deep): where the
+    generators' errors concentrate (they lose the markers of deep, sheared contacts)."""
+    depth = truth[:, variables.names.index(DEPTH_VARIABLE)]
+    edges = np.quantile(depth, np.linspace(0.0, 1.0, DEPTH_BINS + 1))
+    bins = np.clip(np.searchsorted(edges, depth, side="right") - 1, 0, DEPTH_BINS - 1)
+    return [{"depth_mm": [float(edges[b]), float(edges[b + 1])], "rows": int((bins == b).sum()),
+             "mae": {name: float(absolute[bins == b, i].mean()) for i, name in enumerate(variables.names)}}
+            for b in range(DEPTH_BINS)]
 
 
 def truth_labels(val: TactileSet, variables) -> np.ndarray:
