@@ -28,9 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.data.labels import CONTACT_TYPES
-from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
 
 KINDS = ("shear", "tap")
