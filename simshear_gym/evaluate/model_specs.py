@@ -1,4 +1,5 @@
-"""``--model`` specifications of the evaluate commands: one model for every contact type, or one per type."""
+"""Model specifications of the evaluate commands: ``NAME[:CONTACT]=PATH`` (one model for every contact type, or one
+per type) and ``CONTACT=PATH``."""
 
 from __future__ import annotations
 
@@ -20,3 +21,14 @@ def parse_models(specs: list[str]) -> dict[str, dict[str, Path]]:
         for each in ([contact] if contact else CONTACT_TYPES):
             models.setdefault(name, {})[each] = Path(path)
     return models
+
+
+def parse_contact_paths(specs: list[str], flag: str) -> dict[str, Path]:
+    """``CONTACT=PATH`` -> {contact: path}; ``flag`` names the option in errors."""
+    paths: dict[str, Path] = {}
+    for spec in specs:
+        contact, _, path = spec.partition("=")
+        if contact not in CONTACT_TYPES or not path:
+            raise ValueError(f"{flag} {spec!r}: expected CONTACT=PATH with CONTACT one of {CONTACT_TYPES}")
+        paths[contact] = Path(path)
+    return paths

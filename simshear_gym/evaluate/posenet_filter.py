@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.evaluate.model_specs import parse_contact_paths
 from simshear_gym.io import write_json
 
 CONTACTS = ("surface", "edge")
@@ -232,25 +233,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--name", default="posenet_filter")
 
 
-def _parse_models(specs: list[str]) -> dict[str, Path]:
-    """``CONTACT=PATH`` -> {contact: path}."""
-    models: dict[str, Path] = {}
-    for spec in specs:
-        name, sep, path = spec.partition("=")
-        if not sep or not name or not path:
-            raise ValueError(f"--model {spec!r}: expected CONTACT=PATH")
-        models[name] = Path(path)
-    return models
-
-
 def run(args: argparse.Namespace) -> int:
     import torch
 
     torch.set_num_threads(args.threads)
-    models = _parse_models(args.model)
+    models = parse_contact_paths(args.model, "--model")
     for contact, path in list(models.items()):
-        if contact not in CONTACTS:
-            raise ValueError(f"--model {contact}=...: the name must be a contact type, one of {CONTACTS}")
         if str(path) == "shipped":
             from simshear_gym.models.posenet_io import shipped_posenet_path
 

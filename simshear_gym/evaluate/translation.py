@@ -30,7 +30,7 @@ import numpy as np
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
-from simshear_gym.evaluate.model_specs import parse_models
+from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
 from simshear_gym.io import write_json
 
 KINDS = ("shear", "tap")
@@ -84,14 +84,8 @@ def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -
 
 
 def parse_readers(specs: list[str]) -> dict[str, Path]:
-    """``CONTACT=PATH`` -> {contact: path}."""
-    readers: dict[str, Path] = {}
-    for spec in specs:
-        contact, _, path = spec.partition("=")
-        if contact not in CONTACT_TYPES or not path:
-            raise ValueError(f"--reader {spec!r}: expected CONTACT=PATH with CONTACT one of {CONTACT_TYPES}")
-        readers[contact] = Path(path)
-    return readers
+    """``--reader CONTACT=PATH`` -> {contact: path}."""
+    return parse_contact_paths(specs, "--reader")
 
 
 def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = None, workers: int = 2,

@@ -6,8 +6,8 @@ each generated image; the loss is the squared error between its predicted means 
 GDNN's normalised scale (:meth:`~simshear_gym.models.gdnn.VariableSet.encode`: each range maps to [-1, 1]), averaged
 over rows and the encoded components of the chosen variables (all of the GDNN's by default). Pixel L1 treats
 every marker pixel alike; this term weighs the image the way a pose reader does, so a generator that moves the
-contact's markers to the wrong place pays for it even where the pixel error is small. Only the training rows' real images and labels enter it (the real-image GDNN saw no
-validation image).
+contact's markers to the wrong place pays for it even where the pixel error is small. Only the training rows'
+real images and labels enter it (the real-image GDNN saw no validation image).
 
 The generated image (B, 1, S, S) in [0, 1] is brought to the GDNN's input size by area averaging, as
 :func:`simshear_gym.train.posenet.resize_images` does for uint8 images (without its rounding to uint8).

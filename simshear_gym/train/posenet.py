@@ -17,13 +17,14 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
 Images enter the network as uint8 / 255, resized to ``--image-size`` (64 px by default: at 128 px an epoch
 costs 20x more on a 2-core CPU for no measured gain in pose error). Loss: beta-NLL
 (:func:`simshear_gym.models.gdnn.beta_nll`, ``--beta``, default 0.5; 0 is the plain Gaussian NLL), which keeps the
-mean learning where the network is unsure; early stopping and reports use the plain NLL. Augmentation: every training image is shifted by a random offset of up
-to ``shift`` (a share of the image size, default 2.5 %) in x and y, edges repeated; with ``--blur B`` each is
-then blurred by a Gaussian of std drawn uniformly from [0, B] px (at the input size), so that the network cannot
-lean on how sharp the markers are (a generator's images are softer than the real ones); with ``--erase R`` a
-black disc of radius up to R (a share of the image size) is then blanked in each, so that it cannot lean on the
-dark patches a generator leaves where it cannot place the markers of a deep, sheared contact. A share of the rows
-(``--holdout``) is held out for early stopping on the Gaussian NLL; the real validation set stays unseen until
+mean learning where the network is unsure; early stopping and reports use the plain NLL. Augmentation: every
+training image is shifted by a random offset of up to ``shift`` (a share of the image size, default 2.5 %) in x
+and y, edges repeated; with ``--blur B`` each is then blurred by a Gaussian of std drawn uniformly from [0, B] px
+(at the input size), so that the network cannot lean on how sharp the markers are (a generator's images are
+softer than the real ones); with ``--erase R`` a black disc of radius up to R (a share of the image size) is then
+blanked in each, so that it cannot lean on the dark patches a generator leaves where it cannot place the markers
+of a deep, sheared contact. A share of the rows (``--holdout``) is held out for early stopping on the Gaussian
+NLL; the real validation set stays unseen until
 ``simshear evaluate posenet``.
 
 Run directory: ``config.json``, ``history.json`` (per epoch: wall time, train and holdout NLL), tensorboard logs
@@ -196,6 +197,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
             if bool(translator.generator.config.shear_dim) != wants_shear:
                 raise ValueError(f"translator {path}: a {'pix2pix' if wants_shear else 'shpix2pix'} generator, "
                                  f"but --source {source}")
+    digests = [weights_digest(translator) for translator in chosen]  # the translation cache's keys
     images, labels = [], []
     for directory in paired_dirs:
         paired, real = load_paired(directory, data)
@@ -210,29 +212,36 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
             stack = paired.load_images()
             if chosen:
                 shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
-                views = [translated_rows(translator, paired, stack, shear, image_size_px, batch)
-                         for translator in chosen]
+                views = [translated_rows(translator, digest, paired, stack, shear, image_size_px, batch)
+                         for translator, digest in zip(chosen, digests)]
                 stack = views[0] if len(views) == 1 else np.stack(views, axis=1)
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
 
 
-def translated_rows(translator, paired, sim_uint8: np.ndarray, shear: np.ndarray, image_size_px: int,
+def weights_digest(translator) -> str:
+    """A hash of a translator's generator weights."""
+    import hashlib
+
+    digest = hashlib.sha1()
+    for name, tensor in translator.generator.state_dict().items():
+        digest.update(name.encode())
+        digest.update(tensor.detach().cpu().numpy().tobytes())
+    return digest.hexdigest()
+
+
+def translated_rows(translator, weights: str, paired, sim_uint8: np.ndarray, shear: np.ndarray, image_size_px: int,
                     batch: int = 64) -> np.ndarray:
-    """uint8 (N, size, size): a paired set's sim renders through ``translator``, resized; cached on disk (keyed by
-    the set's files and the generator's weights), since translating a set through several generators costs
-    minutes on a CPU."""
+    """uint8 (N, size, size): a paired set's sim renders through ``translator`` (its :func:`weights_digest`
+    ``weights``), resized; cached on disk (keyed by the set's files and the weights), since translating a set
+    through several generators costs minutes on a CPU."""
     import hashlib
 
     from simshear_gym.data.paths import cache_dir
     from simshear_gym.io import atomic_write
 
-    weights = hashlib.sha1()
-    for name, tensor in translator.generator.state_dict().items():
-        weights.update(name.encode())
-        weights.update(tensor.detach().cpu().numpy().tobytes())
-    key = hashlib.sha1(f"{paired.cache_key()}|{weights.hexdigest()}|{image_size_px}".encode()).hexdigest()[:16]
+    key = hashlib.sha1(f"{paired.cache_key()}|{weights}|{image_size_px}".encode()).hexdigest()[:16]
     cache_file = cache_dir() / f"translated-{key}.npy"
     if cache_file.exists():
         cached = np.load(cache_file)
