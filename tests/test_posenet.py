@@ -177,6 +177,10 @@ def test_load_source_real_and_sim_from_sets_on_disk(tmp_path, monkeypatch):
     assert both.first.unique().tolist() == [51] and both.images[:, 1].unique().tolist() == [204]
     drawn = torch.stack([both.drawn(np.random.default_rng(seed)) for seed in range(8)])  # (8, n, H, W)
     assert drawn.unique().tolist() == [51, 204] and drawn.shape[1:] == (n, SIZE, SIZE)
+    # a generator listed twice is drawn twice as often (one view per entry), translated once
+    weighted = load_source("shpix2pix", "surface", [str(tmp_path / "paired")], image_size_px=SIZE,
+                           translators=[weights[0], weights[1], weights[0]])
+    assert [weighted.images[:, k].unique().tolist() for k in range(3)] == [[51], [204], [51]]
     # the translations are cached: a second load reads the files instead of running the generators
     cached = sorted(cache_dir().glob("translated-*.npy"))
     assert len(cached) == 2

@@ -10,7 +10,7 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
   and contact type, generated once at the start (cached on disk per set and generator) and kept in memory; with
   ``--translators W [W ...]`` through each of those generator weights instead, every training row then shown
   through a randomly drawn one each time it is drawn (the holdout through the first), so the network cannot lean
-  on one generator's mistakes;
+  on one generator's mistakes (a file listed k times is drawn k times as often, loaded and translated once);
 - ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
   emitted (already translated) with its true state; with ``--contact env`` (its variable set).
 
@@ -24,8 +24,7 @@ and y, edges repeated; with ``--blur B`` each is then blurred by a Gaussian of s
 softer than the real ones); with ``--erase R`` a black disc of radius up to R (a share of the image size) is then
 blanked in each, so that it cannot lean on the dark patches a generator leaves where it cannot place the markers
 of a deep, sheared contact. A share of the rows (``--holdout``) is held out for early stopping on the Gaussian
-NLL; the real validation set stays unseen until
-``simshear evaluate posenet``.
+NLL; the real validation set stays unseen until ``simshear evaluate posenet``.
 
 Run directory: ``config.json``, ``history.json`` (per epoch: wall time, train and holdout NLL), tensorboard logs
 under ``tb/``, ``checkpoint.pt`` (written atomically after every epoch; ``--resume`` continues from it) and
@@ -187,13 +186,15 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     translated = source in ARCHS  # the sim renders through translators of that architecture
     if translators and not translated:
         raise ValueError(f"translators are generator weights for a translator source, not {source!r}")
+    distinct = list(dict.fromkeys(translators))  # a file listed k times is loaded and translated once, drawn k x
+    slots = [distinct.index(path) for path in translators] or [0]  # each listed generator's entry in `chosen`
     chosen = []
     if translated:
         from simshear_gym.models.translator import Translator, load_shipped
 
-        chosen = [Translator.load(path) for path in translators] or [load_shipped(source, contact)]
+        chosen = [Translator.load(path) for path in distinct] or [load_shipped(source, contact)]
         wants_shear = source == "shpix2pix"
-        for path, translator in zip(translators, chosen):
+        for path, translator in zip(distinct, chosen):
             if bool(translator.generator.config.shear_dim) != wants_shear:
                 raise ValueError(f"translator {path}: a {'pix2pix' if wants_shear else 'shpix2pix'} generator, "
                                  f"but --source {source}")
@@ -212,8 +213,9 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
             stack = paired.load_images()
             if chosen:
                 shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
-                views = [translated_rows(translator, digest, paired, stack, shear, image_size_px, batch)
-                         for translator, digest in zip(chosen, digests)]
+                rendered = [translated_rows(translator, digest, paired, stack, shear, image_size_px, batch)
+                            for translator, digest in zip(chosen, digests)]
+                views = [rendered[slot] for slot in slots]
                 stack = views[0] if len(views) == 1 else np.stack(views, axis=1)
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
