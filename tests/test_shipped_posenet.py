@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from simshear_gym.models.posenet_io import load_shipped_posenet, shipped_posenet_path
-from simshear_gym.train.export_posenet import check_figure, env_check_figure
+from simshear_gym.train.export_posenet import check_figure, env_check_figure, generator_list
 
 torch.set_num_threads(1)
 
@@ -51,3 +51,7 @@ def test_shipped_colift_posenet_reproduces_its_check_figure():
     assert measured["rows"] == recorded["rows"]
     for name, value in recorded["mae"].items():
         assert measured["mae"][name] == pytest.approx(value, rel=0.05, abs=0.02), name
+
+
+def test_card_lists_each_generator_once_with_how_often_it_is_drawn():
+    assert generator_list(["a.pt", "b.pt", "a.pt", "c.pt", "a.pt", "b.pt"]) == "`a.pt` (x3), `b.pt` (x2), `c.pt`"

@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+from collections import Counter
 from pathlib import Path
 
 
@@ -63,6 +64,12 @@ def env_check_figure(weights: Path, settings: dict = ENV_CHECK) -> dict:
             "mae": {name: float(v) for name, v in zip(model.variables.names, mae)}}
 
 
+def generator_list(translators: list[str]) -> str:
+    """``a, b (x3), c``: the generator files of ``--translators`` in order, each once with how often it is listed."""
+    counts = Counter(translators)
+    return ", ".join(f"`{path}`" + (f" (x{counts[path]})" if counts[path] > 1 else "") for path in counts)
+
+
 def write_card(weights: Path, card: dict, results: dict | None, result_name: str, date: str) -> Path:
     """``<weights>.md``: data, exact commands, metrics, date."""
     config = card.get("train_config", {})
@@ -73,8 +80,9 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
                      "emitted, translated by the surface shPix2pix shipped when each set was collected, labelled with "
                      f"the env's true state); {holdout}")
     else:
-        translated = (f"translated by each of the generators {list(config['translators'])}, a randomly drawn one "
-                      "each time a row is drawn (the holdout by the first)" if config.get("translators")
+        translated = (f"translated by each of the generators {generator_list(config['translators'])}, a randomly "
+                      "drawn one each time a row is drawn, one listed k times drawn k times as often (the holdout "
+                      "by the first)" if config.get("translators")
                       else "translated by the shipped shPix2pix of this contact type")
         data_line = (f"- Data: images from source `{config.get('source')}` of the paired sets "
                      f"{config.get('paired_dirs')} (our sim renders of the real tactip331 training rows; `shpix2pix` = "
