@@ -6,7 +6,10 @@ import math
 import numpy as np
 import pytest
 
-from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
+from simshear_gym.models.bayes_filter import (
+    BayesFilterConfig,
+    DiscriminativeKalmanFilter,
+)
 from simshear_gym.models.gdnn import variable_set
 
 

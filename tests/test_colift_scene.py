@@ -6,8 +6,8 @@ import pytest
 
 from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig, upright_plate
 from simshear_gym.sim.objects import OBJECTS, object_spec, spawn_object
-from simshear_gym.sim.transforms import invert
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import invert
 
 NAMES = sorted(OBJECTS)
 T_WORLD_PLATE = upright_plate([0.0, 0.0, 300.0])

@@ -7,11 +7,12 @@ import pandas as pd
 import pytest
 
 from simshear_gym.cli import main
-from simshear_gym.data.collect import CollectConfig, infer_task, load_paired, random_set, replay_set
 from simshear_gym.data.labels import SHEAR_COLUMNS, shear_to_sensor_frame, task_ranges
-from simshear_gym.data.paths import published_sim_set_dir, real_set_dir
+from simshear_gym.data.paired import load_paired
+from simshear_gym.data.paths import infer_task, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.evaluate.render_agreement import contact_agreement
+from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
 
 
 def real_subset(data_root, tmp_path, contact, rows=8):

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from simshear_gym.data.env_collect import STATE_COLUMNS, EnvCollectConfig, collect
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.models.gdnn import variable_set
+from simshear_gym.pipelines.env_collect import STATE_COLUMNS, EnvCollectConfig, collect
 from simshear_gym.train.posenet import PosenetTrainConfig, PosenetTrainer, load_source
 
 

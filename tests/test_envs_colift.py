@@ -12,11 +12,16 @@ import pytest
 
 import simshear_gym.envs
 from simshear_gym.control.oracle import OracleController
-from simshear_gym.envs.base import SURFACE_DEPTH_MM
-from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES, ROTATION_LIMIT_DEG, HorizontalTacTipMount
+from simshear_gym.envs.colift import (
+    COLIFT_TRAJECTORIES,
+    OBJECT_NAMES,
+    ROTATION_LIMIT_DEG,
+    HorizontalTacTipMount,
+)
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.robots.mg400.kinematics import MG400Limits
 from simshear_gym.sim.mg400_arm import MG400ArmConfig
-from simshear_gym.sim.mg400_kinematics import MG400Limits
+from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 
 ENV_ID = "SimShearCoLift-v0"
 
@@ -223,7 +228,7 @@ def test_bad_kwargs_and_options_raise_clear_errors():
     with pytest.raises(ValueError, match=r"rotation_deg must be within \+-10.0 deg, got 15.0"):
         make(rotation_deg=15.0)
     with pytest.raises(ValueError, match="HorizontalTacTipMount"):
-        from simshear_gym.envs.base import TacTipMount
+        from simshear_gym.contract import TacTipMount
 
         make(mount=TacTipMount())
     with pytest.raises(ValueError, match="start_offset_mm"):
@@ -251,7 +256,7 @@ def test_colift_trajectories_start_at_zero_run_at_constant_speed_and_close(name)
 @pytest.mark.parametrize("name", COLIFT_TRAJECTORIES)
 def test_the_largest_randomised_trajectories_stay_within_both_arms_limits(name):
     """Scale 1.3, +-10 deg and the leader's start +-10 mm (the randomisation's extremes), the follower on target."""
-    from simshear_gym.sim.mg400_kinematics import check_pose_reachable
+    from simshear_gym.robots.mg400.kinematics import check_pose_reachable
 
     env = make("oracle", trajectory=name).unwrapped
     for offset in ((10.0, 10.0, 10.0), (-10.0, -10.0, -10.0), (10.0, -10.0, -10.0), (-10.0, 10.0, 10.0)):

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 
 import simshear_gym.envs
-from simshear_gym.envs.base import SURFACE_DEPTH_MM
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.robots.mg400.kinematics import MG400Limits
 from simshear_gym.sim.mg400_arm import MG400ArmConfig
-from simshear_gym.sim.mg400_kinematics import MG400Limits
+from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 
 ENV_IDS = simshear_gym.envs.ENV_IDS
 
@@ -250,7 +250,7 @@ def test_the_tilted_square_tilts_and_the_spiral_rises():
 @pytest.mark.parametrize("name", TRAJECTORIES)
 def test_the_largest_randomised_trajectories_stay_within_both_arms_limits(name):
     """Scale 1.3 and +-15 deg (the randomisation's extremes), with the follower on its target +-10 mm off centre."""
-    from simshear_gym.sim.mg400_kinematics import check_pose_reachable
+    from simshear_gym.robots.mg400.kinematics import check_pose_reachable
 
     env = make("oracle", trajectory=name).unwrapped
     env.reset(seed=0)

@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from simshear_gym.evaluate.translation import evaluate, mape, parse_models, parse_readers, ssim
+from simshear_gym.evaluate.metrics import mape, ssim
+from simshear_gym.evaluate.translation import evaluate, parse_models, parse_readers
 from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 

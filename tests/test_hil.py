@@ -7,7 +7,6 @@ interpolation) -> the arm's new pose -> the simulated camera. The surface moves 
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 

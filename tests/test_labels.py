@@ -2,7 +2,11 @@ import numpy as np
 import pytest
 
 from simshear_gym.data.labels import (
-    mount_rz_deg, shear_to_sensor_frame, shear_to_work_frame, task_ranges, wrap_deg,
+    mount_rz_deg,
+    shear_to_sensor_frame,
+    shear_to_work_frame,
+    task_ranges,
+    wrap_deg,
 )
 
 

@@ -5,16 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from simshear_gym.sim.mg400_arm import (
-    MG400ArmConfig,
-    SimMG400,
+from simshear_gym.robots.mg400.frames import (
     T_base_flange_to_pose,
     joint_points_base_mm,
     pose_to_T_base_flange,
 )
-from simshear_gym.sim.mg400_kinematics import LimitError, MG400Geometry, UnreachableError, forward, inverse
-from simshear_gym.sim.transforms import pose_to_matrix
+from simshear_gym.robots.mg400.kinematics import (
+    LimitError,
+    MG400Geometry,
+    UnreachableError,
+    forward,
+    inverse,
+)
+from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import pose_to_matrix
 
 START = np.array([260.0, 0.0, 0.0, 0.0])
 

@@ -22,8 +22,12 @@ from simshear_gym.real.mg400_client import (
     ServoStreamConfig,
     ServoStreamer,
 )
-from simshear_gym.real.mg400_emulator import EmulatorConfig, FaultConfig, FeedbackFault, MG400Emulator
-from simshear_gym.real.mg400_protocol import RobotMode, parse_reply
+from simshear_gym.real.mg400_emulator import (
+    EmulatorConfig,
+    FaultConfig,
+    FeedbackFault,
+    MG400Emulator,
+)
 from simshear_gym.real.safety import (
     MotionKind,
     SafetyConfig,
@@ -31,7 +35,8 @@ from simshear_gym.real.safety import (
     SafetyLayer,
     StatusSnapshot,
 )
-from simshear_gym.sim.mg400_kinematics import forward
+from simshear_gym.robots.mg400.kinematics import forward
+from simshear_gym.robots.mg400.protocol import RobotMode, parse_reply
 
 FAST = dict(dashboard_port=0, motion_port=0, feedback_port=0, joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0)
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from simshear_gym.sim.mg400_kinematics import (
+from simshear_gym.robots.mg400.kinematics import (
     LimitError,
     MG400Geometry,
     MG400Limits,

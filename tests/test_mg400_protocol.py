@@ -6,7 +6,7 @@ import struct
 
 import pytest
 
-from simshear_gym.real.mg400_protocol import (
+from simshear_gym.robots.mg400.protocol import (
     ALARMS,
     FEEDBACK_PACKET_BYTES,
     CommandBuffer,

@@ -8,7 +8,11 @@ import numpy as np
 import pytest
 
 from simshear_gym import cli
-from simshear_gym.control.oracle import OracleController, OracleGains, true_pose_shear_from_info
+from simshear_gym.control.oracle import (
+    OracleController,
+    OracleGains,
+    true_pose_shear_from_info,
+)
 from simshear_gym.envs.trajectories import TRAJECTORIES
 from simshear_gym.evaluate.oracle import run_episode
 

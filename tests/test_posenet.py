@@ -11,14 +11,21 @@ import torch
 from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS, SHEAR_COLUMNS
 from simshear_gym.data.paths import cache_dir
 from simshear_gym.data.tactile_set import image_name, write_image, write_targets
+from simshear_gym.evaluate import metrics as evaluate_metrics
 from simshear_gym.evaluate import posenet as evaluate_posenet
 from simshear_gym.models.gdnn import variable_set
+from simshear_gym.models.gdnn_input import label_matrix
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 from simshear_gym.train.posenet import (
-    LabelledImages, PosenetTrainConfig, PosenetTrainer, label_matrix, load_source, random_blur,
-    random_erase, random_shift,
+    LabelledImages,
+    PosenetTrainConfig,
+    PosenetTrainer,
+    load_source,
+    random_blur,
+    random_erase,
+    random_shift,
 )
 
 SIZE = 16
@@ -201,12 +208,12 @@ def test_metrics_of_a_perfect_and_of_a_constant_predictor(contact):
     rng = np.random.default_rng(0)
     truth = np.stack([rng.uniform(s.low, s.high, 50) for s in variables.variables], axis=1)
     encoded = variables.encode(truth)
-    perfect = evaluate_posenet.metrics(encoded, torch.full_like(encoded, 0.05), truth, variables)
+    perfect = evaluate_metrics.metrics(encoded, torch.full_like(encoded, 0.05), truth, variables)
     for figures in perfect["variables"].values():
         assert figures["mae"] < 1e-3 and figures["within_1_std"] == 1.0 and figures["chance_mae"] > 0
     centre = np.array([0.0 if s.periodic else s.centre for s in variables.variables])
     constant = variables.encode(np.broadcast_to(centre, truth.shape).copy())
-    guess = evaluate_posenet.metrics(constant, torch.full_like(constant, 0.05), truth, variables)
+    guess = evaluate_metrics.metrics(constant, torch.full_like(constant, 0.05), truth, variables)
     for figures in guess["variables"].values():
         assert figures["mae"] == pytest.approx(figures["chance_mae"], abs=1e-3)
     assert guess["mean_nll"] > perfect["mean_nll"]
@@ -218,7 +225,7 @@ def test_mae_by_depth_puts_each_row_in_its_third_by_true_depth():
     truth[:, 0] = np.linspace(2.5, 5.5, 90)  # z_mm
     absolute = np.zeros_like(truth)
     absolute[60:, 1] = 1.0  # errors only on the deepest third's rx
-    bins = evaluate_posenet.mae_by_depth(absolute, truth, variables)
+    bins = evaluate_metrics.mae_by_depth(absolute, truth, variables)
     assert [b["rows"] for b in bins] == [30, 30, 30]
     assert bins[0]["depth_mm"][0] == 2.5 and bins[-1]["depth_mm"][1] == 5.5
     assert [b["mae"]["rx_deg"] for b in bins] == [0.0, 0.0, 1.0] and bins[2]["mae"]["z_mm"] == 0.0
@@ -228,7 +235,7 @@ def test_periodic_errors_wrap():
     variables = variable_set("edge")
     predicted, truth = np.zeros((1, variables.dim)), np.zeros((1, variables.dim))
     predicted[0, 2], truth[0, 2] = 179.0, -179.0
-    assert evaluate_posenet.errors(predicted, truth, variables)[0, 2] == pytest.approx(-2.0)
+    assert evaluate_metrics.errors(predicted, truth, variables)[0, 2] == pytest.approx(-2.0)
 
 
 def test_evaluate_command_on_a_fake_val_set(tmp_path):

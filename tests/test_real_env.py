@@ -10,17 +10,20 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from simshear_gym.envs.base import ActionScale, TacTipMount
+from simshear_gym.contract import (
+    ActionScale,
+    TacTipMount,
+    policy_spaces,
+    resize_tactile,
+)
 from simshear_gym.real.camera import CameraSource, VirtualCamera, default_config
 from simshear_gym.real.env import (
     RealEnvConfig,
     RealEnvError,
     RealTactileEnv,
     move_to_flange_target,
-    resize_tactile,
     tactile_from_frame,
     tcp_pose_from_flange,
-    tracking_spaces,
 )
 from simshear_gym.real.mg400_emulator import EmulatorConfig, FaultConfig, MG400Emulator
 from simshear_gym.real.safety import SafetyConfig
@@ -80,7 +83,7 @@ def test_spaces_equal_the_sim_envs(size):
         real = RealTactileEnv(RealEnvConfig(image_size_px=size, preprocess=None))  # connects only on reset
         assert real.observation_space == sim.observation_space
         assert real.action_space == sim.action_space
-        assert tracking_spaces(size) == (sim.observation_space, sim.action_space)
+        assert policy_spaces(size) == (sim.observation_space, sim.action_space)
         assert real.action_scale == sim.action_scale
     finally:
         sim.close()

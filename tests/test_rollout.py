@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from simshear_gym import cli
-from simshear_gym.real.env import tracking_spaces
+from simshear_gym.contract import policy_spaces
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 from simshear_gym.real.rollout import load_sb3_policy, sb3_algorithm
 
@@ -104,7 +104,7 @@ def _save_ppo(path: Path, image_size_px: int) -> Path:
     import gymnasium as gym
     from stable_baselines3 import PPO
 
-    observation_space, action_space = tracking_spaces(image_size_px)
+    observation_space, action_space = policy_spaces(image_size_px)
 
     class Spaces(gym.Env):
         def __init__(self) -> None:
@@ -140,13 +140,13 @@ def test_sb3_policy_rollout_in_dry_run_sends_nothing(emulator, raw_frames, tmp_p
 def test_sb3_policy_for_other_spaces_is_refused(tmp_path):
     model = _save_ppo(tmp_path / "ppo128.zip", 128)
     with pytest.raises(ValueError, match="--image-size"):
-        load_sb3_policy(model, *tracking_spaces(64))
+        load_sb3_policy(model, *policy_spaces(64))
     not_a_model = tmp_path / "x.zip"
     not_a_model.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
         sb3_algorithm(not_a_model)
     with pytest.raises(FileNotFoundError, match="neither 'servo' nor"):
-        load_sb3_policy(tmp_path / "missing.zip", *tracking_spaces(64))
+        load_sb3_policy(tmp_path / "missing.zip", *policy_spaces(64))
 
 
 def test_real_cycle_measures_every_stage_against_the_emulator(emulator, raw_frames):

@@ -4,7 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
+from simshear_gym.control.estimator import (
+    STATE_VARIABLES,
+    EstimatorConfig,
+    TactileEstimator,
+)
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.servo import SERVO_GAINS, ServoController
 from simshear_gym.models.gdnn import GDNN, GDNNConfig

@@ -4,7 +4,11 @@ import pytest
 import torch
 
 from simshear_gym.models.posenet_io import load_shipped_posenet, shipped_posenet_path
-from simshear_gym.train.export_posenet import check_figure, env_check_figure, generator_list
+from simshear_gym.pipelines.export_posenet import (
+    check_figure,
+    env_check_figure,
+    generator_list,
+)
 
 torch.set_num_threads(1)
 

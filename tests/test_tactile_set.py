@@ -8,7 +8,12 @@ import pandas as pd
 import pytest
 
 from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS
-from simshear_gym.data.tactile_set import TactileDataError, read_set, write_image, write_targets
+from simshear_gym.data.tactile_set import (
+    TactileDataError,
+    read_set,
+    write_image,
+    write_targets,
+)
 
 
 def make_set(root: Path, n: int = 4, size: int = 32) -> Path:

@@ -7,7 +7,12 @@ import pybullet
 import pytest
 
 from simshear_gym.sim.replay import ReplayGeometry, ReplayScene
-from simshear_gym.sim.tactip import TacTip, TacTipConfig, dome_depth_mm, pose_to_image_px
+from simshear_gym.sim.tactip import (
+    TacTip,
+    TacTipConfig,
+    dome_depth_mm,
+    pose_to_image_px,
+)
 from simshear_gym.sim.world import World, WorldConfig
 from tests.fixtures.regenerate_golden import GOLDEN_CASES, render_case
 

@@ -61,7 +61,10 @@ class TactileEstimator:
     def __init__(self, config: EstimatorConfig = EstimatorConfig()) -> None:
         import torch
 
-        from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
+        from simshear_gym.models.bayes_filter import (
+            BayesFilterConfig,
+            DiscriminativeKalmanFilter,
+        )
         from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
 
         if config.threads:
@@ -90,18 +93,18 @@ class TactileEstimator:
 
     def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The GDNN's reading of one image, uint8 (H, W) or (1, H, W): (mean (4,), std (4,)) of the state."""
-        import cv2
         import torch
+
+        from simshear_gym.models.gdnn_input import resize_images, to_input
 
         image = np.asarray(tactile)
         if image.ndim == 3 and image.shape[0] == 1:
             image = image[0]
         if image.ndim != 2 or image.dtype != np.uint8:
             raise ValueError(f"tactile must be a uint8 (H, W) or (1, H, W) image, got {image.dtype} {image.shape}")
-        if image.shape != (self._size, self._size):
-            image = cv2.resize(image, (self._size, self._size), interpolation=cv2.INTER_AREA)
+        image = resize_images(image, self._size)
         with torch.inference_mode():
-            mean, std = self._inference(torch.from_numpy(image)[None, None].to(torch.float32) / 255.0)
+            mean, std = self._inference(to_input(torch.from_numpy(image)[None]))
             mean, std = self.model.decode(mean, std)
         return mean[0, self._index].numpy().astype(np.float64), std[0, self._index].numpy().astype(np.float64)
 

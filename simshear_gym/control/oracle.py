@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from simshear_gym.contract import ActionScale
 from simshear_gym.control.pi_law import PIGains, PILaw
-from simshear_gym.envs.base import ActionScale
 
 OracleGains = PIGains
 """The oracle's gains are the PI law's (:class:`~simshear_gym.control.pi_law.PIGains`)."""
@@ -21,7 +21,7 @@ class OracleController:
 
     Args:
         reference_depth_mm: the env's reference depth (label convention).
-        action_scale: the env's :class:`~simshear_gym.envs.base.ActionScale`.
+        action_scale: the env's :class:`~simshear_gym.contract.ActionScale`.
         gains: the PI law's gains.
     """
 

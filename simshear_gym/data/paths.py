@@ -66,3 +66,15 @@ def _split(split: str) -> str:
     if name not in SPLITS:
         raise ValueError(f"unknown split {split!r}; expected 'train' or 'val'")
     return name
+
+
+def infer_task(directory: Path) -> tuple[str, str]:
+    """(contact, kind) from a tactip331 path such as ``.../edge_2d/shear/csv_val``."""
+    parts = set(Path(directory).resolve().parts)
+    for (contact, kind), relative in TACTIP331_TASKS.items():
+        if set(Path(relative).parts) <= parts:
+            return contact, kind
+    raise ValueError(
+        f"cannot tell the contact type of {directory}: expected a path containing one of "
+        f"{sorted(TACTIP331_TASKS.values())}, or pass --contact"
+    )

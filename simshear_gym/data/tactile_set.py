@@ -17,7 +17,12 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from simshear_gym.data.labels import IMAGE_COLUMN, MOVE_COLUMNS, POSE_COLUMNS, shear_to_sensor_frame
+from simshear_gym.data.labels import (
+    IMAGE_COLUMN,
+    MOVE_COLUMNS,
+    POSE_COLUMNS,
+    shear_to_sensor_frame,
+)
 from simshear_gym.data.paths import cache_dir
 from simshear_gym.io import atomic_write
 

@@ -33,75 +33,43 @@ data never moved along z during a shear (indentation shows in the sim image itse
 
 from __future__ import annotations
 
-import functools
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
+from simshear_gym.contract import (
+    OBS_MODES,
+    ORACLE_MODES,
+    RENDER_SIZE_PX,
+    TCP_POSE_LOW,
+    TRUE_POSE_SHEAR_LIMIT,
+    ActionScale,
+    TacTipMount,
+    action_space,
+    action_to_move,
+    check_image_size,
+    finish_tactile,
+    observation_space,
+)
 from simshear_gym.data.labels import wrap_deg
-from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400, T_base_flange_to_pose
-from simshear_gym.sim.mg400_kinematics import KinematicsError
-from simshear_gym.sim.replay import ReplayGeometry
+from simshear_gym.robots.mg400.frames import T_base_flange_to_pose
+from simshear_gym.robots.mg400.kinematics import KinematicsError
+from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
+from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.transforms import invert, matrix_to_pose, pose_to_matrix
-from simshear_gym.sim.transforms import matrix_to_pybullet_fast as pybullet_pose_fast
 from simshear_gym.sim.world import World
-
-OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
-TRANSLATED_MODES: tuple[str, ...] = ("real", "oracle_real")
-ORACLE_MODES: tuple[str, ...] = ("oracle", "oracle_real")
-IMAGE_SIZES_PX: tuple[int, ...] = (64, 128)
-RENDER_SIZE_PX = 128  # the TacTip renders at the translator's size
-SURFACE_DEPTH_MM = ReplayGeometry().surface_depth_mm  # work-frame z of the face (label convention)
-_TRANSLATOR_SHEAR_MASK = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0])  # z: see the module docstring
-
-# Observation bounds: wide enough that a running episode never leaves them (it terminates long before).
-TCP_POSE_LOW = np.array([-1000.0, -1000.0, -1000.0, -720.0], dtype=np.float32)
-TRUE_POSE_SHEAR_LIMIT = np.array([50.0, 50.0, 50.0, 180.0], dtype=np.float32)
-
-
-@dataclass(frozen=True)
-class TacTipMount:
-    """How the TacTip sits on the follower's flange: ``T_flange_sensor`` = down ``tcp_offset_mm`` along the
-    flange's -z (the flange faces down), turned ``mount_rz_deg`` about the axis, with the sensor's +z pointing
-    down (a half turn about x, so sensor y = -flange y).
-
-    Attributes:
-        tcp_offset_mm: flange to dome apex (TacTip body 85 mm plus a 10 mm adapter).
-        mount_rz_deg: rotation of the sensor about its axis on the flange.
-    """
-
-    tcp_offset_mm: float = 95.0
-    mount_rz_deg: float = 0.0
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.tcp_offset_mm) and self.tcp_offset_mm > 0):
-            raise ValueError(f"TacTipMount.tcp_offset_mm must be > 0, got {self.tcp_offset_mm!r}")
-
-    def T_flange_sensor(self) -> np.ndarray:
-        return pose_to_matrix(np.array([0.0, 0.0, -self.tcp_offset_mm, 0.0, 0.0, self.mount_rz_deg])) @ np.diag(
-            [1.0, -1.0, -1.0, 1.0])
-
-
-@dataclass(frozen=True)
-class ActionScale:
-    """Full-scale action (|a| = 1) per step, in the sensor frame: ``step_mm`` for x, y, z and ``step_deg`` for Rz."""
-
-    step_mm: float = 1.0
-    step_deg: float = 2.0
-
-    def __post_init__(self) -> None:
-        if not (self.step_mm > 0 and self.step_deg > 0 and math.isfinite(self.step_mm + self.step_deg)):
-            raise ValueError(f"ActionScale needs step_mm, step_deg > 0, got {self.step_mm!r}, {self.step_deg!r}")
-
-    def as_array(self) -> np.ndarray:
-        return np.array([self.step_mm, self.step_mm, self.step_mm, self.step_deg])
+from simshear_gym.transforms import (
+    invert,
+    matrix_to_pose,
+    pose_from_matrix_fast,
+    pose_to_matrix,
+    rz_matrix,
+)
+from simshear_gym.transforms import matrix_to_pybullet_fast as pybullet_pose_fast
 
 
 @dataclass(frozen=True)
@@ -132,58 +100,6 @@ class TerminationConfig:
     def __post_init__(self) -> None:
         if min(self.lost_contact_mm, self.max_contact_error_mm, self.max_penetration_mm) <= 0:
             raise ValueError(f"TerminationConfig thresholds must be > 0, got {self}")
-
-
-@functools.lru_cache(maxsize=None)
-def shipped_translator(contact: str, arch: str = "shpix2pix"):
-    """The shipped translator for a contact type, loaded once per process (torch is imported here)."""
-    from simshear_gym.models.translator import load_shipped
-
-    return load_shipped(arch, contact)
-
-
-def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
-                   contact: str) -> np.ndarray:
-    """Raw 128 px sim images (B, 128, 128) -> observation images (B, S, S): translated in the translated
-    modes (one batched call), then halved for 64 px. Shared by the env and the batched vector env."""
-    images = np.asarray(sim_uint8)
-    if obs_mode in TRANSLATED_MODES:
-        shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6) * _TRANSLATOR_SHEAR_MASK
-        images = shipped_translator(contact)(images, shear.astype(np.float32))
-    if image_size_px != RENDER_SIZE_PX:
-        factor = RENDER_SIZE_PX // image_size_px
-        batch = images.shape[0]
-        images = images.reshape(batch, image_size_px, factor, image_size_px, factor).mean(axis=(2, 4))
-        images = np.rint(images).astype(np.uint8)
-    return images
-
-
-def pose_from_matrix_fast(matrix: np.ndarray) -> np.ndarray:
-    """:func:`~simshear_gym.sim.transforms.matrix_to_pose` without scipy's per-call overhead (same extrinsic
-    x-y-z angles away from Ry = +-90 deg, which a level face and a vertical sensor never approach)."""
-    rotation = matrix[:3, :3]
-    rx = math.atan2(rotation[2, 1], rotation[2, 2])
-    ry = -math.asin(max(-1.0, min(1.0, rotation[2, 0])))
-    rz = math.atan2(rotation[1, 0], rotation[0, 0])
-    return np.array([matrix[0, 3], matrix[1, 3], matrix[2, 3], math.degrees(rx), math.degrees(ry), math.degrees(rz)])
-
-
-def action_to_move(action, action_scale: "ActionScale") -> np.ndarray:
-    """Validate an action (shape (4,), finite, in [-1, 1]) and scale it to a sensor-frame move
-    ``(dx, dy, dz mm, dRz deg)``; the sim envs and the real env share it."""
-    array = np.asarray(action, dtype=np.float64)
-    if array.shape != (4,):
-        raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError(f"action must be finite, got {array.tolist()}")
-    if np.any(np.abs(array) > 1.0 + 1e-6):
-        raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
-    return np.clip(array, -1.0, 1.0) * action_scale.as_array()
-
-
-def rz_matrix(rz_deg: float) -> np.ndarray:
-    c, s = math.cos(math.radians(rz_deg)), math.sin(math.radians(rz_deg))
-    return np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
 
 
 @dataclass(frozen=True)
@@ -237,8 +153,7 @@ class SimShearEnv(gym.Env, EzPickle):
                  shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False) -> None:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
-        if image_size_px not in IMAGE_SIZES_PX:
-            raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
+        check_image_size(image_size_px)
         if not (isinstance(control_rate_hz, (int, float)) and 1.0 <= control_rate_hz <= 250.0):
             raise ValueError(f"control_rate_hz must be in [1, 250] Hz, got {control_rate_hz!r}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -274,16 +189,9 @@ class SimShearEnv(gym.Env, EzPickle):
         if self.follower is None:
             raise TypeError(f"{type(self).__name__}._build_scene must create the follower with _add_follower()")
 
-        image_px = RENDER_SIZE_PX if raw_tactile else image_size_px
-        observations = {
-            "tactile": spaces.Box(0, 255, (1, image_px, image_px), dtype=np.uint8),
-            "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
-        }
-        if obs_mode in ORACLE_MODES:
-            observations["true_pose_shear"] = spaces.Box(-TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT,
-                                                         dtype=np.float32)
-        self.observation_space = spaces.Dict(observations)
-        self.action_space = spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+        self.observation_space = observation_space(RENDER_SIZE_PX if raw_tactile else image_size_px,
+                                                   oracle=obs_mode in ORACLE_MODES)
+        self.action_space = action_space()
 
         self._time_s = 0.0
         self._steps_out_of_contact = 0

@@ -10,22 +10,24 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import EzPickle
 
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, TacTipMount
 from simshear_gym.envs.base import (
-    SURFACE_DEPTH_MM,
-    TRUE_POSE_SHEAR_LIMIT,
     ContactState,
     SimShearEnv,
-    TacTipMount,
     TerminationConfig,
     pybullet_pose_fast,
-    rz_matrix,
 )
-from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.envs.trajectories import (
+    COLIFT_TRAJECTORIES,
+    Trajectory,
+    TrajectoryConfig,
+)
 from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig, upright_plate
 from simshear_gym.sim.mg400_arm import SimMG400
 from simshear_gym.sim.objects import OBJECTS, spawn_object
+from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.tactip import TacTipConfig
-from simshear_gym.sim.transforms import invert, pose_to_matrix
+from simshear_gym.transforms import invert, pose_to_matrix, rz_matrix
 
 OBJECT_NAMES: tuple[str, ...] = tuple(OBJECTS)  # prism, egg, brain, ducky
 TRAJECTORY_CHOICES: tuple[str, ...] = COLIFT_TRAJECTORIES + ("random",)

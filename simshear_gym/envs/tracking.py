@@ -7,11 +7,11 @@ import math
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from simshear_gym.envs.base import SimShearEnv, pybullet_pose_fast, rz_matrix
+from simshear_gym.envs.base import SimShearEnv, pybullet_pose_fast
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.sim import stimuli
 from simshear_gym.sim.mg400_arm import SimMG400
-from simshear_gym.sim.transforms import pose_to_matrix
+from simshear_gym.transforms import pose_to_matrix, rz_matrix
 
 TRAJECTORY_CHOICES: tuple[str, ...] = TRAJECTORIES + ("random",)
 

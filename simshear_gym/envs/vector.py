@@ -27,7 +27,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from simshear_gym.envs.base import TRANSLATED_MODES, finish_tactile
+from simshear_gym.contract import TRANSLATED_MODES, finish_tactile
 
 TRANSLATE_IN: tuple[str, ...] = ("workers", "main")
 

@@ -15,9 +15,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from simshear_gym.data.collect import CollectConfig, replay_set
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.io import write_json
+from simshear_gym.sim.collect import CollectConfig, replay_set
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

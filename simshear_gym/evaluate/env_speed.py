@@ -91,7 +91,7 @@ def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmu
 
 
 def translator_batch1_ms(repeats: int = 50) -> float:
-    from simshear_gym.envs.base import shipped_translator
+    from simshear_gym.contract import shipped_translator
     from simshear_gym.evaluate.translator_speed import latency_ms
 
     return round(latency_ms(shipped_translator("surface"), 1, repeats, np.random.default_rng(0)), 3)

@@ -20,95 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.data.labels import POSE_COLUMNS, SHEAR_COLUMNS
 from simshear_gym.data.paths import data_root, real_set_dir
-from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.data.tactile_set import read_set
+from simshear_gym.evaluate.metrics import metrics, truth_labels
 from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
+from simshear_gym.models.gdnn_input import predict
 
 CONTACTS = ("surface", "edge")
-
-
-def wrap_deg(angle: np.ndarray) -> np.ndarray:
-    """Angles (deg) wrapped to [-180, 180)."""
-    return np.remainder(np.asarray(angle, dtype=np.float64) + 180.0, 360.0) - 180.0
-
-
-def errors(predicted: np.ndarray, truth: np.ndarray, variables) -> np.ndarray:
-    """(N, V) signed errors predicted - truth in the variables' units, periodic ones wrapped."""
-    error = np.asarray(predicted, np.float64) - np.asarray(truth, np.float64)
-    for index, spec in enumerate(variables.variables):
-        if spec.periodic:
-            error[:, index] = wrap_deg(error[:, index])
-    return error
-
-
-def chance_mae(truth: np.ndarray, variables) -> np.ndarray:
-    """(V,) MAE of always predicting the range centre (0 for a periodic angle)."""
-    guess = np.array([0.0 if spec.periodic else spec.centre for spec in variables.variables])
-    return np.abs(errors(np.broadcast_to(guess, truth.shape), truth, variables)).mean(axis=0)
-
-
-def metrics(mean_encoded, std_encoded, truth: np.ndarray, variables) -> dict:
-    """Figures of the module docstring from network outputs (N, D) and labels (N, V) in the variables' units."""
-    import torch
-
-    from simshear_gym.models.gdnn import gaussian_nll
-
-    mean_encoded, std_encoded = torch.as_tensor(mean_encoded), torch.as_tensor(std_encoded)
-    mean, std = (t.numpy() for t in variables.decode(mean_encoded, std_encoded))
-    nll = gaussian_nll(mean_encoded, std_encoded, variables.encode(truth), reduction="none")
-    absolute = np.abs(errors(mean, truth, variables))
-    chance = chance_mae(truth, variables)
-    per_variable = {
-        spec.name: {"unit": spec.unit, "mae": float(absolute[:, i].mean()), "chance_mae": float(chance[i]),
-                    "within_1_std": float((absolute[:, i] <= std[:, i]).mean()),
-                    "within_2_std": float((absolute[:, i] <= 2 * std[:, i]).mean())}
-        for i, spec in enumerate(variables.variables)
-    }
-    return {"rows": int(len(truth)), "mean_nll": float(nll.mean()), "variables": per_variable,
-            "mae_by_depth": mae_by_depth(absolute, truth, variables)}
-
-
-DEPTH_VARIABLE = "z_mm"
-DEPTH_BINS = 3
-
-
-def mae_by_depth(absolute: np.ndarray, truth: np.ndarray, variables) -> list[dict]:
-    """MAE per variable within each third of the rows by true contact depth (shallow to deep): where the
-    generators' errors concentrate (they lose the markers of deep, sheared contacts)."""
-    depth = truth[:, variables.names.index(DEPTH_VARIABLE)]
-    edges = np.quantile(depth, np.linspace(0.0, 1.0, DEPTH_BINS + 1))
-    bins = np.clip(np.searchsorted(edges, depth, side="right") - 1, 0, DEPTH_BINS - 1)
-    return [{"depth_mm": [float(edges[b]), float(edges[b + 1])], "rows": int((bins == b).sum()),
-             "mae": {name: float(absolute[bins == b, i].mean()) for i, name in enumerate(variables.names)}}
-            for b in range(DEPTH_BINS)]
-
-
-def truth_labels(val: TactileSet, variables) -> np.ndarray:
-    """(N, V) labels of a real set: ``pose_*`` from its poses, ``shear_sensor_*`` from its moves and Rz."""
-    from simshear_gym.train.posenet import label_matrix
-
-    table = dict(zip(POSE_COLUMNS, val.poses().T))
-    table.update(zip(SHEAR_COLUMNS, val.shear_sensor().T))
-    return label_matrix(table, variables)
-
-
-def predict(model, images_uint8: np.ndarray, batch: int = 64):
-    """GDNN outputs (mean, std), each float (N, D), of uint8 (N, H, W) images (resized to the model's size)."""
-    import torch
-
-    from simshear_gym.train.posenet import resize_images, to_input
-
-    images = resize_images(images_uint8, model.config.image_size_px)
-    means, stds = [], []
-    model.eval()
-    with torch.inference_mode():
-        for start in range(0, len(images), batch):
-            mean, std = model(to_input(torch.from_numpy(images[start:start + batch])))
-            means.append(mean)
-            stds.append(std)
-    return torch.cat(means), torch.cat(stds)
 
 
 def latency_ms(model, repeats: int = 200) -> dict:

@@ -5,7 +5,7 @@ of contacts (:func:`contact_sequence`): the sensor slides and rotates over the s
 (surface) or its offset, depth and angle to the edge (edge) change smoothly. Each step is labelled exactly like a
 row of the real sets (a ``pose`` and a ``move`` since touching; :mod:`simshear_gym.data.labels`), rendered by our
 sim (:class:`simshear_gym.sim.replay.ReplayScene`), given its shear by the shear tracker
-(:func:`simshear_gym.data.collect.replay_shear`), and translated by the shipped shPix2pix of that contact type: the
+(:func:`simshear_gym.sim.shear.replay_shear`), and translated by the shipped shPix2pix of that contact type: the
 images a follower sees in the envs. The GDNN reads each image; the discriminative Kalman filter
 (:mod:`simshear_gym.models.bayes_filter`) fuses the readings with the motion model driven by the commanded motion,
 here the change of the labels between steps (the robot knows its own move exactly; what it does not know is where
@@ -103,10 +103,9 @@ def contact_sequence(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
 
 def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(poses, shear (T, 6) sensor frame, translated uint8 images (T, H, W)) of a sequence."""
-    from simshear_gym.data.collect import replay_shear
     from simshear_gym.models.translator import load_shipped
     from simshear_gym.sim.replay import ReplayScene
-    from simshear_gym.sim.shear import ShearTrackerConfig
+    from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
     poses, moves = contact_sequence(config)
     with ReplayScene(config.contact) as scene:
@@ -120,7 +119,7 @@ def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.
 def sequence_labels(poses: np.ndarray, shear: np.ndarray, variables) -> np.ndarray:
     """(T, V) labels of a sequence for a variable set (the real sets' columns)."""
     from simshear_gym.data.labels import POSE_COLUMNS, SHEAR_COLUMNS
-    from simshear_gym.train.posenet import label_matrix
+    from simshear_gym.models.gdnn_input import label_matrix
 
     table = dict(zip(POSE_COLUMNS, poses.T))
     table.update(zip(SHEAR_COLUMNS, shear.T))
@@ -133,8 +132,11 @@ def run_filter(mean: np.ndarray, std: np.ndarray, truth: np.ndarray, variables,
 
     Returns (filtered means (T, V), filtered stds (T, V)). Starts from the first reading.
     """
-    from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
-    from simshear_gym.evaluate.posenet import wrap_deg
+    from simshear_gym.data.labels import wrap_deg
+    from simshear_gym.models.bayes_filter import (
+        BayesFilterConfig,
+        DiscriminativeKalmanFilter,
+    )
 
     specs = variables.variables
     process = [settings.process_std_mm if spec.unit == "mm" else settings.process_std_deg for spec in specs]
@@ -154,7 +156,7 @@ def run_filter(mean: np.ndarray, std: np.ndarray, truth: np.ndarray, variables,
 
 def lag_steps(estimate: np.ndarray, truth: np.ndarray, periodic: bool, max_lag: int) -> int:
     """The k in 0..max_lag minimising mean |estimate[t] - truth[t - k]| over the common steps."""
-    from simshear_gym.evaluate.posenet import wrap_deg
+    from simshear_gym.data.labels import wrap_deg
 
     costs = []
     for k in range(max_lag + 1):
@@ -164,7 +166,8 @@ def lag_steps(estimate: np.ndarray, truth: np.ndarray, periodic: bool, max_lag: 
 
 
 def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: FilterSettings, max_lag: int = 5) -> dict:
-    from simshear_gym.evaluate.posenet import errors, predict
+    from simshear_gym.evaluate.metrics import errors
+    from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
     model, _ = load_posenet(model_path)

@@ -62,9 +62,9 @@ def _stats(values_ms: list[float]) -> dict[str, float]:
 def measure(frames: list[np.ndarray], ports: tuple[int, int, int], cycles: int, warmup: int, image_size_px: int,
             posenet: str | None) -> dict:
     """Run ``warmup`` + ``cycles`` cycles against the emulator at ``ports``; per-stage times in ms."""
+    from simshear_gym.contract import ActionScale, TacTipMount
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.servo import ServoController
-    from simshear_gym.envs.base import ActionScale, TacTipMount
     from simshear_gym.real.camera import default_config
     from simshear_gym.real.env import move_to_flange_target, tactile_from_frame
     from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig

@@ -16,7 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.data.paths import TACTIP331_TASKS, data_root, published_sim_set_dir, real_set_dir
+from simshear_gym.data.paths import (
+    TACTIP331_TASKS,
+    data_root,
+    published_sim_set_dir,
+    real_set_dir,
+)
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
 from simshear_gym.sim.replay import ReplayGeometry, render_poses

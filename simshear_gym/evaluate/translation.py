@@ -30,23 +30,11 @@ import numpy as np
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.evaluate.metrics import mape, ssim
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
 from simshear_gym.io import write_json
 
 KINDS = ("shear", "tap")
-
-
-def mape(generated: np.ndarray, real: np.ndarray) -> np.ndarray:
-    """Per-image mean absolute error of uint8 (N, H, W) stacks, on the [0, 1] scale."""
-    return np.abs(generated.astype(np.float32) - real.astype(np.float32)).mean(axis=(1, 2)) / 255.0
-
-
-def ssim(generated: np.ndarray, real: np.ndarray) -> np.ndarray:
-    """Per-image SSIM (scikit-image, data_range 1) of uint8 (N, H, W) stacks."""
-    from skimage.metrics import structural_similarity
-
-    return np.array([structural_similarity(g.astype(np.float32) / 255.0, r.astype(np.float32) / 255.0,
-                                           data_range=1.0) for g, r in zip(generated, real)])
 
 
 def label_features(tactile_set: TactileSet, contact: str) -> np.ndarray:
@@ -73,7 +61,8 @@ def nearest_label_images(train: TactileSet, val: TactileSet, contact: str) -> np
 
 def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float]:
     """Per-variable MAE (mm / deg) of a GDNN reading uint8 (N, H, W) images whose contacts have labels ``truth``."""
-    from simshear_gym.evaluate.posenet import metrics, predict
+    from simshear_gym.evaluate.metrics import metrics
+    from simshear_gym.models.gdnn_input import predict
 
     figures = metrics(*predict(reader, images), truth, reader.variables)
     return {name: per["mae"] for name, per in figures["variables"].items()}
@@ -92,12 +81,11 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
              published_input: bool = True, readers: dict[str, Path] | None = None) -> tuple[dict, dict, dict]:
     """Figures per set and method, the readers' MAE on the real val images per set (empty without readers),
     and image stacks for the figure."""
-    from simshear_gym.data.collect import replay_shear
-    from simshear_gym.evaluate.posenet import truth_labels
+    from simshear_gym.evaluate.metrics import truth_labels
     from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator import Translator
     from simshear_gym.sim.replay import render_poses
-    from simshear_gym.sim.shear import ShearTrackerConfig
+    from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
     translators = {(name, contact): Translator.load(path) for name, per in models.items()
                    for contact, path in per.items()}

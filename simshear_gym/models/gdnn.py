@@ -191,7 +191,7 @@ VARIABLE_SETS: dict[str, VariableSet] = {
     )),
 }
 """The named variable sets: ``surface`` and ``edge`` contacts, ``mg400`` (depth and shear only), and ``env``: an
-env's true state as :mod:`simshear_gym.data.env_collect` labels it (depth, shear x, y, shear Rz; the co-lift
+env's true state as :mod:`simshear_gym.pipelines.env_collect` labels it (depth, shear x, y, shear Rz; the co-lift
 env's Rz is the sensor's yaw error)."""
 
 

@@ -17,8 +17,12 @@ import torch
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
 from simshear_gym.models.weights_io import load_model, save_model
 
+ARCHS = ("shpix2pix", "pix2pix")  # shear-conditioned U-Net | the plain pix2pix baseline
 SIM_SCALE = 64.0
 SHEAR_SCALE = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)  # mm, mm, mm, deg, deg, deg
+# The shear input leaves out z: the paired training data never moved along z during a shear (indentation shows
+# in the sim image itself), so a tracker's z component (a sensor pressed in while sheared) is not shown to it.
+SHEAR_INPUT_MASK = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0], dtype=np.float32)
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 
 
@@ -31,9 +35,10 @@ def normalise_sim(sim_uint8: np.ndarray | torch.Tensor) -> torch.Tensor:
 
 
 def normalise_shear(shear_sensor: np.ndarray | torch.Tensor) -> torch.Tensor:
-    """(B, 6) sensor-frame shear (mm, deg) -> float32 (B, 6), about [-1, 1] over the data's ranges."""
+    """(B, 6) sensor-frame shear (mm, deg) -> float32 (B, 6), about [-1, 1] over the data's ranges, z masked
+    (:data:`SHEAR_INPUT_MASK`): the translator's whole shear-input contract."""
     shear = torch.as_tensor(np.asarray(shear_sensor, dtype=np.float32))
-    return shear / torch.from_numpy(SHEAR_SCALE)
+    return shear / torch.from_numpy(SHEAR_SCALE) * torch.from_numpy(SHEAR_INPUT_MASK)
 
 
 def save_generator(path: str | os.PathLike, generator: UNetGenerator, card: dict | None = None,

@@ -1,8 +1,9 @@
 """``RealTactileEnv``: the real TacTip on a Dobot MG400 behind the same Gymnasium interface as the sim envs.
 
 A policy trained on ``SimShearTracking-v0`` (or the servo controller) drives the real arm unchanged: the action
-and observation spaces are the sim env's, built from the same pieces (:class:`~simshear_gym.envs.base.ActionScale`,
-:class:`~simshear_gym.envs.base.TacTipMount`, ``TCP_POSE_LOW``).
+and observation spaces are the sim env's, from the one definition both use
+(:func:`simshear_gym.contract.policy_spaces`), and so are the action scaling and the mount (:class:`~simshear_gym.contract.ActionScale`,
+:class:`~simshear_gym.contract.TacTipMount`).
 
 **Action** ``Box(-1, 1, (4,), float32)``: a relative move of the sensor in its own frame per step, scaled by
 ``ActionScale`` (dx, dy, dz mm; dRz deg), as in the sim env. Each action becomes one ``ServoP`` target for the
@@ -45,12 +46,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import cv2
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
-from simshear_gym.envs.base import IMAGE_SIZES_PX, TCP_POSE_LOW, ActionScale, TacTipMount, action_to_move, rz_matrix
+from simshear_gym.contract import (
+    IMAGE_SIZES_PX,
+    TCP_POSE_LOW,
+    ActionScale,
+    TacTipMount,
+    action_to_move,
+    policy_spaces,
+    resize_tactile,
+)
+from simshear_gym.data.labels import wrap_deg
 from simshear_gym.real.camera import (
     CameraError,
     CameraSource,
@@ -69,11 +77,25 @@ from simshear_gym.real.mg400_client import (
     MG400Error,
     MG400TimeoutError,
 )
-from simshear_gym.real.mg400_protocol import DASHBOARD_PORT, FEEDBACK_PORT, MOTION_PORT, ProtocolError, RobotMode
-from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyError, SafetyLayer, StatusSnapshot
-from simshear_gym.sim.mg400_arm import T_base_flange_to_pose, pose_to_T_base_flange
-from simshear_gym.sim.mg400_kinematics import wrap_deg
-from simshear_gym.sim.transforms import invert
+from simshear_gym.real.safety import (
+    MotionKind,
+    SafetyConfig,
+    SafetyError,
+    SafetyLayer,
+    StatusSnapshot,
+)
+from simshear_gym.robots.mg400.frames import (
+    T_base_flange_to_pose,
+    pose_to_T_base_flange,
+)
+from simshear_gym.robots.mg400.protocol import (
+    DASHBOARD_PORT,
+    FEEDBACK_PORT,
+    MOTION_PORT,
+    ProtocolError,
+    RobotMode,
+)
+from simshear_gym.transforms import invert, rz_matrix
 
 logger = logging.getLogger(__name__)
 
@@ -91,30 +113,6 @@ class RealEnvError(RuntimeError):
 
 # ----------------------------------------------------------------------------------------------------------------
 # Pieces shared with the benchmark and the HIL camera
-
-
-def tracking_spaces(image_size_px: int) -> tuple[spaces.Dict, spaces.Box]:
-    """(observation space, action space) of ``SimShearTracking-v0`` in its ``"real"`` and ``"sim"`` modes."""
-    if image_size_px not in IMAGE_SIZES_PX:
-        raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
-    observation = spaces.Dict({
-        "tactile": spaces.Box(0, 255, (1, image_size_px, image_size_px), dtype=np.uint8),
-        "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
-    })
-    return observation, spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
-
-
-def resize_tactile(image: np.ndarray, image_size_px: int) -> np.ndarray:
-    """A uint8 (H, W) tactile image at ``image_size_px`` square: block means rounded, like the sim env's halving
-    of its 128 px image, when the size divides evenly; INTER_AREA otherwise."""
-    height, width = image.shape
-    if (height, width) == (image_size_px, image_size_px):
-        return image
-    if height == width and height % image_size_px == 0:
-        factor = height // image_size_px
-        blocks = image.reshape(image_size_px, factor, image_size_px, factor).mean(axis=(1, 3))
-        return np.rint(blocks).astype(np.uint8)
-    return cv2.resize(image, (image_size_px, image_size_px), interpolation=cv2.INTER_AREA)
 
 
 def tactile_from_frame(frame: np.ndarray, preprocess_config: PreprocessConfig | None,
@@ -282,7 +280,7 @@ class RealTactileEnv(gym.Env):
     def __init__(self, config: RealEnvConfig = RealEnvConfig(), camera: FrameSource | None = None,
                  contact_check: ContactCheck | None = None) -> None:
         self.config = config
-        self.observation_space, self.action_space = tracking_spaces(config.image_size_px)
+        self.observation_space, self.action_space = policy_spaces(config.image_size_px)
         self.action_scale = config.action_scale
         self.safety = SafetyLayer(replace(config.safety, dry_run=config.dry_run))
         self.client = MG400Client(config.client_config(), self.safety)
@@ -543,5 +541,5 @@ class EstimatedContact:
 
 
 __all__ = ["TERMINATIONS", "ContactCheck", "EstimatedContact", "RealEnvConfig", "RealEnvError", "RealTactileEnv",
-           "action_to_move", "move_to_flange_target", "resize_tactile", "tactile_from_frame",
-           "tcp_pose_from_flange", "tracking_spaces"]
+           "action_to_move", "move_to_flange_target", "tactile_from_frame",
+           "tcp_pose_from_flange"]

@@ -5,7 +5,7 @@
 the TacTip there with the env's mount, moves a flat surface along its configured path, renders the sim TacTip
 (:mod:`simshear_gym.sim.tactip`), tracks the shear of the contact (:class:`~simshear_gym.sim.shear.ShearTracker`)
 and translates the image with the shipped shPix2pix, exactly as ``SimShearTracking-v0`` does in its ``"real"``
-mode (:func:`~simshear_gym.envs.base.finish_tactile`). So the whole real path closes: camera -> estimator ->
+mode (:func:`~simshear_gym.contract.finish_tactile`). So the whole real path closes: camera -> estimator ->
 controller -> TCP/IP -> emulator -> camera.
 
 Frames (the robot's base frame is the world frame, mm): the surface's face frame has its origin on the top face
@@ -33,14 +33,15 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from simshear_gym.envs.base import RENDER_SIZE_PX, SURFACE_DEPTH_MM, TacTipMount, finish_tactile, pose_from_matrix_fast
+from simshear_gym.contract import RENDER_SIZE_PX, TacTipMount, finish_tactile
 from simshear_gym.real.camera import CameraError, PreprocessConfig
+from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 from simshear_gym.sim import stimuli
-from simshear_gym.sim.mg400_arm import pose_to_T_base_flange
+from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.transforms import invert, pose_to_matrix
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import invert, pose_from_matrix_fast, pose_to_matrix
 
 RAW_FRAME_SIZE_PX = (640, 480)  # (width, height) of the TacTip camera's frames
 

@@ -27,10 +27,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simshear_gym.real.mg400_protocol import (
+from simshear_gym.data.labels import wrap_deg
+from simshear_gym.real.safety import (
+    MotionKind,
+    SafetyConfig,
+    SafetyLayer,
+    StatusSnapshot,
+)
+from simshear_gym.robots.mg400.kinematics import forward
+from simshear_gym.robots.mg400.protocol import (
     DASHBOARD_PORT,
     FEEDBACK_PORT,
     MOTION_PORT,
+    SERVO_TIME_RANGE_S,
     FeedbackBuffer,
     MG400Feedback,
     ProtocolError,
@@ -42,8 +51,6 @@ from simshear_gym.real.mg400_protocol import (
     format_command,
     parse_reply,
 )
-from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyLayer, StatusSnapshot
-from simshear_gym.sim.mg400_kinematics import forward, wrap_deg
 
 logger = logging.getLogger(__name__)
 
@@ -577,8 +584,8 @@ class MG400Client:
 
     @staticmethod
     def _servo_time(t_s: float) -> None:
-        if not (math.isfinite(t_s) and 0.004 <= t_s <= 3600.0):
-            raise ValueError(f"servo time t_s must be in [0.004, 3600] s, got {t_s!r}")
+        if not (math.isfinite(t_s) and SERVO_TIME_RANGE_S[0] <= t_s <= SERVO_TIME_RANGE_S[1]):
+            raise ValueError(f"servo time t_s must be in {list(SERVO_TIME_RANGE_S)} s, got {t_s!r}")
 
     def sync(self, timeout_s: float | None = None) -> None:
         """``Sync()``: wait until the motion queue is empty (default ``config.sync_timeout_s``)."""
@@ -611,8 +618,9 @@ class ServoStreamConfig:
                 raise ValueError(f"ServoStreamConfig.{name} must be finite and > 0, got {value!r}")
         if not (math.isfinite(self.margin_s) and self.margin_s >= 0.0):
             raise ValueError(f"ServoStreamConfig.margin_s must be finite and >= 0 s, got {self.margin_s!r}")
-        if not 0.004 <= self.t_s <= 3600.0:
-            raise ValueError(f"ServoStreamConfig period_s + margin_s = {self.t_s:g} s must be in [0.004, 3600] s")
+        if not SERVO_TIME_RANGE_S[0] <= self.t_s <= SERVO_TIME_RANGE_S[1]:
+            raise ValueError(f"ServoStreamConfig period_s + margin_s = {self.t_s:g} s must be in "
+                             f"{list(SERVO_TIME_RANGE_S)} s")
 
     @property
     def t_s(self) -> float:

@@ -1,6 +1,6 @@
 """A loopback MG400 emulator: the dashboard, motion and feedback ports, with fault injection.
 
-It listens on 127.0.0.1 only and speaks the protocol of :mod:`simshear_gym.real.mg400_protocol`:
+It listens on 127.0.0.1 only and speaks the protocol of :mod:`simshear_gym.robots.mg400.protocol`:
 
 * Dashboard (29999): EnableRobot, DisableRobot, ClearError, Continue, ResetRobot, EmergencyStop, SpeedFactor,
   User, Tool, RobotMode, GetPose, GetAngle, GetErrorID.
@@ -39,7 +39,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from simshear_gym.real.mg400_protocol import (
+from simshear_gym.data.labels import wrap_deg
+from simshear_gym.robots.mg400.kinematics import (
+    LimitError,
+    MG400Geometry,
+    MG400Limits,
+    UnreachableError,
+    check_joint_limits,
+    check_pose_reachable,
+    forward,
+)
+from simshear_gym.robots.mg400.protocol import (
     ALARM_JOINT_LIMIT,
     ALARM_OUT_OF_WORKSPACE,
     DASHBOARD_PORT,
@@ -51,6 +61,7 @@ from simshear_gym.real.mg400_protocol import (
     FEEDBACK_PERIOD_S,
     FEEDBACK_PORT,
     MOTION_PORT,
+    SERVO_TIME_RANGE_S,
     CommandBuffer,
     MG400Feedback,
     ParsedCommand,
@@ -62,20 +73,9 @@ from simshear_gym.real.mg400_protocol import (
     parameter_type_error,
     parse_command,
 )
-from simshear_gym.sim.mg400_kinematics import (
-    LimitError,
-    MG400Geometry,
-    MG400Limits,
-    UnreachableError,
-    check_joint_limits,
-    check_pose_reachable,
-    forward,
-    wrap_deg,
-)
 
 logger = logging.getLogger(__name__)
 
-_SERVO_TIME_RANGE_S = (0.004, 3600.0)
 _POLL_S = 0.05  # how often blocked threads look at the stop flag
 
 
@@ -626,7 +626,7 @@ class MG400Emulator:
         if error_id != ERROR_OK:
             return error_id, ()
         duration_s = named.get("t", 0.1)
-        if not _SERVO_TIME_RANGE_S[0] <= duration_s <= _SERVO_TIME_RANGE_S[1]:
+        if not SERVO_TIME_RANGE_S[0] <= duration_s <= SERVO_TIME_RANGE_S[1]:
             return parameter_range_error(5), ()
         with self._cond:
             busy = bool(self._queue) or (self._active is not None and not self._active.servo)

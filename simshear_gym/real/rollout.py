@@ -285,7 +285,11 @@ def plot_trajectory(rows: list[dict], path: Path, title: str = "") -> Path:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``simshear rollout``."""
-    from simshear_gym.real.mg400_protocol import DASHBOARD_PORT, FEEDBACK_PORT, MOTION_PORT
+    from simshear_gym.robots.mg400.protocol import (
+        DASHBOARD_PORT,
+        FEEDBACK_PORT,
+        MOTION_PORT,
+    )
 
     parser.add_argument("--robot", required=True, metavar="IP", help="MG400 controller address")
     parser.add_argument("--camera", required=True, metavar="SRC",

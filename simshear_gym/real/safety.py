@@ -4,7 +4,7 @@ Every motion command the MG400 client sends passes :meth:`SafetyLayer.check_targ
 :meth:`SafetyLayer.check_joint_target` (joint targets) first, and then :meth:`SafetyLayer.submit`, which only logs
 in dry-run mode. A refused target raises :class:`SafetyError` and nothing is sent.
 
-Checks, in order: the arm's joint limits and the J2/J3 coupling (via :mod:`simshear_gym.sim.mg400_kinematics`),
+Checks, in order: the arm's joint limits and the J2/J3 coupling (via :mod:`simshear_gym.robots.mg400.kinematics`),
 the workspace box and radius, the step from the current pose, and for queued moves the path in between (sampled
 every ``path_check_step_mm``; MovL is straight in Cartesian space, MovJ/JointMovJ straight in joint space).
 
@@ -22,7 +22,8 @@ from typing import TypeVar
 
 import numpy as np
 
-from simshear_gym.sim.mg400_kinematics import (
+from simshear_gym.data.labels import wrap_deg
+from simshear_gym.robots.mg400.kinematics import (
     JOINT_NAMES,
     KinematicsError,
     MG400Geometry,
@@ -30,7 +31,6 @@ from simshear_gym.sim.mg400_kinematics import (
     check_joint_limits,
     check_pose_reachable,
     forward,
-    wrap_deg,
 )
 
 logger = logging.getLogger(__name__)

@@ -74,8 +74,13 @@ from scipy.spatial.transform import Rotation
 from simshear_gym.sim.objects import OBJECTS, ObjectSpec, object_spec, spawn_object
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.transforms import invert, matrix_to_pose, matrix_to_pybullet, rotation_to_quaternion_xyzw
 from simshear_gym.sim.world import World, WorldConfig
+from simshear_gym.transforms import (
+    invert,
+    matrix_to_pose,
+    matrix_to_pybullet,
+    rotation_to_quaternion_xyzw,
+)
 
 _FAR_MM = 300.0  # where bodies wait while the others are measured at reset
 _ROLLING_FRICTION_M = 1e-6

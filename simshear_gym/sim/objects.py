@@ -32,8 +32,8 @@ import numpy as np
 import pybullet
 import pybullet_data
 
-from simshear_gym.sim.transforms import matrix_to_pybullet
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import matrix_to_pybullet
 
 SHAPES = ("box", "egg", "ellipsoid", "duck")
 _HULL_MARGIN_M = 1e-4  # Bullet's default hull margin (1 mm) would inflate the collision shape past the visual one

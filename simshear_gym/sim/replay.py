@@ -15,8 +15,8 @@ import numpy as np
 
 from simshear_gym.sim.stimuli import make_stimulus, spawn
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.transforms import invert, pose_to_matrix
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import invert, pose_to_matrix
 
 
 @dataclass(frozen=True)
@@ -47,6 +47,9 @@ class ReplayGeometry:
             transform[:3, :3] = np.diag([-1.0, 1.0, -1.0])
         transform[:3, 3] = [0.0, self.edge_y_mm, self.surface_depth_mm]
         return transform
+
+
+SURFACE_DEPTH_MM = ReplayGeometry().surface_depth_mm  # work-frame z of the face (label convention)
 
 
 class ReplayScene:

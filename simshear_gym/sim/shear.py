@@ -83,3 +83,13 @@ class ShearTracker:
             self._anchor[5] += excess
             move[5] -= excess
         return shear_to_sensor_frame(move, pose[5])
+
+
+def replay_shear(poses: np.ndarray, moves: np.ndarray, config: ShearTrackerConfig) -> np.ndarray:
+    """Shear vectors (sensor frame) of labelled rows: the tracker anchored at ``pose - move``, read at ``pose``."""
+    tracker = ShearTracker(config)
+    shear = np.empty_like(poses)
+    for index, (pose, move) in enumerate(zip(poses, moves)):
+        tracker.touch(pose - move)
+        shear[index] = tracker.update(pose, in_contact=True)
+    return shear

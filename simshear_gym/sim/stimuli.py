@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet
 
-from simshear_gym.sim.transforms import matrix_to_pybullet
 from simshear_gym.sim.world import World
+from simshear_gym.transforms import matrix_to_pybullet
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,7 @@ contact's markers to the wrong place pays for it even where the pixel error is s
 real images and labels enter it (the real-image GDNN saw no validation image).
 
 The generated image (B, 1, S, S) in [0, 1] is brought to the GDNN's input size by area averaging, as
-:func:`simshear_gym.train.posenet.resize_images` does for uint8 images (without its rounding to uint8).
+:func:`simshear_gym.models.gdnn_input.resize_images` does for uint8 images (without its rounding to uint8).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class PoseConsistency:
 
     def encoded_labels(self, table: Mapping[str, np.ndarray]) -> torch.Tensor:
         """(N, D) float32 labels of a paired set's targets table on the GDNN's normalised scale."""
-        from simshear_gym.train.posenet import label_matrix
+        from simshear_gym.models.gdnn_input import label_matrix
 
         return self.variables.encode(label_matrix(table, self.variables)).to(torch.float32)
 

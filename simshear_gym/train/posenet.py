@@ -1,7 +1,7 @@
 """Train the pose-and-shear GDNN (:mod:`simshear_gym.models.gdnn`) on one of four image sources.
 
 ``simshear train posenet --source SOURCE --contact surface|edge --paired DIR [DIR ...] --out RUN_DIR`` trains
-on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their columns (each variable's
+on the rows of paired sets (:mod:`simshear_gym.data.paired`), labels from their columns (each variable's
 ``OutputSpec.column``), images from the source:
 
 - ``real``: the real images the paired sets replay (the real-to-real reference);
@@ -11,7 +11,7 @@ on the rows of paired sets (:mod:`simshear_gym.data.collect`), labels from their
   ``--translators W [W ...]`` through each of those generator weights instead, every training row then shown
   through a randomly drawn one each time it is drawn (the holdout through the first), so the network cannot lean
   on one generator's mistakes (a file listed k times is drawn k times as often, loaded and translated once);
-- ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.data.env_collect`), the images an env
+- ``env``: sets written by ``simshear collect-env`` (:mod:`simshear_gym.pipelines.env_collect`), the images an env
   emitted (already translated) with its true state; with ``--contact env`` (its variable set).
 
 Images enter the network as uint8 / 255, resized to ``--image-size`` (64 px by default: at 128 px an epoch
@@ -38,19 +38,31 @@ import json
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 
 from simshear_gym.io import write_json
-from simshear_gym.models.gdnn import GDNN, GDNNConfig, VariableSet, beta_nll, gaussian_nll, variable_set
-from simshear_gym.models.posenet_io import save_posenet
-from simshear_gym.train.runs import (
-    LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
+from simshear_gym.models.gdnn import (
+    GDNN,
+    GDNNConfig,
+    VariableSet,
+    beta_nll,
+    gaussian_nll,
+    variable_set,
 )
-from simshear_gym.train.translator import ARCHS
+from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
+from simshear_gym.models.posenet_io import save_posenet
+from simshear_gym.models.translator import ARCHS
+from simshear_gym.train.runs import (
+    LR_SCHEDULES,
+    check_same_settings,
+    run_progress,
+    save_checkpoint,
+    scheduled_lr,
+    split_holdout,
+)
 
 SOURCES = ("real", "sim", "shpix2pix", "pix2pix", "env")
 CONTACTS = ("surface", "edge", "env")
@@ -118,25 +130,6 @@ class PosenetTrainConfig:
 
 
 # ------------------------------------------------------------------------------------------------------ data
-def label_matrix(table: Mapping[str, np.ndarray], variables: VariableSet) -> np.ndarray:
-    """(N, V) float32 label values in the variables' units, from ``table[spec.column]`` (a DataFrame or dict)."""
-    missing = [spec.column for spec in variables.variables if spec.column not in table]
-    if missing:
-        raise ValueError(f"labels for {variables.name} need the columns {list(variables.columns)}; missing {missing}")
-    return np.stack([np.asarray(table[spec.column], dtype=np.float32) for spec in variables.variables], axis=1)
-
-
-def resize_images(images: np.ndarray, size_px: int) -> np.ndarray:
-    """uint8 (..., H, W) -> uint8 (..., size, size) (area interpolation); unchanged if already that size."""
-    if images.shape[-2:] == (size_px, size_px):
-        return images
-    import cv2
-
-    flat = images.reshape(-1, *images.shape[-2:])
-    resized = np.stack([cv2.resize(image, (size_px, size_px), interpolation=cv2.INTER_AREA) for image in flat])
-    return resized.reshape(*images.shape[:-2], size_px, size_px)
-
-
 @dataclass(frozen=True, eq=False)
 class LabelledImages:
     """In-memory training rows: images uint8 (N, H, W), or (N, K, H, W) for K renditions of each row (one per
@@ -175,8 +168,8 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
                 translators: tuple[str, ...] | list[str] = ()) -> LabelledImages:
     """Images of ``source`` (see module docstring) and labels of the paired sets' rows; ``translators``: generator
     weights to use instead of the shipped one (several give (N, K, H, W) renditions)."""
-    from simshear_gym.data.collect import load_paired
     from simshear_gym.data.labels import SHEAR_COLUMNS
+    from simshear_gym.data.paired import load_paired
 
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
@@ -267,11 +260,6 @@ def _load_env_sets(directories, variables: VariableSet, image_size_px: int) -> L
         images.append(resize_images(found.load_images(), image_size_px))
         labels.append(label_matrix(found.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
-
-
-def to_input(images_uint8: torch.Tensor) -> torch.Tensor:
-    """uint8 (B, H, W) -> float32 (B, 1, H, W) in [0, 1]: the GDNN input contract."""
-    return images_uint8.unsqueeze(1).to(torch.float32) / 255.0
 
 
 def random_shift(images: torch.Tensor, max_share: float, generator: torch.Generator) -> torch.Tensor:

@@ -11,7 +11,6 @@ import torch
 
 from simshear_gym.io import atomic_write, write_json
 
-
 LR_SCHEDULES = ("constant", "cosine")
 
 

@@ -1,7 +1,7 @@
 """Train the sim-to-real translator: shPix2pix (shear at the bottleneck) or the pix2pix baseline.
 
 ``simshear train translator --arch shpix2pix --paired DIR [DIR ...] --out RUN_DIR`` trains on paired sets
-(:mod:`simshear_gym.data.collect`). A share of the training rows (``--holdout``) is held out for early stopping
+(:mod:`simshear_gym.data.paired`). A share of the training rows (``--holdout``) is held out for early stopping
 on L1, so the real validation sets stay unseen until ``simshear evaluate translation``. Objective: ``l1_weight *
 L1 + gan_weight * least-squares GAN`` (``--gan-weight 0``: L1 alone, as the public shPix2pix code trained), plus
 ``density_weight *`` the L1 of both images averaged over 8 px squares (``--density-weight``): plain L1 rewards
@@ -32,17 +32,31 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from simshear_gym.data.collect import load_paired
 from simshear_gym.data.labels import SHEAR_COLUMNS
+from simshear_gym.data.paired import load_paired
 from simshear_gym.io import write_json
-from simshear_gym.models.translator import normalise_shear, normalise_sim, save_generator
-from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetConfig, UNetGenerator
+from simshear_gym.models.translator import (
+    ARCHS,
+    normalise_shear,
+    normalise_sim,
+    save_generator,
+)
+from simshear_gym.models.unet import (
+    PatchDiscriminator,
+    PatchDiscriminatorConfig,
+    UNetConfig,
+    UNetGenerator,
+)
 from simshear_gym.train.pose_consistency import PoseConsistency
 from simshear_gym.train.runs import (
-    LR_SCHEDULES, check_same_settings, run_progress, save_checkpoint, scheduled_lr, split_holdout,
+    LR_SCHEDULES,
+    check_same_settings,
+    run_progress,
+    save_checkpoint,
+    scheduled_lr,
+    split_holdout,
 )
 
-ARCHS = ("shpix2pix", "pix2pix")
 DENSITY_POOL_PX = 8
 """Square (px at the image size) over which the density loss compares the mean brightness: about two marker
 pitches at 128 px."""

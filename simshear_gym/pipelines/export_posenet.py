@@ -25,7 +25,8 @@ def check_figure(weights: Path, contact: str, rows: int, data: str | None = None
 
     from simshear_gym.data.paths import data_root, real_set_dir
     from simshear_gym.data.tactile_set import read_set
-    from simshear_gym.evaluate.posenet import errors, predict, truth_labels
+    from simshear_gym.evaluate.metrics import errors, truth_labels
+    from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
     model, _ = load_posenet(weights)
@@ -46,11 +47,11 @@ def env_check_figure(weights: Path, settings: dict = ENV_CHECK) -> dict:
 
     import numpy as np
 
-    from simshear_gym.data.env_collect import EnvCollectConfig, collect
     from simshear_gym.data.tactile_set import read_set
-    from simshear_gym.evaluate.posenet import errors, predict
+    from simshear_gym.evaluate.metrics import errors
+    from simshear_gym.models.gdnn_input import label_matrix, predict
     from simshear_gym.models.posenet_io import load_posenet
-    from simshear_gym.train.posenet import label_matrix
+    from simshear_gym.pipelines.env_collect import EnvCollectConfig, collect
 
     model, _ = load_posenet(weights)
     with tempfile.TemporaryDirectory() as directory:

@@ -73,3 +73,19 @@ def rotation_to_quaternion_xyzw(rotation: np.ndarray) -> np.ndarray:
 def matrix_to_pybullet_fast(matrix_mm: np.ndarray) -> tuple[list[float], list[float]]:
     """:func:`matrix_to_pybullet` (position in m, quaternion xyzw) without scipy, for per-step body updates."""
     return (matrix_mm[:3, 3] / 1000.0).tolist(), rotation_to_quaternion_xyzw(matrix_mm[:3, :3]).tolist()
+
+
+def rz_matrix(rz_deg: float) -> np.ndarray:
+    """(4, 4) rotation by ``rz_deg`` about z."""
+    c, s = math.cos(math.radians(rz_deg)), math.sin(math.radians(rz_deg))
+    return np.array([[c, -s, 0.0, 0.0], [s, c, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+
+
+def pose_from_matrix_fast(matrix: np.ndarray) -> np.ndarray:
+    """:func:`~simshear_gym.transforms.matrix_to_pose` without scipy's per-call overhead (same extrinsic
+    x-y-z angles away from Ry = +-90 deg, which a level face and a vertical sensor never approach)."""
+    rotation = matrix[:3, :3]
+    rx = math.atan2(rotation[2, 1], rotation[2, 2])
+    ry = -math.asin(max(-1.0, min(1.0, rotation[2, 0])))
+    rz = math.atan2(rotation[1, 0], rotation[0, 0])
+    return np.array([matrix[0, 3], matrix[1, 3], matrix[2, 3], math.degrees(rx), math.degrees(ry), math.degrees(rz)])

@@ -13,13 +13,12 @@ from pathlib import Path
 
 
 def check_figure(weights: Path, contact: str, rows: int, data: str | None = None) -> dict:
-    from simshear_gym.data.collect import replay_shear
     from simshear_gym.data.paths import data_root, real_set_dir
     from simshear_gym.data.tactile_set import read_set
-    from simshear_gym.evaluate.translation import mape
+    from simshear_gym.evaluate.metrics import mape
     from simshear_gym.models.translator import Translator
     from simshear_gym.sim.replay import render_poses
-    from simshear_gym.sim.shear import ShearTrackerConfig
+    from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
     val = read_set(real_set_dir(data_root(data), contact, "shear", "val"))
     poses, moves = val.poses()[:rows], val.moves()[:rows]
@@ -39,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from simshear_gym.models.translator import save_generator, load_generator
+    from simshear_gym.models.translator import load_generator, save_generator
     from simshear_gym.train.translator import export_run
 
     export_run(args.run, args.to, card={"train_command": args.train_command, "contact": args.contact})

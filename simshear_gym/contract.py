@@ -1,0 +1,155 @@
+"""The sim-to-real contract: what the simulated envs and the real robot share, so that a controller or policy
+cannot tell which one it drives.
+
+- The TacTip's mount on the MG400 flange (:class:`TacTipMount`) and the action: a sensor-frame move
+  ``(dx, dy, dz mm, dRz deg)`` scaled from ``[-1, 1]`` by :class:`ActionScale` (:func:`action_to_move`).
+- The spaces (:func:`observation_space`, :func:`action_space`): one definition for ``SimShearEnv`` and
+  ``RealTactileEnv``.
+- The observation image: the TacTip renders at :data:`RENDER_SIZE_PX` (the translator's size); in the translated
+  modes the shipped translator turns (sim image, shear) into a real-looking image (:func:`finish_tactile`), and
+  every image, sim or camera, is brought to the observation size by :func:`resize_tactile`.
+
+The GDNN's own input (resize to its size, scale to [0, 1]) belongs to the model:
+:mod:`simshear_gym.models.gdnn_input`; the translator's shear input (mask and scale) to
+:func:`simshear_gym.models.translator.normalise_shear`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from gymnasium import spaces
+
+from simshear_gym.transforms import pose_to_matrix
+
+OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
+TRANSLATED_MODES: tuple[str, ...] = ("real", "oracle_real")
+ORACLE_MODES: tuple[str, ...] = ("oracle", "oracle_real")
+IMAGE_SIZES_PX: tuple[int, ...] = (64, 128)
+RENDER_SIZE_PX = 128  # the TacTip renders at the translator's size
+
+# Observation bounds: wide enough that a running episode never leaves them (it terminates long before).
+TCP_POSE_LOW = np.array([-1000.0, -1000.0, -1000.0, -720.0], dtype=np.float32)
+TRUE_POSE_SHEAR_LIMIT = np.array([50.0, 50.0, 50.0, 180.0], dtype=np.float32)
+
+
+@dataclass(frozen=True)
+class TacTipMount:
+    """How the TacTip sits on the follower's flange: ``T_flange_sensor`` = down ``tcp_offset_mm`` along the
+    flange's -z (the flange faces down), turned ``mount_rz_deg`` about the axis, with the sensor's +z pointing
+    down (a half turn about x, so sensor y = -flange y).
+
+    Attributes:
+        tcp_offset_mm: flange to dome apex (TacTip body 85 mm plus a 10 mm adapter).
+        mount_rz_deg: rotation of the sensor about its axis on the flange.
+    """
+
+    tcp_offset_mm: float = 95.0
+    mount_rz_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.tcp_offset_mm) and self.tcp_offset_mm > 0):
+            raise ValueError(f"TacTipMount.tcp_offset_mm must be > 0, got {self.tcp_offset_mm!r}")
+
+    def T_flange_sensor(self) -> np.ndarray:
+        return pose_to_matrix(np.array([0.0, 0.0, -self.tcp_offset_mm, 0.0, 0.0, self.mount_rz_deg])) @ np.diag(
+            [1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class ActionScale:
+    """Full-scale action (|a| = 1) per step, in the sensor frame: ``step_mm`` for x, y, z and ``step_deg`` for Rz."""
+
+    step_mm: float = 1.0
+    step_deg: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not (self.step_mm > 0 and self.step_deg > 0 and math.isfinite(self.step_mm + self.step_deg)):
+            raise ValueError(f"ActionScale needs step_mm, step_deg > 0, got {self.step_mm!r}, {self.step_deg!r}")
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.step_mm, self.step_mm, self.step_mm, self.step_deg])
+
+
+def action_to_move(action, action_scale: ActionScale) -> np.ndarray:
+    """Validate an action (shape (4,), finite, in [-1, 1]) and scale it to a sensor-frame move
+    ``(dx, dy, dz mm, dRz deg)``; the sim envs and the real env share it."""
+    array = np.asarray(action, dtype=np.float64)
+    if array.shape != (4,):
+        raise ValueError(f"action must have shape (4,) (dx, dy, dz, dRz in [-1, 1]), got shape {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"action must be finite, got {array.tolist()}")
+    if np.any(np.abs(array) > 1.0 + 1e-6):
+        raise ValueError(f"action must lie in [-1, 1] (the action space), got {array.tolist()}")
+    return np.clip(array, -1.0, 1.0) * action_scale.as_array()
+
+
+def check_image_size(image_size_px: int, owner: str = "image_size_px") -> None:
+    if image_size_px not in IMAGE_SIZES_PX:
+        raise ValueError(f"{owner} must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
+
+
+def observation_space(image_size_px: int, oracle: bool = False) -> spaces.Dict:
+    """``tactile``: uint8 (1, S, S) channel-first; ``tcp_pose``: float32 (4,) apex x, y, z mm and flange R deg in
+    the robot base frame; with ``oracle``, ``true_pose_shear``: float32 (4,) (sim only)."""
+    observations = {
+        "tactile": spaces.Box(0, 255, (1, image_size_px, image_size_px), dtype=np.uint8),
+        "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
+    }
+    if oracle:
+        observations["true_pose_shear"] = spaces.Box(-TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT, dtype=np.float32)
+    return spaces.Dict(observations)
+
+
+def action_space() -> spaces.Box:
+    """float32 (4,) in [-1, 1]: the sensor-frame move scaled by :class:`ActionScale`."""
+    return spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+
+
+def policy_spaces(image_size_px: int) -> tuple[spaces.Dict, spaces.Box]:
+    """(observation space, action space) a controller or policy sees: the sim envs' in their non-oracle modes
+    and ``RealTactileEnv``'s."""
+    check_image_size(image_size_px)
+    return observation_space(image_size_px), action_space()
+
+
+def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
+    """uint8 (..., H, W) tactile images at ``image_size_px`` square: block means rounded when the size divides
+    evenly (how a 64 px observation is the 128 px one at half resolution), INTER_AREA otherwise."""
+    images = np.asarray(images)
+    height, width = images.shape[-2:]
+    if (height, width) == (image_size_px, image_size_px):
+        return images
+    lead = images.shape[:-2]
+    if height == width and height % image_size_px == 0:
+        factor = height // image_size_px
+        blocks = images.reshape(*lead, image_size_px, factor, image_size_px, factor).mean(axis=(-3, -1))
+        return np.rint(blocks).astype(np.uint8)
+    flat = images.reshape(-1, height, width)
+    resized = np.stack([cv2.resize(image, (image_size_px, image_size_px), interpolation=cv2.INTER_AREA)
+                        for image in flat])
+    return resized.reshape(*lead, image_size_px, image_size_px)
+
+
+@functools.lru_cache(maxsize=None)
+def shipped_translator(contact: str, arch: str = "shpix2pix"):
+    """The shipped translator for a contact type, loaded once per process (torch is imported here, so that
+    importing the envs stays cheap)."""
+    from simshear_gym.models.translator import load_shipped
+
+    return load_shipped(arch, contact)
+
+
+def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
+                   contact: str) -> np.ndarray:
+    """Raw 128 px sim images (B, 128, 128) -> observation images (B, S, S): translated in the translated
+    modes (one batched call, the shear as the tracker gives it), then resized by :func:`resize_tactile`."""
+    images = np.asarray(sim_uint8)
+    if obs_mode in TRANSLATED_MODES:
+        shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6)
+        images = shipped_translator(contact)(images, shear)
+    return resize_tactile(images, image_size_px)

@@ -1,0 +1,67 @@
+"""``simshear collect``: render paired sets from real sets or random contacts (engine:
+:mod:`simshear_gym.sim.collect`; format: :mod:`simshear_gym.data.paired`).
+
+``simshear collect --replay DIR [DIR ...] --out OUT`` and ``simshear collect --replay-all --out OUT`` (the eight
+tactip331 sets) replay real sets; ``simshear collect --task surface|edge --n N --seed S --out OUT`` draws
+random contacts over the real sets' ranges.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from simshear_gym.data.paths import SPLITS, TACTIP331_TASKS, data_root, real_set_dir
+from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
+from simshear_gym.sim.tactip import TacTipConfig
+
+
+# ----------------------------------------------------------------------------------------------- command line
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--replay", nargs="+", type=Path, metavar="REAL_SET_DIR",
+                        help="real set directories to replay (images/ + targets.csv)")
+    source.add_argument("--replay-all", action="store_true",
+                        help="replay the eight tactip331 sets under the data root into OUT/<contact>_<kind>/<split>")
+    source.add_argument("--task", choices=("surface", "edge"), help="random contacts of this type")
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser.add_argument("--n", type=int, default=5000, help="number of random contacts (--task)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random contacts (--task)")
+    parser.add_argument("--contact", choices=("surface", "edge"), help="contact type of --replay sets "
+                        "(default: read from the path)")
+    parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
+    parser.add_argument("--image-size", type=int, default=128, choices=(64, 128, 256))
+    parser.add_argument("--workers", type=int, default=2, help="rendering processes")
+
+
+def run(args: argparse.Namespace) -> int:
+    config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers)
+    start = time.perf_counter()
+    if args.task:
+        jobs = [(f"random {args.task}", lambda: random_set(args.task, args.n, args.seed, args.out, config))]
+    else:
+        root = data_root(args.data) if (args.replay_all or args.data) else _optional_root()
+        if args.replay_all:
+            pairs = [(real_set_dir(root, contact, kind, split), args.out / f"{contact}_{kind}" / split)
+                     for contact, kind in TACTIP331_TASKS for split in SPLITS]
+        elif len(args.replay) == 1:
+            pairs = [(args.replay[0], args.out)]
+        else:
+            pairs = [(d, args.out / "_".join(Path(d).resolve().parts[-3:])) for d in args.replay]
+        jobs = [(str(real), lambda r=real, o=out: replay_set(r, o, config, root, args.contact)) for real, out in pairs]
+    total = 0
+    for name, job in jobs:
+        rows = job()
+        total += rows
+        print(f"{name}: {rows} rows")
+    elapsed = time.perf_counter() - start
+    print(f"wrote {total} paired rows to {args.out} in {elapsed:.1f} s ({total / max(elapsed, 1e-9):.0f} rows/s)")
+    return 0
+
+
+def _optional_root() -> Path | None:
+    try:
+        return data_root()
+    except FileNotFoundError:
+        return None

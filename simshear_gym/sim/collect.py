@@ -1,0 +1,137 @@
+"""Render paired sets: replay each row of a real set (or random contacts over its ranges) in simulation and
+write our sim image, the shear vector and the labels beside the real image (format: :mod:`simshear_gym.data.paired`).
+
+Rendering is split over worker processes (:func:`~simshear_gym.sim.replay.map_chunks`), each with its own scene.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from simshear_gym.data.labels import (
+    IMAGE_COLUMN,
+    MOVE_COLUMNS,
+    POSE_COLUMNS,
+    SHEAR_COLUMNS,
+    mount_rz_deg,
+    task_ranges,
+)
+from simshear_gym.data.paired import REAL_IMAGE_COLUMN
+from simshear_gym.data.paths import infer_task
+from simshear_gym.data.tactile_set import (
+    TactileDataError,
+    TactileSet,
+    image_name,
+    read_set,
+    write_image,
+    write_targets,
+)
+from simshear_gym.sim.replay import ReplayGeometry, ReplayScene, map_chunks
+from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
+from simshear_gym.sim.tactip import TacTipConfig
+
+
+@dataclass(frozen=True)
+class CollectConfig:
+    """Settings of one collection run (saved in each paired set's meta.json)."""
+
+    tactip: TacTipConfig = TacTipConfig()
+    geometry: ReplayGeometry = ReplayGeometry()
+    shear: ShearTrackerConfig = ShearTrackerConfig()
+    workers: int = 2
+
+    def __post_init__(self) -> None:
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+
+
+def _render_and_write_chunk(args: tuple[str, np.ndarray, list[str], Path, CollectConfig]) -> int:
+    contact, poses, names, images_dir, config = args
+    with ReplayScene(contact, config.tactip, config.geometry) as scene:
+        for name, pose in zip(names, poses):
+            write_image(images_dir, name, scene.render(pose))
+    return len(names)
+
+
+def write_paired_set(out_dir: Path, contact: str, poses: np.ndarray, targets: pd.DataFrame, meta: dict,
+                     config: CollectConfig) -> None:
+    """Render ``poses`` into ``out_dir/images`` (named by ``targets.sensor_image``), then write the targets.
+
+    Each worker renders and writes its own share of the images; ``targets.csv`` comes last, so a set without
+    it is an interrupted one.
+    """
+    images_dir = out_dir / "images"
+    images_dir.mkdir(parents=True, exist_ok=True)
+    names = targets[IMAGE_COLUMN].to_list()
+    shares = np.array_split(np.arange(len(names)), config.workers)
+    chunks = [(contact, poses[share], [names[i] for i in share], images_dir, config) for share in shares if len(share)]
+    map_chunks(_render_and_write_chunk, chunks, config.workers)
+    write_targets(out_dir, targets, meta)
+
+
+def replay_set(real_dir: Path, out_dir: Path, config: CollectConfig, root: Path | None = None,
+               contact: str | None = None) -> int:
+    """Render every row of a real set; returns the number of rows written."""
+    real = read_set(real_dir, required_columns=POSE_COLUMNS)
+    contact = contact or infer_task(real_dir)[0]
+    poses, moves = real.poses(), real.moves()
+    _check_mount(real)
+    targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(len(real))],
+                            REAL_IMAGE_COLUMN: real.targets[IMAGE_COLUMN].to_numpy()})
+    for column, values in zip(POSE_COLUMNS + MOVE_COLUMNS, np.hstack([poses, moves]).T):
+        targets[column] = values
+    for column, values in zip(SHEAR_COLUMNS, replay_shear(poses, moves, config.shear).T):
+        targets[column] = values
+    meta = _meta(config, contact, source="replay")
+    meta["real_set"] = _relative_to(real_dir, root)
+    meta["real_set_relative_to_data_root"] = meta["real_set"] != str(Path(real_dir).resolve())
+    write_paired_set(out_dir, contact, poses, targets, meta, config)
+    return len(real)
+
+
+def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectConfig) -> int:
+    """Render ``n`` random contacts drawn uniformly over the real shear sets' ranges of a contact type."""
+    rng = np.random.default_rng(seed)
+    labels = np.zeros((n, 12))
+    columns = list(POSE_COLUMNS + MOVE_COLUMNS)
+    for label_range in task_ranges(contact, "shear"):
+        labels[:, columns.index(label_range.column)] = rng.uniform(label_range.low, label_range.high, n)
+    poses, moves = labels[:, :6], labels[:, 6:]
+    targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)], REAL_IMAGE_COLUMN: [""] * n})
+    for column, values in zip(columns, labels.T):
+        targets[column] = values
+    for column, values in zip(SHEAR_COLUMNS, replay_shear(poses, moves, config.shear).T):
+        targets[column] = values
+    meta = _meta(config, contact, source="random")
+    meta["seed"] = seed
+    write_paired_set(out_dir, contact, poses, targets, meta, config)
+    return n
+
+
+def _check_mount(real: TactileSet) -> None:
+    if "obj_pose" in real.targets.columns:
+        mounts = {mount_rz_deg(cell) for cell in real.targets["obj_pose"].unique()}
+        if mounts != {-48.0}:
+            raise TactileDataError(
+                f"{real.root}/targets.csv: obj_pose Rz {sorted(mounts)}; the label conventions are verified for "
+                "the -48 deg mount of the tactip331 sets (see simshear_gym.data.labels)"
+            )
+
+
+def _meta(config: CollectConfig, contact: str, source: str) -> dict:
+    return {"contact": contact, "source": source, "tactip": asdict(config.tactip),
+            "geometry": asdict(config.geometry), "shear_tracker": asdict(config.shear)}
+
+
+def _relative_to(path: Path, root: Path | None) -> str:
+    resolved = Path(path).resolve()
+    if root is not None:
+        try:
+            return str(resolved.relative_to(Path(root).resolve()))
+        except ValueError:
+            pass
+    return str(resolved)
