@@ -1,0 +1,119 @@
+"""Frozen dataclasses from TOML tables, with errors that name the file, the key, the value and what was expected.
+
+:func:`from_table` builds a (nested) frozen dataclass from a table read with :mod:`tomllib`: it refuses unknown
+keys (listing the known ones), checks each value against the field's annotation (``int``, ``float``, ``str``,
+``bool``, ``tuple[...]``, ``X | None``, a ``Literal``, a nested dataclass, ``dict[str, X]``) and re-raises the
+dataclass's own ``__post_init__`` validation as a :class:`ConfigError` that says where the table came from.
+"""
+
+from __future__ import annotations
+
+import collections.abc
+import dataclasses
+import tomllib
+import types
+import typing
+from pathlib import Path
+from typing import Any, Literal, TypeVar, Union, get_args, get_origin, get_type_hints
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A config file, key or value is wrong; the message names the file, the key and what was expected."""
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """A TOML file as a dict; a missing file or a syntax error becomes a :class:`ConfigError` naming the file."""
+    path = Path(path)
+    try:
+        with path.open("rb") as handle:
+            return tomllib.load(handle)
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such config file") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ConfigError(f"{path}: not valid TOML ({error})") from None
+
+
+def from_table(cls: type[T], table: Any, source: str, key: str = "") -> T:
+    """Build dataclass ``cls`` from a TOML table found at ``key`` (dotted) of the file ``source``."""
+    where = f"{source}: [{key}]" if key else f"{source}:"
+    if not isinstance(table, dict):
+        raise ConfigError(f"{where} must be a table of {cls.__name__} settings, got {table!r}")
+    hints = get_type_hints(cls)
+    known = {field.name: field for field in dataclasses.fields(cls) if field.init}
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise ConfigError(f"{where} unknown key {_join(key, unknown[0])!r}; expected one of {sorted(known)}")
+    missing = [name for name, field in known.items() if name not in table
+               and field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"{where} missing key {_join(key, missing[0])!r} ({cls.__name__} needs {missing})")
+    values = {name: _convert(hints[name], value, source, _join(key, name)) for name, value in table.items()}
+    try:
+        return cls(**values)
+    except ConfigError:
+        raise
+    except (TypeError, ValueError) as error:
+        raise ConfigError(f"{where} {error}") from None
+
+
+def _join(key: str, name: str) -> str:
+    return f"{key}.{name}" if key else name
+
+
+def _convert(annotation: Any, value: Any, source: str, key: str) -> Any:
+    origin, args = get_origin(annotation), get_args(annotation)
+    if origin in (Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for option in (arg for arg in args if arg is not type(None)):
+            try:
+                return _convert(option, value, source, key)
+            except ConfigError as error:
+                errors.append(str(error))
+        raise errors[0] if len(errors) == 1 else ConfigError(
+            f"{source}: {key} = {value!r} is none of {[_name(arg) for arg in args]}")
+    if origin is Literal:
+        if value not in args:
+            raise ConfigError(f"{source}: {key} = {value!r}; expected one of {list(args)}")
+        return value
+    if dataclasses.is_dataclass(annotation):
+        return from_table(annotation, value, source, key)
+    if origin is tuple:
+        if not isinstance(value, list | tuple):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_convert(args[0], item, source, f"{key}[{i}]") for i, item in enumerate(value))
+        if len(value) != len(args):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected a list of {len(args)} values")
+        return tuple(_convert(arg, item, source, f"{key}[{i}]") for i, (arg, item) in enumerate(zip(args, value)))
+    if origin in (dict, collections.abc.Mapping):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: [{key}] must be a table, got {value!r}")
+        return types.MappingProxyType(
+            {name: _convert(args[1], item, source, _join(key, name)) for name, item in value.items()})
+    if annotation is typing.Any:
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected true or false")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected an integer")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected a number")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{source}: {key} = {value!r}; expected a string")
+        return value
+    raise TypeError(f"from_table cannot read a field annotated {annotation!r} ({key})")
+
+
+def _name(annotation: Any) -> str:
+    return getattr(annotation, "__name__", repr(annotation))
