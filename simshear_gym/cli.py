@@ -1,8 +1,13 @@
 """The ``simshear`` command.
 
 Each sub-command lives in the module that owns the work; this file only routes. A command module exposes
-``add_arguments(parser)`` and ``run(args) -> int``; it imports heavy dependencies (torch, pybullet) inside
-``run`` so that building the parser stays fast.
+``add_arguments(parser)`` and ``run(args) -> int``, and keeps torch and pybullet out of its module-level imports
+(they go inside ``run`` or the engine functions it calls).
+
+The parser is built lazily: every level lists its sub-commands with the help strings of :data:`COMMANDS`, but
+only the command that the argument list names gets its options, so ``simshear --help`` and
+``simshear evaluate --help`` import no command module and ``simshear evaluate posenet ...`` imports only
+:mod:`simshear_gym.evaluate.posenet`.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Sequence
 
 # (command words, module, one-line help)
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
@@ -55,27 +61,77 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "run the servo controller or an SB3 policy on the real (or emulated) MG400 with the TacTip, logging every step"),
     (("evaluate", "real-cycle"), "simshear_gym.evaluate.real_cycle",
      "compute per control cycle of the real path: preprocess, estimator, filter, servo law, ServoP to the emulator"),
+    (("pipeline", "check"), "simshear_gym.pipelines.check",
+     "validate a sensor's experiment config and its data before anything trains"),
+    (("pipeline", "run"), "simshear_gym.pipelines.run",
+     "from a sensor's data set to its models: adapt, replay in simulation, ... (cached stages)"),
+    (("pipeline", "make-example"), "simshear_gym.pipelines.example_sensor",
+     "write the example second lab's data set (configs/example_lab.toml) from the real tactip331 images"),
 )
 
 
-def _build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="simshear", description="simshear-gym: sim-to-real tactile robotics with shear")
-    groups: dict[tuple[str, ...], argparse._SubParsersAction] = {(): parser.add_subparsers(dest="command", required=True)}
-    for words, module, help_text in COMMANDS:
-        for depth in range(1, len(words)):
-            prefix = words[:depth]
-            if prefix not in groups:
-                sub = groups[words[: depth - 1]].add_parser(words[depth - 1], help=f"{words[depth - 1]} commands")
-                groups[prefix] = sub.add_subparsers(dest=f"command_{depth}", required=True)
-        sub = groups[words[:-1]].add_parser(words[-1], help=help_text, description=help_text)
-        sub.set_defaults(_module=module)
-        importlib.import_module(module).add_arguments(sub)
+# the groups of several commands: their one-line help
+GROUPS: dict[str, str] = {
+    "evaluate": "benchmarks and evaluations, each writing its record under results/",
+    "train": "train the translator, the pose-and-shear GDNN and RL agents, and ship their weights",
+    "pipeline": "a sensor's experiment config: check it, run its cached pipeline",
+}
+
+_LEAVES: dict[tuple[str, ...], str] = {words: module for words, module, _ in COMMANDS}
+
+
+def _children(prefix: tuple[str, ...]) -> dict[str, str]:
+    """The words one level below ``prefix`` with their help, in the order of :data:`COMMANDS`."""
+    children: dict[str, str] = {}
+    for words, _, help_text in COMMANDS:
+        if len(words) > len(prefix) and words[:len(prefix)] == prefix:
+            word = words[len(prefix)]
+            if word not in children:
+                children[word] = help_text if len(words) == len(prefix) + 1 else GROUPS.get(word, f"{word} commands")
+    return children
+
+
+def _fill(parser: argparse.ArgumentParser, prefix: tuple[str, ...], rest: Sequence[str]) -> None:
+    """Give ``parser`` (the parser of the words ``prefix``) its options: a command module's, or the sub-commands
+    of a group, of which only the one named by ``rest[0]`` is filled in turn."""
+    module = _LEAVES.get(prefix)
+    if module is not None:
+        parser.set_defaults(_module=module)
+        importlib.import_module(module).add_arguments(parser)
+        return
+    subparsers = parser.add_subparsers(dest=f"command_{len(prefix)}" if prefix else "command", required=True,
+                                       metavar="COMMAND", title="commands")
+    for word, help_text in _children(prefix).items():
+        sub = subparsers.add_parser(word, help=help_text, description=help_text)
+        if rest and rest[0] == word:
+            _fill(sub, prefix + (word,), rest[1:])
+
+
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The ``simshear`` parser for the argument list ``argv``: it lists every command, and its leading words
+    (``evaluate posenet ...``) choose the one command whose module is imported for its options."""
+    parser = argparse.ArgumentParser(prog="simshear",
+                                     description="simshear-gym: sim-to-real tactile robotics with shear",
+                                     epilog="'simshear COMMAND --help' shows the options of a command.")
+    _fill(parser, (), list(argv))
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = _build_parser()
-    args = parser.parse_args(argv)
+def command_parser(words: Sequence[str]) -> argparse.ArgumentParser:
+    """The parser of one command of :data:`COMMANDS` (its module is imported), e.g. ``("evaluate", "posenet")``."""
+    words = tuple(words)
+    if words not in _LEAVES:
+        raise ValueError(f"no simshear command {' '.join(words)!r}")
+    parser = build_parser(words)
+    for word in words:
+        action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = action.choices[word]
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv).parse_args(argv)
     module = importlib.import_module(args._module)
     try:
         return int(module.run(args) or 0)

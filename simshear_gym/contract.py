@@ -135,7 +135,7 @@ def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
     return resized.reshape(*lead, image_size_px, image_size_px)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def shipped_translator(contact: str, arch: str = "shpix2pix"):
     """The shipped translator for a contact type, loaded once per process (torch is imported here, so that
     importing the envs stays cheap)."""

@@ -19,9 +19,10 @@ TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory")
-    parser.add_argument("--trajectories", nargs="+", default=list(TRAJECTORIES), choices=TRAJECTORIES)
+    parser.add_argument("--trajectories", nargs="+", default=list(TRAJECTORIES), choices=TRAJECTORIES,
+                        help="SimShearTracking-v0 trajectories to follow, one episode each (default all four)")
     parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the whole path)")
-    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
 def run(args: argparse.Namespace) -> int:

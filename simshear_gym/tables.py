@@ -92,8 +92,7 @@ def _convert(annotation: Any, value: Any, source: str, key: str) -> Any:
     if origin in (dict, collections.abc.Mapping):
         if not isinstance(value, dict):
             raise ConfigError(f"{source}: [{key}] must be a table, got {value!r}")
-        return types.MappingProxyType(
-            {name: _convert(args[1], item, source, _join(key, name)) for name, item in value.items()})
+        return {name: _convert(args[1], item, source, _join(key, name)) for name, item in value.items()}
     if annotation is typing.Any:
         return value
     if annotation is bool:

@@ -8,7 +8,8 @@ import pytest
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.models.gdnn import variable_set
 from simshear_gym.pipelines.env_collect import STATE_COLUMNS, EnvCollectConfig, collect
-from simshear_gym.train.posenet import PosenetTrainConfig, PosenetTrainer, load_source
+from simshear_gym.train.posenet_config import PosenetTrainConfig
+from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
 
 
 @pytest.fixture(scope="module")

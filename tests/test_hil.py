@@ -49,12 +49,14 @@ def test_sim_camera_frame_survives_the_real_preprocessing():
 def test_servo_controller_follows_a_moving_surface_through_the_emulator(tmp_path):
     import torch
 
+    from simshear_gym.contract import ActionScale
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.servo import ServoController
-    from simshear_gym.real.rollout import ServoPolicy, run_rollout
+    from simshear_gym.real.rollout import run_rollout
 
     torch.set_num_threads(1)
-    controller = ServoController(4.0, np.array([1.0, 1.0, 1.0, 2.0]), estimator=EstimatorConfig(posenet=posenet_path()))
+    controller = ServoController(4.0, ActionScale(step_mm=1.0, step_deg=2.0),
+                                 estimator=EstimatorConfig(posenet=posenet_path()))
     emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0)).start()
     preprocess_config = default_config()
     camera = SimSurfaceCamera(lambda: emulator.pose, START,
@@ -70,7 +72,7 @@ def test_servo_controller_follows_a_moving_surface_through_the_emulator(tmp_path
                            safety=SafetyConfig(max_feedback_age_s=0.5))
     env = RealTactileEnv(config, camera=camera)
     try:
-        summary = run_rollout(env, ServoPolicy(controller), STEPS, tmp_path, command="test_hil")
+        summary = run_rollout(env, controller, STEPS, tmp_path, command="test_hil")
     finally:
         env.close()
         emulator.stop()

@@ -94,7 +94,8 @@ def test_unknown_key_names_file_and_key(tmp_path):
 
 def test_wrong_unit_name_says_which_units_are_valid(tmp_path):
     path = write_lab(tmp_path, config=GOOD.replace('unit = "rad"', 'unit = "radian"'))
-    with pytest.raises(ConfigError, match=r"lab\.toml: \[datasets\.tap\] labels\.pose_rx\.unit = 'radian'.*'deg', 'rad'"):
+    message = r"lab\.toml: \[datasets\.tap\] labels\.pose_rx\.unit = 'radian'.*'deg', 'rad'"
+    with pytest.raises(ConfigError, match=message):
         load_config(path)
 
 

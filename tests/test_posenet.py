@@ -18,9 +18,9 @@ from simshear_gym.models.gdnn_input import label_matrix
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import save_generator
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
-from simshear_gym.train.posenet import (
+from simshear_gym.train.posenet_config import PosenetTrainConfig
+from simshear_gym.train.posenet_trainer import (
     LabelledImages,
-    PosenetTrainConfig,
     PosenetTrainer,
     load_source,
     random_blur,

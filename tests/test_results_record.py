@@ -14,9 +14,6 @@ MAX_TOP_LEVEL_JSON = 20
 MAX_PNG_BYTES = 500_000
 
 # Canonical files that cannot carry a `command` key honestly: the module that writes them records none.
-# camera_calibration.json: `simshear evaluate camera` (simshear_gym/evaluate/camera_calibration.py) writes no
-# command line; the key should come from that module when it is next re-run, not be written in by hand.
-NO_COMMAND_YET = {"camera_calibration.json"}
 
 ABSOLUTE_MARKERS = ("/work/", "/root/", "/home/", "/tmp/", "/Users/", "/mnt/", "/scratch/")
 ABSOLUTE_START = re.compile(r"^/(work|root|home|tmp|Users|mnt|scratch|usr|opt|var|srv|data|media)(/|$)")
@@ -52,7 +49,8 @@ def _expand_braces(pattern: str) -> list[str]:
 
 def test_readme_is_at_most_200_lines():
     lines = (ROOT / "README.md").read_text().splitlines()
-    assert len(lines) <= MAX_README_LINES, f"README.md has {len(lines)} lines; the research log goes to docs/experiments.md"
+    assert len(lines) <= MAX_README_LINES, (
+        f"README.md has {len(lines)} lines; the research log goes to docs/experiments.md")
 
 
 def test_at_most_20_json_files_at_the_top_of_results():
@@ -72,9 +70,6 @@ def test_result_json_parses_and_holds_no_absolute_path(path):
 @pytest.mark.parametrize("path", _json_files(recursive=False), ids=lambda p: p.name)
 def test_canonical_result_records_its_command(path):
     command = json.loads(path.read_text()).get("command")
-    if path.name in NO_COMMAND_YET:
-        assert command is None, f"{path.name} records its command now: take it out of NO_COMMAND_YET"
-        pytest.skip(f"{path.name}: its command module records no command line (see NO_COMMAND_YET)")
     assert isinstance(command, str) and command.startswith("simshear "), f"{path.name} has no `command`"
 
 

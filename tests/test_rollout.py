@@ -13,8 +13,9 @@ import pytest
 
 from simshear_gym import cli
 from simshear_gym.contract import policy_spaces
+from simshear_gym.control.policy import SB3Controller
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
-from simshear_gym.real.rollout import load_sb3_policy, sb3_algorithm
+from simshear_gym.real.rollout import sb3_algorithm
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
@@ -137,16 +138,24 @@ def test_sb3_policy_rollout_in_dry_run_sends_nothing(emulator, raw_frames, tmp_p
     assert (out / "trajectory.png").is_file()
 
 
-def test_sb3_policy_for_other_spaces_is_refused(tmp_path):
+def test_sb3_policy_for_other_spaces_is_refused(emulator, raw_frames, tmp_path, capsys):
     model = _save_ppo(tmp_path / "ppo128.zip", 128)
-    with pytest.raises(ValueError, match="--image-size"):
-        load_sb3_policy(model, *policy_spaces(64))
+    with pytest.raises(ValueError, match="trained on observations"):
+        SB3Controller.load(model, *policy_spaces(64))
     not_a_model = tmp_path / "x.zip"
     not_a_model.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
         sb3_algorithm(not_a_model)
-    with pytest.raises(FileNotFoundError, match="neither 'servo' nor"):
-        load_sb3_policy(tmp_path / "missing.zip", *policy_spaces(64))
+    with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
+        SB3Controller.load(not_a_model, *policy_spaces(64))
+    with pytest.raises(FileNotFoundError, match="no Stable-Baselines3 model file"):
+        SB3Controller.load(tmp_path / "missing.zip", *policy_spaces(64))
+    # the command line names its flags (before anything moves: nothing reaches the robot)
+    assert cli.main(rollout_args(emulator, raw_frames, str(model), tmp_path / "run", 2)) == 2
+    assert "check --image-size" in capsys.readouterr().err
+    assert cli.main(rollout_args(emulator, raw_frames, str(tmp_path / "missing.zip"), tmp_path / "run", 2)) == 2
+    assert "neither 'servo' nor" in capsys.readouterr().err
+    assert emulator.received_commands("motion") == []
 
 
 def test_real_cycle_measures_every_stage_against_the_emulator(emulator, raw_frames):
@@ -162,3 +171,14 @@ def test_real_cycle_measures_every_stage_against_the_emulator(emulator, raw_fram
     total = result["total"]["median_ms"]
     assert total >= result["controller"]["median_ms"] and total >= result["command"]["median_ms"]
     assert result["servo_p_commands_sent"] == 14 == len(servo_commands(emulator))
+
+
+@pytest.mark.parametrize("module", ["simshear_gym.real.rollout", "simshear_gym.evaluate.servo", "simshear_gym.demo"])
+def test_every_option_says_what_it_is_for(module):
+    import argparse
+    import importlib
+
+    parser = argparse.ArgumentParser()
+    importlib.import_module(module).add_arguments(parser)
+    options = [action for action in parser._actions if action.option_strings and action.dest != "help"]
+    assert options and [a.option_strings for a in options if not (a.help or "").strip()] == []

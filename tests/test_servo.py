@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from simshear_gym.contract import ActionScale
 from simshear_gym.control.estimator import (
     STATE_VARIABLES,
     EstimatorConfig,
@@ -66,7 +67,8 @@ def test_estimator_reads_filters_and_rejects_bad_images(tiny_posenet):
 
 
 def test_servo_controller_gives_bounded_actions(tiny_posenet):
-    controller = ServoController(4.0, SCALE, SERVO_GAINS, EstimatorConfig(posenet=str(tiny_posenet)))
+    controller = ServoController(4.0, ActionScale(step_mm=1.0, step_deg=2.0), SERVO_GAINS,
+                                EstimatorConfig(posenet=str(tiny_posenet)))
     controller.reset()
     for _ in range(3):
         action = controller({"tactile": np.random.default_rng(0).integers(0, 255, (1, 128, 128), dtype=np.uint8)})

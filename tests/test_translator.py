@@ -6,11 +6,8 @@ import torch
 
 from simshear_gym.models.translator import Translator, load_generator, save_generator
 from simshear_gym.models.unet import PatchDiscriminator, UNetConfig, UNetGenerator
-from simshear_gym.train.translator import (
-    PairedTensors,
-    TranslatorTrainConfig,
-    TranslatorTrainer,
-)
+from simshear_gym.train.translator_config import TranslatorTrainConfig
+from simshear_gym.train.translator_trainer import PairedTensors, TranslatorTrainer
 
 
 @pytest.mark.parametrize("size, depth", [(64, 6), (128, 7), (256, 8), (128, 5)])

@@ -11,6 +11,7 @@ import numpy as np
 
 from simshear_gym.contract import ActionScale
 from simshear_gym.control.pi_law import PIGains, PILaw
+from simshear_gym.control.policy import as_action_scale
 
 OracleGains = PIGains
 """The oracle's gains are the PI law's (:class:`~simshear_gym.control.pi_law.PIGains`)."""
@@ -19,18 +20,24 @@ OracleGains = PIGains
 class OracleController:
     """Maps an oracle observation to an action; call :meth:`reset` at each episode start.
 
+    A :class:`~simshear_gym.control.policy.Controller`.
+
     Args:
         reference_depth_mm: the env's reference depth (label convention).
-        action_scale: the env's :class:`~simshear_gym.contract.ActionScale`.
+        action_scale: the env's :class:`~simshear_gym.contract.ActionScale` (as the servo controller's).
         gains: the PI law's gains.
     """
 
+    name = "oracle"
+    """For logs."""
+
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  gains: PIGains = PIGains()) -> None:
-        self.law = PILaw(reference_depth_mm, action_scale.as_array(), gains)
+        self.action_scale = as_action_scale(action_scale, "OracleController")
+        self.law = PILaw(reference_depth_mm, self.action_scale.as_array(), gains)
 
     @classmethod
-    def for_env(cls, env, gains: PIGains = PIGains()) -> "OracleController":
+    def for_env(cls, env, gains: PIGains = PIGains()) -> OracleController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through)."""
         base = env.unwrapped
         return cls(base.reference_depth_mm, base.action_scale, gains)

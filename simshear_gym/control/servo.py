@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from simshear_gym.contract import ActionScale
 from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
+from simshear_gym.control.policy import as_action_scale
 
 SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 """Default gains of :class:`ServoController` (see the module docstring)."""
@@ -25,25 +27,31 @@ SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 class ServoController:
     """Tactile image -> action: :class:`TactileEstimator` then :class:`PILaw`. Call :meth:`reset` per episode.
 
+    A :class:`~simshear_gym.control.policy.Controller` that keeps a state estimate (``last_estimate``).
+
     Args:
         reference_depth_mm: the depth to hold (labels' convention, as the env's ``reference_depth_mm``).
-        action_scale: the env's full-scale move (x, y, z mm, Rz deg).
+        action_scale: the env's :class:`~simshear_gym.contract.ActionScale` (as the oracle's).
         gains: the law's gains (default :data:`SERVO_GAINS`).
         estimator: settings of the estimator (GDNN weights, filter on/off, process noise).
     """
 
-    def __init__(self, reference_depth_mm: float, action_scale: np.ndarray, gains: PIGains = SERVO_GAINS,
-                 estimator: EstimatorConfig = EstimatorConfig()) -> None:
+    name = "servo"
+    """For logs (the real rollout's ``controller``)."""
+
+    def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
+                 gains: PIGains = SERVO_GAINS, estimator: EstimatorConfig = EstimatorConfig()) -> None:
+        self.action_scale = as_action_scale(action_scale, "ServoController")
+        self._scale = self.action_scale.as_array()
         self.estimator = TactileEstimator(estimator)
-        self.law = PILaw(reference_depth_mm, action_scale, gains)
-        self._scale = np.asarray(action_scale, dtype=np.float64)
+        self.law = PILaw(reference_depth_mm, self._scale, gains)
         self._last_move: np.ndarray | None = None
         self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
         """(mean (4,), std (4,)) of the last step's state estimate, for logging."""
 
     @classmethod
     def for_env(cls, env, gains: PIGains = SERVO_GAINS,
-                estimator: EstimatorConfig = EstimatorConfig()) -> "ServoController":
+                estimator: EstimatorConfig = EstimatorConfig()) -> ServoController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through).
 
         Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
@@ -60,7 +68,7 @@ class ServoController:
             estimator = replace(estimator, posenet=str(shipped_posenet_path(name)))
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
-        return cls(base.reference_depth_mm, base.action_scale.as_array(), gains, estimator)
+        return cls(base.reference_depth_mm, base.action_scale, gains, estimator)
 
     def reset(self) -> None:
         self.estimator.reset()

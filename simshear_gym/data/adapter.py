@@ -22,10 +22,10 @@ The simulation's frame (see :mod:`simshear_gym.data.labels`): x, y in the stimul
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
-from typing import Literal, Mapping
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -211,12 +211,12 @@ class DatasetConfig:
     contact: str
     kind: Literal["tap", "shear"]
     files: tuple[DataFile, ...]
-    labels: Mapping[str, LabelSource] = field(default_factory=lambda: MappingProxyType({}))
+    labels: Mapping[str, LabelSource] = field(default_factory=dict)
     absent: tuple[str, ...] = ()
     image_column: str | None = None
     image_pattern: str | None = None
     split_column: str | None = None
-    split_values: Mapping[str, str] = field(default_factory=lambda: MappingProxyType({}))
+    split_values: Mapping[str, str] = field(default_factory=dict)
     val_fraction: float | None = None
     split_seed: int = 0
     image: ImageAdapter = ImageAdapter()

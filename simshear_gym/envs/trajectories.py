@@ -10,7 +10,7 @@ name               path                                                         
 ``circle``         horizontal circle, radius 25 mm, one turn                                   157
 ``tilted_square``  square of side 40 mm in a plane tilted by ``tilt_deg`` (30) about world x   160
 ``spiral``         upward spiral: radius 20 mm, 1.5 turns, rising 30 mm                        191
-``loop``           looped line (prolate cycloid): 2 loops of radius 12 mm, 25 mm pitch         155 
+``loop``           looped line (prolate cycloid): 2 loops of radius 12 mm, 25 mm pitch         155
 ``circular_wave``  co-lift: horizontal circle, radius 25 mm, one turn, with 3 vertical waves    191
                    of amplitude 8 mm riding on it (the grip axis is world x: the circle moves
                    the object along the grip and across it, the waves lift and lower it)

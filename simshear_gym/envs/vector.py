@@ -34,7 +34,7 @@ TRANSLATE_IN: tuple[str, ...] = ("workers", "main")
 
 def make_tracking_vector_env(num_envs: int = 1, max_episode_steps: int | None = 500, workers: int | None = None,
                              translate_in: str = "workers", start_method: str | None = None,
-                             **env_kwargs: Any) -> "SimShearVectorEnv":
+                             **env_kwargs: Any) -> SimShearVectorEnv:
     """The ``vector_entry_point`` of ``SimShearTracking-v0`` (see :class:`SimShearVectorEnv`)."""
     return SimShearVectorEnv("simshear_gym.envs.tracking:SimShearTrackingEnv", num_envs, env_kwargs,
                              max_episode_steps, workers, translate_in, start_method)

@@ -323,7 +323,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "(default: $SIMSHEAR_DATA, else ../shared/data)")
     parser.add_argument("--out", default="results", help="folder for camera_calibration.json/.png (default: results)")
     parser.add_argument("--write-config", nargs="?", const=str(DEFAULT_CONFIG_PATH), default=None, metavar="PATH",
-                        help=f"save the calibrated config as JSON (default path: the shipped {DEFAULT_CONFIG_PATH.name})")
+                        help="save the calibrated config as JSON (default path: the shipped "
+                             f"{DEFAULT_CONFIG_PATH.name})")
     parser.add_argument("--search-stride", type=int, default=5,
                         help="search on every N-th of the 100 pairs (default 5: 20 pairs); all are evaluated")
 
@@ -344,7 +345,11 @@ def run(args: argparse.Namespace) -> int:
     search_s = time.perf_counter() - started
     report = evaluate(pairs, result.config)
     held_out = [row for row in report["per_image"] if row["image"] not in set(search_pairs.ids)]
+    command = "simshear evaluate camera" + (f" --search-stride {args.search_stride}" if args.search_stride != 5 else "")
+    command += " --write-config" if args.write_config == str(DEFAULT_CONFIG_PATH) else (
+        f" --write-config {args.write_config}" if args.write_config else "")
     payload = {
+        "command": command,
         "config": result.config.to_dict(),
         "search": {
             "pairs": list(search_pairs.ids),

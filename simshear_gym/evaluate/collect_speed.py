@@ -17,7 +17,8 @@ from pathlib import Path
 
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.io import write_json
-from simshear_gym.sim.collect import CollectConfig, replay_set
+
+# pybullet (via simshear_gym.sim.collect) is imported inside run, so that --help stays light.
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,6 +28,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simshear_gym.sim.collect import CollectConfig, replay_set
+
     root = data_root(args.data)
     runs = []
     for workers in sorted({1, args.workers}):

@@ -22,10 +22,11 @@ import numpy as np
 
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
-from simshear_gym.evaluate.metrics import metrics, truth_labels
 from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
-from simshear_gym.models.gdnn_input import predict
+
+# torch (via evaluate.metrics and models) is imported inside the functions that use it, so that
+# `simshear evaluate posenet --help` stays light.
 
 CONTACTS = ("surface", "edge")
 
@@ -51,6 +52,8 @@ def latency_ms(model, repeats: int = 200) -> dict:
 
 def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None) -> tuple[dict, dict]:
     """Figures per model; also (truth, predicted means, stds) per model for the figure."""
+    from simshear_gym.evaluate.metrics import metrics, truth_labels
+    from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
     val = read_set(real_set_dir(root, contact, "shear", "val"))
@@ -122,10 +125,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", required=True, metavar="NAME[:CONTACT]=PATH",
                         help="a posenet best.pt to evaluate; repeat for several; '{contact}' in PATH is replaced "
                              "by each --contact; NAME:CONTACT=PATH names the model of one contact type")
-    parser.add_argument("--contact", choices=CONTACTS, nargs="+", required=True)
+    parser.add_argument("--contact", choices=CONTACTS, nargs="+", required=True,
+                        help="contact type(s) whose real shear val set the models read; one section and figure "
+                             "each")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of the val set (default all)")
-    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
     parser.add_argument("--name", default="posenet", help="base name of the json and png written")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (latency is measured with them)")
 

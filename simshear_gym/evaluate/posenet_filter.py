@@ -231,9 +231,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              " CONTACT=shipped for the shipped one")
     parser.add_argument("--steps", type=int, nargs="+", default=[200, 50],
                         help="steps per motion cycle, one sequence each (fewer = faster), default 200 50")
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("results"))
-    parser.add_argument("--name", default="posenet_filter")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2)")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
+    parser.add_argument("--name", default="posenet_filter",
+                        help="base name of the json and png written (default posenet_filter)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -72,7 +72,7 @@ def measure(frames: list[np.ndarray], ports: tuple[int, int, int], cycles: int, 
 
     scale, mount, preprocess_config = ActionScale(), TacTipMount(), default_config()
     period_s = 0.1
-    controller = ServoController(4.0, scale.as_array(), estimator=EstimatorConfig(posenet=posenet))
+    controller = ServoController(4.0, scale, estimator=EstimatorConfig(posenet=posenet))
     client = MG400Client(MG400ClientConfig(host="127.0.0.1", dashboard_port=ports[0], motion_port=ports[1],
                                            feedback_port=ports[2]), SafetyLayer(SafetyConfig())).connect()
     times: dict[str, list[float]] = {"preprocess": [], "controller": [], "command": [], "total": []}
@@ -120,7 +120,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-size", type=int, default=128, choices=(64, 128), help="tactile observation size")
     parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped surface GDNN)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=Path("results"),
+                        help="results directory for real_cycle.json (default results)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -24,8 +25,11 @@ from simshear_gym.data.paths import (
 )
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
-from simshear_gym.sim.replay import ReplayGeometry, render_poses
-from simshear_gym.sim.tactip import TacTipConfig
+
+# pybullet (via simshear_gym.sim) is imported inside evaluate and run, so that --help stays light.
+if TYPE_CHECKING:
+    from simshear_gym.sim.replay import ReplayGeometry
+    from simshear_gym.sim.tactip import TacTipConfig
 
 
 def contact_agreement(ours: np.ndarray, theirs: np.ndarray) -> dict[str, np.ndarray]:
@@ -64,9 +68,15 @@ def summarise(values: dict[str, np.ndarray]) -> dict[str, float]:
 
 
 def evaluate(root: Path, split: str = "val", n_rows: int | None = None, workers: int = 2,
-             tactip: TacTipConfig = TacTipConfig(), geometry: ReplayGeometry = ReplayGeometry()
+             tactip: TacTipConfig | None = None, geometry: ReplayGeometry | None = None
              ) -> tuple[dict, dict[tuple[str, str], tuple[np.ndarray, ...]]]:
-    """Agreement per tactip331 set; returns the summary and (ours, published, real) stacks for figures."""
+    """Agreement per tactip331 set (``tactip``, ``geometry``: None for the defaults); returns the summary and
+    (ours, published, real) stacks for figures."""
+    from simshear_gym.sim.replay import ReplayGeometry, render_poses
+    from simshear_gym.sim.tactip import TacTipConfig
+
+    tactip = TacTipConfig() if tactip is None else tactip
+    geometry = ReplayGeometry() if geometry is None else geometry
     summary: dict = {}
     stacks = {}
     for contact, kind in TACTIP331_TASKS:
@@ -94,7 +104,8 @@ def montage(stacks: dict, path: Path, per_set: int = 4) -> None:
         for i in picks:
             scale = 255.0 / max(int(ours[i].max()), int(theirs[i].max()), 1)
             triplet = [np.clip(ours[i] * scale, 0, 255), np.clip(theirs[i] * scale, 0, 255), real[i]]
-            tiles.append(np.hstack([t.astype(np.uint8) for t in triplet] + [np.full((ours.shape[1], 4), 128, np.uint8)]))
+            gap = np.full((ours.shape[1], 4), 128, np.uint8)
+            tiles.append(np.hstack([t.astype(np.uint8) for t in triplet] + [gap]))
         row = np.hstack(tiles)
         cv2.putText(row, f"{contact} {kind}: ours | published sim | real", (4, 12), cv2.FONT_HERSHEY_SIMPLEX,
                     0.4, 255, 1)
@@ -105,13 +116,17 @@ def montage(stacks: dict, path: Path, per_set: int = 4) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
-    parser.add_argument("--split", default="val", choices=("train", "val"))
+    parser.add_argument("--split", default="val", choices=("train", "val"),
+                        help="which split of the eight tactip331 sets to render and compare (default val)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of each set (default all)")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=2, help="rendering processes (default 2)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
 
 
 def run(args: argparse.Namespace) -> int:
+    from simshear_gym.sim.replay import ReplayGeometry
+    from simshear_gym.sim.tactip import TacTipConfig
+
     start = time.perf_counter()
     summary, stacks = evaluate(data_root(args.data), args.split, args.rows, args.workers)
     figure = args.out / "render_agreement.png"

@@ -27,36 +27,22 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.control.estimator import EstimatorConfig
+from simshear_gym.control.oracle import OracleController
+from simshear_gym.control.policy import Controller, SB3Controller
+from simshear_gym.control.servo import ServoController
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy")
 
 
-class _PolicyController:
-    """An SB3 model as a controller (deterministic actions)."""
-
-    def __init__(self, path: str, env) -> None:
-        from simshear_gym.real.rollout import load_sb3_policy
-
-        self.policy = load_sb3_policy(path, env.observation_space, env.action_space)
-
-    def reset(self) -> None:
-        self.policy.reset()
-
-    def __call__(self, observation: dict):
-        return self.policy(observation)
-
-
-def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None):
-    from simshear_gym.control.estimator import EstimatorConfig
-    from simshear_gym.control.oracle import OracleController
-    from simshear_gym.control.servo import ServoController
-
+def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None) -> Controller:
+    """The controller of a variant, matched to ``env`` (its reference depth, action scale and spaces)."""
     if variant == "oracle":
         return OracleController.for_env(env)
     if variant == "policy":
-        return _PolicyController(policy, env)
+        return SB3Controller.load(policy, env.observation_space, env.action_space)
     return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)))
 
 
@@ -73,8 +59,9 @@ def env_kwargs_of(variant: str, policy: str | None) -> dict:
     return kwargs
 
 
-def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dict:
-    """One episode; returns its figures and the paths (target and sensor, world mm) for the figure."""
+def run_episode(env, controller: Controller, seed: int, max_steps: int | None = None) -> dict:
+    """One episode of ``controller`` in a sim env; returns its figures and the paths (target and sensor, world mm)
+    for the figure."""
     observation, info = env.reset(seed=seed)
     controller.reset()
     errors, targets, sensors = [info["contact_error_mm"]], [], []
@@ -110,7 +97,8 @@ def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dic
 def summarise(runs: list[dict]) -> dict:
     means = np.array([r["contact_error_mean_mm"] for r in runs])
     return {
-        "seeds": len(runs), "contact_error_mean_mm": float(means.mean()), "contact_error_mean_std_mm": float(means.std()),
+        "seeds": len(runs), "contact_error_mean_mm": float(means.mean()),
+        "contact_error_mean_std_mm": float(means.std()),
         "contact_error_max_mm": float(max(r["contact_error_max_mm"] for r in runs)),
         "runs_with_contact_loss": int(sum(r["steps_out_of_contact"] > 0 or r["termination"] == "contact_lost"
                                           for r in runs)),
@@ -158,7 +146,8 @@ def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=("tracking", "colift"))
+    parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=("tracking", "colift"),
+                        help="benchmarks to run: SimShearTracking-v0 and/or SimShearCoLift-v0 (default both)")
     parser.add_argument("--trajectories", nargs="+", default=list(TRACKING_TRAJECTORIES),
                         help="tracking trajectories")
     parser.add_argument("--objects", nargs="+", default=None, help="co-lift objects (default all)")
@@ -166,7 +155,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--colift-rotation-deg", type=float, default=0.0,
                         help="the co-lift plate's turn about the vertical along the path (default 0: the paper's "
                              "translations; see SimShearCoLiftEnv's rotation_deg)")
-    parser.add_argument("--variants", nargs="+", default=["shpix2pix"], choices=VARIANTS)
+    parser.add_argument("--variants", nargs="+", default=["shpix2pix"], choices=VARIANTS,
+                        help="controllers to compare: shpix2pix (translated images, shipped GDNN), pix2pix and sim "
+                             "(need --posenet-pix2pix / --posenet-sim), oracle (true depth and shear), policy "
+                             "(needs --policy); default shpix2pix")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2],
                         help="seeds of the randomised runs (trajectory scale, speed, rotation, start place), each "
                              "besides the nominal run")
@@ -175,9 +167,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--posenet-sim", default=None, help="GDNN trained on raw sim images")
     parser.add_argument("--policy", default=None, help="SB3 model .zip for the policy variant")
     parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the env's limit)")
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=Path("results"))
-    parser.add_argument("--name", default="servo")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    parser.add_argument("--out", type=Path, default=Path("results"),
+                        help="output folder for <name>.json and the figures (default results)")
+    parser.add_argument("--name", default="servo",
+                        help="file name stem: <name>.json and <name>_<task>_<variant>.png (default servo)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,9 +14,11 @@ from simshear_gym.io import write_json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--run", action="append", required=True, metavar="NAME=RUN_DIR", help="a training run")
-    parser.add_argument("--out", type=Path, default=Path("results"))
-    parser.add_argument("--name", default="translator_training")
+    parser.add_argument("--run", action="append", required=True, metavar="NAME=RUN_DIR",
+                        help="a translator run directory (its history.json) and the curve's name; repeat for several")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
+    parser.add_argument("--name", default="translator_training",
+                        help="base name of the json and png written (default translator_training)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -54,6 +56,7 @@ def run(args: argparse.Namespace) -> int:
         "runs": curves, "figure": str(png)})
     for name, curve in curves.items():
         last = curve["points"][-1]
-        print(f"{name}: {len(curve['points'])} points, last {last['minutes']} min -> holdout MAPE {last['holdout_mape']}")
+        print(f"{name}: {len(curve['points'])} points, last {last['minutes']} min -> "
+              f"holdout MAPE {last['holdout_mape']}")
     print(f"wrote {args.out / (args.name + '.json')} and {png}")
     return 0

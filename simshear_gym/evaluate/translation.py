@@ -30,9 +30,11 @@ import numpy as np
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
-from simshear_gym.evaluate.metrics import mape, ssim
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
 from simshear_gym.io import write_json
+
+# torch (via evaluate.metrics and models) and pybullet (via sim) are imported inside the functions that use them,
+# so that `simshear evaluate translation --help` stays light.
 
 KINDS = ("shear", "tap")
 
@@ -81,7 +83,7 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
              published_input: bool = True, readers: dict[str, Path] | None = None) -> tuple[dict, dict, dict]:
     """Figures per set and method, the readers' MAE on the real val images per set (empty without readers),
     and image stacks for the figure."""
-    from simshear_gym.evaluate.metrics import truth_labels
+    from simshear_gym.evaluate.metrics import mape, ssim, truth_labels
     from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator import Translator
     from simshear_gym.sim.replay import render_poses
@@ -158,8 +160,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a translator to evaluate; repeat for several (default: the shipped ones)")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of each val set (default all)")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--workers", type=int, default=2, help="processes rendering the sim images (default 2)")
+    parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
     parser.add_argument("--name", default="translation", help="base name of the json and png written")
     parser.add_argument("--reader", action="append", default=[], metavar="CONTACT=PATH",
                         help="a GDNN trained on that contact's real images, to read every method's images "

@@ -33,8 +33,11 @@ def latency_ms(translator, batch: int, repeats: int, rng: np.random.Generator) -
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
-    parser.add_argument("--repeats", type=int, default=30)
-    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--repeats", type=int, default=30,
+                        help="timed batches at batch 1 (a fifth, at least 3, at batch 32); the median counts "
+                             "(default 30)")
+    parser.add_argument("--out", type=Path, default=Path("results"),
+                        help="results directory for translator_speed.json (default results)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -7,7 +7,7 @@ network sees the same input wherever it runs.
 
 from __future__ import annotations
 
-from typing import Mapping
+from collections.abc import Mapping
 
 import cv2
 import numpy as np

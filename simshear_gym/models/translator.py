@@ -67,7 +67,7 @@ class Translator:
         self._run = generator.frozen() if fast else generator
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Translator":
+    def load(cls, path: str | os.PathLike) -> Translator:
         return cls(*load_generator(path))
 
     @property

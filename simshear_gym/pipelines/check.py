@@ -14,6 +14,7 @@ import argparse
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,7 +22,9 @@ from simshear_gym.data.adapter import adapt_dataset, summarise_variables
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import TactileDataError
 from simshear_gym.io import write_json
-from simshear_gym.pipelines.config import ExperimentConfig, load_config
+
+if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
+    from simshear_gym.pipelines.config import ExperimentConfig
 
 
 @dataclass(frozen=True)
@@ -92,6 +95,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simshear_gym.pipelines.config import load_config
+
     start = time.perf_counter()
     config = load_config(args.config)
     reports = check(config, data_root(args.data), args.max_rows)

@@ -13,8 +13,8 @@ import time
 from pathlib import Path
 
 from simshear_gym.data.paths import SPLITS, TACTIP331_TASKS, data_root, real_set_dir
-from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
-from simshear_gym.sim.tactip import TacTipConfig
+
+# pybullet (via simshear_gym.sim) is imported inside run, so that `simshear collect --help` stays light.
 
 
 # ----------------------------------------------------------------------------------------------- command line
@@ -31,11 +31,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--contact", choices=("surface", "edge"), help="contact type of --replay sets "
                         "(default: read from the path)")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
-    parser.add_argument("--image-size", type=int, default=128, choices=(64, 128, 256))
+    parser.add_argument("--image-size", type=int, default=128, choices=(64, 128, 256),
+                        help="side of the rendered sim images in px (default 128)")
     parser.add_argument("--workers", type=int, default=2, help="rendering processes")
 
 
 def run(args: argparse.Namespace) -> int:
+    from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
+    from simshear_gym.sim.tactip import TacTipConfig
+
     config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers)
     start = time.perf_counter()
     if args.task:

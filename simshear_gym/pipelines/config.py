@@ -19,10 +19,9 @@ expected, raised before anything reads data.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import MappingProxyType
-from typing import Mapping
 
 from simshear_gym.data.adapter import DatasetConfig, FrameConfig
 from simshear_gym.sim.replay import ReplayGeometry
@@ -92,6 +91,6 @@ def load_config(path: str | Path) -> ExperimentConfig:
             raise ConfigError(f"{source}: {key} = {table[key]!r}; expected a string")
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
-                                datasets=MappingProxyType(datasets), path=path, **parts)
+                                datasets=datasets, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None

@@ -150,14 +150,22 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     defaults = EnvCollectConfig()
-    parser.add_argument("--task", choices=TASKS, default=defaults.task)
+    parser.add_argument("--task", choices=TASKS, default=defaults.task,
+                        help="tracking (SimShearTracking-v0 over its trajectories) or colift (SimShearCoLift-v0 over "
+                             f"its objects and trajectories); default {defaults.task}")
     parser.add_argument("--out", type=Path, required=True, help="set directory to write")
     parser.add_argument("--driver", choices=DRIVERS, default=defaults.driver,
                         help="who moves the follower: the oracle law (wandering gain) or the servo controller")
     parser.add_argument("--posenet", default=None, help="GDNN of the servo driver (default: shipped)")
-    for name in ("rows", "episode_steps", "gain_min", "gain_period_steps", "noise", "seed"):
+    helps = {"rows": "images to keep", "episode_steps": "steps per episode at most",
+             "gain_min": "the oracle law's gain wanders between this and 1",
+             "gain_period_steps": "period of the gain's wander, in steps",
+             "noise": "std of the Gaussian noise added to the action (action units, full scale 1)",
+             "seed": "seeds episodes, gains and noise"}
+    for name, text in helps.items():
         value = getattr(defaults, name)
-        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value, help=f"default {value}")
+        parser.add_argument(f"--{name.replace('_', '-')}", type=type(value), default=value,
+                            help=f"{text} (default {value})")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (translation)")
 
 

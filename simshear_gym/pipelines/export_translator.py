@@ -28,18 +28,21 @@ def check_figure(weights: Path, contact: str, rows: int, data: str | None = None
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="translator run directory (best.pt, config.json)")
-    parser.add_argument("--contact", choices=("surface", "edge"), required=True)
+    parser.add_argument("--contact", choices=("surface", "edge"), required=True,
+                        help="contact type of the run; its real <contact>_shear val set gives the check figure")
     parser.add_argument("--to", type=Path, required=True, help="weights file to write")
     parser.add_argument("--train-command", required=True, help="the exact command that trained the run")
-    parser.add_argument("--check-rows", type=int, default=16)
-    parser.add_argument("--data", default=None)
+    parser.add_argument("--check-rows", type=int, default=16,
+                        help="rows of the real <contact>_shear val set in the check figure's MAPE (default 16)")
+    parser.add_argument("--data", default=None,
+                        help="data root holding tactip331/ (default: $SIMSHEAR_DATA, else ../shared/data)")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
     from simshear_gym.models.translator import load_generator, save_generator
-    from simshear_gym.train.translator import export_run
+    from simshear_gym.train.translator_trainer import export_run
 
     export_run(args.run, args.to, card={"train_command": args.train_command, "contact": args.contact})
     check = check_figure(args.to, args.contact, args.check_rows, args.data)
@@ -47,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
     save_generator(args.to, generator, card={**card, "check": check})
     torch.load(args.to, map_location="cpu", weights_only=True)  # readable as written
     print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.1f} MiB); check: {check}")
-    print("command:", " ".join(shlex.quote(a) for a in ["simshear", "train", "export-translator", "--run", str(args.run),
-                                                       "--contact", args.contact, "--to", str(args.to)]))
+    words = ["simshear", "train", "export-translator", "--run", str(args.run), "--contact", args.contact,
+             "--to", str(args.to)]
+    print("command:", " ".join(shlex.quote(a) for a in words))
     return 0

@@ -2,8 +2,8 @@
 
 A policy trained on ``SimShearTracking-v0`` (or the servo controller) drives the real arm unchanged: the action
 and observation spaces are the sim env's, from the one definition both use
-(:func:`simshear_gym.contract.policy_spaces`), and so are the action scaling and the mount (:class:`~simshear_gym.contract.ActionScale`,
-:class:`~simshear_gym.contract.TacTipMount`).
+(:func:`simshear_gym.contract.policy_spaces`), and so are the action scaling and the mount
+(:class:`~simshear_gym.contract.ActionScale`, :class:`~simshear_gym.contract.TacTipMount`).
 
 **Action** ``Box(-1, 1, (4,), float32)``: a relative move of the sensor in its own frame per step, scaled by
 ``ActionScale`` (dx, dy, dz mm; dRz deg), as in the sim env. Each action becomes one ``ServoP`` target for the
@@ -83,6 +83,7 @@ from simshear_gym.real.safety import (
     SafetyError,
     SafetyLayer,
     StatusSnapshot,
+    StopReason,
 )
 from simshear_gym.robots.mg400.frames import (
     T_base_flange_to_pose,
@@ -102,6 +103,15 @@ logger = logging.getLogger(__name__)
 TERMINATIONS: tuple[str, ...] = ("safety_refused", "robot_error", "lost_connection", "camera_stall", "camera_ended",
                                  "lost_contact")
 """Every value ``info["termination"]`` takes besides ``""``."""
+
+STOP_TERMINATIONS: dict[StopReason, str] = {
+    StopReason.LOST_CONNECTION: "lost_connection",
+    StopReason.STALE_FEEDBACK: "lost_connection",
+    StopReason.ROBOT_ERROR_MODE: "robot_error",
+    StopReason.CAMERA_STALLED: "camera_stall",
+    StopReason.LOST_CONTACT: "lost_contact",
+}
+"""The termination of each stop condition of :meth:`SafetyLayer.check_status`."""
 
 ContactCheck = Callable[[dict[str, np.ndarray]], bool]
 """Observation -> whether the sensor still touches the contact (e.g. from a pose estimator's depth)."""
@@ -485,17 +495,13 @@ class RealTactileEnv(gym.Env):
         self._snapshot = snapshot
         decision = self.safety.check_status(snapshot)
         if stop is None and decision.stop:
-            stop = (self._classify(decision.reasons), "; ".join(decision.reasons))
+            stop = (self._classify(decision.reason), "; ".join(decision.reasons))
         return obs, stop
 
     @staticmethod
-    def _classify(reasons: tuple[str, ...]) -> str:
-        text = " ".join(reasons)
-        for key, name in (("connection", "lost_connection"), ("feedback", "lost_connection"),
-                          ("error mode", "robot_error"), ("camera", "camera_stall"), ("contact", "lost_contact")):
-            if key in text:
-                return name
-        return "robot_error"
+    def _classify(reason: StopReason) -> str:
+        """The termination (``info["termination"]``) of a stop condition."""
+        return STOP_TERMINATIONS[reason]
 
     def _info(self, stop_reason: str, action: np.ndarray, overrun_s: float) -> dict[str, Any]:
         snapshot = self._snapshot
@@ -540,6 +546,5 @@ class EstimatedContact:
         return self.last_depth_mm >= self.min_depth_mm
 
 
-__all__ = ["TERMINATIONS", "ContactCheck", "EstimatedContact", "RealEnvConfig", "RealEnvError", "RealTactileEnv",
-           "action_to_move", "move_to_flange_target", "tactile_from_frame",
-           "tcp_pose_from_flange"]
+__all__ = ["STOP_TERMINATIONS", "TERMINATIONS", "ContactCheck", "EstimatedContact", "RealEnvConfig", "RealEnvError",
+           "RealTactileEnv", "action_to_move", "move_to_flange_target", "tactile_from_frame", "tcp_pose_from_flange"]

@@ -193,7 +193,7 @@ class _ReplyChannel:
             self._sock.settimeout(remaining)
             try:
                 data = self._sock.recv(4096)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError as error:
                 self._mark_lost(f"receive failed: {error}")
@@ -247,7 +247,7 @@ class _FeedbackReader:
         while not self._stop.is_set():
             try:
                 data = self._sock.recv(65536)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError as error:
                 self._set_lost(f"receive failed: {error}")

@@ -24,16 +24,20 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import logging
 import shlex
 import time
-import zipfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
+    Controller,
+    EstimatingController,
+    SB3Controller,
+    sb3_algorithm,
+)
 from simshear_gym.io import atomic_write, write_json
 
 logger = logging.getLogger(__name__)
@@ -41,85 +45,6 @@ logger = logging.getLogger(__name__)
 SIM_SURFACE_CAMERA = "sim-surface"
 STATE_NAMES = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# Policies: a common face for the servo controller and SB3 models
-
-
-class ServoPolicy:
-    """The servo controller as a rollout policy (its state estimate is logged)."""
-
-    name = "servo"
-
-    def __init__(self, controller) -> None:
-        self.controller = controller
-
-    def reset(self) -> None:
-        self.controller.reset()
-
-    def __call__(self, observation: dict) -> np.ndarray:
-        return self.controller(observation)
-
-    def estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
-        return self.controller.last_estimate
-
-
-class SB3Policy:
-    """A Stable-Baselines3 model as a rollout policy (deterministic actions)."""
-
-    def __init__(self, model, path: Path) -> None:
-        self.model = model
-        self.name = f"{type(model).__name__.lower()}:{path}"
-
-    def reset(self) -> None:
-        pass
-
-    def __call__(self, observation: dict) -> np.ndarray:
-        action, _ = self.model.predict(observation, deterministic=True)
-        return np.asarray(action, dtype=np.float32).reshape(4)
-
-    def estimate(self) -> None:
-        return None
-
-
-def sb3_algorithm(path: Path) -> str:
-    """``"ppo"`` or ``"sac"``: which SB3 algorithm saved a ``.zip`` (read from its ``data`` entry)."""
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as error:
-        raise ValueError(f"{path} is not a Stable-Baselines3 model .zip (no readable 'data' entry): {error}") from None
-    # The zip names the policy class, not the algorithm; the saved hyper-parameters tell PPO and SAC apart.
-    if "clip_range" in data:
-        return "ppo"
-    if "target_entropy" in data:
-        return "sac"
-    raise ValueError(f"{path}: neither a PPO nor a SAC model of stable_baselines3 (saved keys: {sorted(data)[:12]}...)")
-
-
-def load_sb3_policy(path: str | Path, observation_space, action_space) -> SB3Policy:
-    """Load a PPO/SAC ``.zip`` and check that its spaces are the env's.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not an SB3 PPO/SAC model, or trained for other observation/action spaces.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"controller {str(path)!r} is neither 'servo' nor an existing SB3 .zip file")
-    algorithm = sb3_algorithm(path)
-    if algorithm == "ppo":
-        from stable_baselines3 import PPO as Algorithm
-    else:
-        from stable_baselines3 import SAC as Algorithm
-    model = Algorithm.load(path, device="cpu")
-    if model.observation_space != observation_space:
-        raise ValueError(f"{path} was trained on observations {model.observation_space}, but the env gives "
-                         f"{observation_space} (check --image-size)")
-    if model.action_space != action_space:
-        raise ValueError(f"{path} was trained with actions {model.action_space}, the env takes {action_space}")
-    return SB3Policy(model, path)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -169,37 +94,43 @@ def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: 
     return row
 
 
-def run_rollout(env, policy, steps: int, out_dir: str | Path, command: str = "") -> dict[str, Any]:
-    """Reset ``env`` (a :class:`~simshear_gym.real.env.RealTactileEnv`), run ``policy`` for up to ``steps`` steps
-    and write ``steps.csv``, ``rollout.json`` and ``trajectory.png`` in ``out_dir``; returns the summary."""
+def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, command: str = "") -> dict[str, Any]:
+    """Reset ``env`` (a :class:`~simshear_gym.real.env.RealTactileEnv`), run ``controller`` for up to ``steps``
+    steps and write ``steps.csv``, ``rollout.json`` and ``trajectory.png`` in ``out_dir``; returns the summary.
+
+    The log carries the controller's state estimate when it keeps one
+    (:class:`~simshear_gym.control.policy.EstimatingController`), and names it by its ``name`` (its class name
+    without one)."""
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    name = getattr(controller, "name", type(controller).__name__)
     observation, info = env.reset()
-    policy.reset()
+    controller.reset()
     truth_source = getattr(env.camera, "history", None)
-    with_estimate = isinstance(policy, ServoPolicy)
+    with_estimate = isinstance(controller, EstimatingController)
     rows = [_row(0, observation, info, np.zeros(4), None, 0.0, truth_source[-1] if truth_source else None)]
     termination, policy_ms = "", []
     for step in range(1, steps + 1):
         start = time.perf_counter()
-        action = policy(observation)
+        action = controller(observation)
         policy_ms.append(1000.0 * (time.perf_counter() - start))
         observation, _, terminated, truncated, info = env.step(action)
         truth = truth_source[-1] if truth_source else None
-        rows.append(_row(step, observation, info, action, policy.estimate(), policy_ms[-1], truth))
+        estimate = controller.last_estimate if with_estimate else None
+        rows.append(_row(step, observation, info, action, estimate, policy_ms[-1], truth))
         if terminated or truncated:
             termination = info["termination"]
             break
     events = list(env.safety_events)
     columns = _columns(with_estimate, truth_source is not None)
     _write_csv(out_dir / "steps.csv", columns, rows)
-    figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{policy.name}: {termination or 'completed'}")
+    figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{name}: {termination or 'completed'}")
     overruns = np.array([row["overrun_s"] for row in rows[1:]]) if len(rows) > 1 else np.zeros(0)
     summary: dict[str, Any] = {
         "command": command,
-        "controller": policy.name,
+        "controller": name,
         "steps_requested": steps,
         "steps_run": len(rows) - 1,
         "termination": termination,
@@ -314,9 +245,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stop when the GDNN's depth reading falls below this (lost contact); default off")
     parser.add_argument("--preprocess", default="shipped",
                         help="preprocessing JSON, 'shipped' (default), or 'none' when frames are tactile images")
-    parser.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT)
-    parser.add_argument("--motion-port", type=int, default=MOTION_PORT)
-    parser.add_argument("--feedback-port", type=int, default=FEEDBACK_PORT)
+    parser.add_argument("--dashboard-port", type=int, default=DASHBOARD_PORT,
+                        help=f"MG400 dashboard TCP port: enable, mode, errors (default {DASHBOARD_PORT})")
+    parser.add_argument("--motion-port", type=int, default=MOTION_PORT,
+                        help=f"MG400 motion TCP port: MovJ, ServoP (default {MOTION_PORT})")
+    parser.add_argument("--feedback-port", type=int, default=FEEDBACK_PORT,
+                        help=f"MG400 feedback TCP port: the pose and mode stream (default {FEEDBACK_PORT})")
     parser.add_argument("--surface-velocity", type=float, nargs=3, default=(2.0, 0.0, 0.0), metavar=("VX", "VY", "VZ"),
                         help=f"{SIM_SURFACE_CAMERA} camera: surface velocity in the base frame, mm/s")
     parser.add_argument("--surface-travel-mm", type=float, default=20.0,
@@ -357,6 +291,17 @@ def _preprocess_config(value: str):
     return PreprocessConfig.load(value)
 
 
+def _load_sb3(path: str, env) -> SB3Controller:
+    """``--controller MODEL.zip`` as a controller, with errors that name the flags."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"--controller {path!r} is neither 'servo' nor an existing SB3 .zip file")
+    sb3_algorithm(path)  # not an SB3 model: that error as it is
+    try:
+        return SB3Controller.load(path, env.observation_space, env.action_space)
+    except ValueError as error:  # trained on other spaces
+        raise ValueError(f"--controller {error}; check --image-size") from None
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the rollout; 0 when every step ran, 1 when a safety condition stopped it early."""
     import torch
@@ -392,23 +337,20 @@ def run(args: argparse.Namespace) -> int:
         env = RealTactileEnv(config, camera=camera)
         holder.append(env)
     estimator_config = EstimatorConfig(posenet=args.posenet)
-    if args.controller == "servo":
-        controller = ServoController(args.reference_depth_mm, config.action_scale.as_array(),
-                                     estimator=estimator_config)
-        policy = ServoPolicy(controller)
-        estimator = controller.estimator
-    else:
-        policy = load_sb3_policy(args.controller, env.observation_space, env.action_space)
-        estimator = None
-    if args.min_depth_mm is not None:
-        if estimator is None:
-            from simshear_gym.control.estimator import TactileEstimator
-
-            estimator = TactileEstimator(estimator_config)
-        env.contact_check = EstimatedContact(estimator, args.min_depth_mm)
-    command = command_line(args)
     try:
-        summary = run_rollout(env, policy, args.steps, out_dir, command=command)
+        controller: Controller
+        if args.controller == "servo":
+            servo = ServoController(args.reference_depth_mm, config.action_scale, estimator=estimator_config)
+            controller, estimator = servo, servo.estimator
+        else:
+            controller, estimator = _load_sb3(args.controller, env), None
+        if args.min_depth_mm is not None:
+            if estimator is None:
+                from simshear_gym.control.estimator import TactileEstimator
+
+                estimator = TactileEstimator(estimator_config)
+            env.contact_check = EstimatedContact(estimator, args.min_depth_mm)
+        summary = run_rollout(env, controller, args.steps, out_dir, command=command_line(args))
     finally:
         env.close()
     print(f"{summary['steps_run']}/{args.steps} steps, {summary['commands_sent']} commands sent"

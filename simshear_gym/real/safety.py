@@ -131,12 +131,46 @@ class StatusSnapshot:
     in_contact: bool | None = None
 
 
+class StopReason(enum.Enum):
+    """Why :meth:`SafetyLayer.check_status` stops, one member per stop condition, in order of precedence (when
+    several hold, the first decides how the episode ends)."""
+
+    LOST_CONNECTION = "lost_connection"  # a robot connection is down
+    STALE_FEEDBACK = "stale_feedback"  # the newest feedback packet is older than max_feedback_age_s
+    ROBOT_ERROR_MODE = "robot_error_mode"  # the controller reports RobotMode ERROR
+    CAMERA_STALLED = "camera_stalled"  # the newest camera frame is older than max_camera_frame_age_s
+    LOST_CONTACT = "lost_contact"  # the snapshot says the sensor left the surface (stop_on_lost_contact)
+
+
+@dataclass(frozen=True)
+class StatusStop:
+    """One stop condition that holds: ``reason`` to act on, ``message`` for people (values and limits)."""
+
+    reason: StopReason
+    message: str
+
+
 @dataclass(frozen=True)
 class StopDecision:
-    """``stop`` is True when any stop condition holds; ``reasons`` says which."""
+    """The stop conditions that hold (none: carry on), in the order of :class:`StopReason`."""
 
-    stop: bool
-    reasons: tuple[str, ...] = ()
+    stops: tuple[StatusStop, ...] = ()
+
+    @property
+    def stop(self) -> bool:
+        """Whether any stop condition holds."""
+        return bool(self.stops)
+
+    @property
+    def reason(self) -> StopReason | None:
+        """The stop condition that takes precedence, None when there is none."""
+        order = list(StopReason)
+        return min((stop.reason for stop in self.stops), key=order.index, default=None)
+
+    @property
+    def reasons(self) -> tuple[str, ...]:
+        """The messages of the stop conditions, for logs."""
+        return tuple(stop.message for stop in self.stops)
 
 
 _ROBOT_MODE_ERROR = 9  # RobotMode.ERROR; kept numeric so this module does not depend on the protocol module
@@ -210,22 +244,25 @@ class SafetyLayer:
     # -- stop conditions -----------------------------------------------------------------------------------------
 
     def check_status(self, snapshot: StatusSnapshot) -> StopDecision:
-        """Decide stop/continue: lost connection or stale feedback, robot error mode, camera stall, lost contact."""
+        """Decide stop/continue: lost connection or stale feedback, robot error mode, camera stall, lost contact
+        (a :class:`StopReason` and a message for each condition that holds)."""
         cfg = self.config
-        reasons: list[str] = []
+        stops: list[StatusStop] = []
         if not snapshot.connected:
-            reasons.append("lost connection to the robot")
+            stops.append(StatusStop(StopReason.LOST_CONNECTION, "lost connection to the robot"))
         elif snapshot.feedback_age_s is not None and snapshot.feedback_age_s > cfg.max_feedback_age_s:
-            reasons.append(f"robot feedback is {snapshot.feedback_age_s:.3f} s old "
-                           f"(max_feedback_age_s = {cfg.max_feedback_age_s:g})")
+            stops.append(StatusStop(StopReason.STALE_FEEDBACK,
+                                    f"robot feedback is {snapshot.feedback_age_s:.3f} s old "
+                                    f"(max_feedback_age_s = {cfg.max_feedback_age_s:g})"))
         if snapshot.robot_mode is not None and snapshot.robot_mode == _ROBOT_MODE_ERROR:
-            reasons.append("robot is in error mode")
+            stops.append(StatusStop(StopReason.ROBOT_ERROR_MODE, "robot is in error mode"))
         if snapshot.camera_frame_age_s is not None and snapshot.camera_frame_age_s > cfg.max_camera_frame_age_s:
-            reasons.append(f"camera stalled: newest frame is {snapshot.camera_frame_age_s:.3f} s old "
-                           f"(max_camera_frame_age_s = {cfg.max_camera_frame_age_s:g})")
+            stops.append(StatusStop(StopReason.CAMERA_STALLED,
+                                    f"camera stalled: newest frame is {snapshot.camera_frame_age_s:.3f} s old "
+                                    f"(max_camera_frame_age_s = {cfg.max_camera_frame_age_s:g})"))
         if cfg.stop_on_lost_contact and snapshot.in_contact is False:
-            reasons.append("lost contact with the surface")
-        return StopDecision(stop=bool(reasons), reasons=tuple(reasons))
+            stops.append(StatusStop(StopReason.LOST_CONTACT, "lost contact with the surface"))
+        return StopDecision(tuple(stops))
 
     # -- sending -------------------------------------------------------------------------------------------------
 

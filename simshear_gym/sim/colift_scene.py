@@ -523,7 +523,7 @@ class CoLiftScene:
             self._world.close()
             self._world = None
 
-    def __enter__(self) -> "CoLiftScene":
+    def __enter__(self) -> CoLiftScene:
         return self
 
     def __exit__(self, *exc: object) -> None:

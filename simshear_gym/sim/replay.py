@@ -82,7 +82,7 @@ class ReplayScene:
     def close(self) -> None:
         self.world.close()
 
-    def __enter__(self) -> "ReplayScene":
+    def __enter__(self) -> ReplayScene:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -81,7 +81,7 @@ class World:
             self._client.disconnect()
             self._client = None
 
-    def __enter__(self) -> "World":
+    def __enter__(self) -> World:
         return self
 
     def __exit__(self, *exc: object) -> None:

@@ -16,22 +16,22 @@ The generated image (B, 1, S, S) in [0, 1] is brought to the GDNN's input size b
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import torch
 from torch.nn import functional as F
 
 from simshear_gym.models.gdnn import VariableSet
+from simshear_gym.models.gdnn_input import label_matrix
+from simshear_gym.models.posenet_io import load_posenet
 
 
 class PoseConsistency:
     """Owns a frozen real-image GDNN and scores generated images against their rows' labels."""
 
     def __init__(self, posenet_path: str | os.PathLike, variables: tuple[str, ...] = ()) -> None:
-        from simshear_gym.models.posenet_io import load_posenet
-
         path = Path(posenet_path)
         if not path.is_file():
             raise FileNotFoundError(f"pose-consistency GDNN {path} not found (a best.pt of simshear train posenet "
@@ -56,8 +56,6 @@ class PoseConsistency:
 
     def encoded_labels(self, table: Mapping[str, np.ndarray]) -> torch.Tensor:
         """(N, D) float32 labels of a paired set's targets table on the GDNN's normalised scale."""
-        from simshear_gym.models.gdnn_input import label_matrix
-
         return self.variables.encode(label_matrix(table, self.variables)).to(torch.float32)
 
     def loss(self, generated: torch.Tensor, encoded_labels: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,12 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from simshear_gym.train.flags import config_flags, config_from_args
+from simshear_gym.train.runs import check_same_settings
+
 ALGORITHMS = ("ppo", "sac")
+OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
+_RESUME_FREE = ("timesteps", "threads")  # settings a resumed run may change
 
 
 @dataclass(frozen=True)
@@ -44,8 +49,9 @@ class RLTrainConfig:
     def __post_init__(self) -> None:
         if self.algo not in ALGORITHMS:
             raise ValueError(f"algo must be one of {ALGORITHMS}, got {self.algo!r}")
-        if self.obs_mode not in ("real", "sim"):
-            raise ValueError(f"obs_mode must be 'real' or 'sim' (a policy never sees ground truth), got {self.obs_mode!r}")
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"obs_mode must be 'real' or 'sim' (a policy never sees ground truth), "
+                             f"got {self.obs_mode!r}")
         if self.image_size_px not in (64, 128):
             raise ValueError(f"image_size_px must be 64 or 128, got {self.image_size_px}")
         if min(self.timesteps, self.n_envs, self.n_steps, self.batch_size, self.checkpoint_steps) < 1:
@@ -88,11 +94,7 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     run_dir = Path(run_dir)
     saved_config = run_dir / "config.json"
     if saved_config.is_file() and resume:
-        before = json.loads(saved_config.read_text())
-        changed = {k: (before.get(k), v) for k, v in asdict(config).items()
-                   if k not in ("timesteps", "threads") and before.get(k) != v}
-        if changed:
-            raise ValueError(f"{saved_config}: --resume with different settings {changed}; use a new --out")
+        check_same_settings(saved_config, json.loads(saved_config.read_text()), config, _RESUME_FREE)
     if not resume and latest_checkpoint(run_dir) is not None:
         raise ValueError(f"{run_dir} already holds a model: pass --resume to continue it or use a new --out")
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -127,21 +129,31 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     return summary
 
 
+FLAG_HELP = {
+    "algo": "SB3 algorithm",
+    "timesteps": "env steps to train in all (a resumed run trains until its step count reaches this)",
+    "obs_mode": "tactile images the policy sees: real (sim renders through the shipped translator, as on the "
+                "robot) or sim (the raw sim renders)",
+    "image_size_px": "tactile image size in px: 64 or 128 (the policy's CNN needs at least 36)",
+    "n_envs": "envs stepped side by side (SB3 make_vec_env)",
+    "n_steps": "PPO: env steps per env between updates",
+    "batch_size": "minibatch size of the updates",
+    "learning_rate": "Adam learning rate",
+    "checkpoint_steps": "write checkpoints/rl_model_<steps>_steps.zip every this many env steps",
+    "seed": "seed of the envs and the agent",
+    "threads": "torch CPU threads",
+}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    defaults = RLTrainConfig()
-    parser.add_argument("--algo", choices=ALGORITHMS, default=defaults.algo)
     parser.add_argument("--out", type=Path, required=True, help="run directory")
-    for name in ("timesteps", "obs_mode", "image_size_px", "n_envs", "n_steps", "batch_size", "learning_rate",
-                 "checkpoint_steps", "seed", "threads"):
-        value = getattr(defaults, name)
-        flag = "--" + name.replace("_px", "").replace("_", "-")
-        parser.add_argument(flag, dest=name, type=type(value), default=value, help=f"default {value}")
+    config_flags(parser, RLTrainConfig, FLAG_HELP, choices={"algo": ALGORITHMS, "obs_mode": OBS_MODES})
     parser.add_argument("--resume", action="store_true", help="continue from the run's newest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no SB3 training log on stdout")
 
 
 def run(args: argparse.Namespace) -> int:
-    config = RLTrainConfig(**{name: getattr(args, name) for name in RLTrainConfig.__dataclass_fields__})
+    config = config_from_args(RLTrainConfig, args)
     summary = train(config, args.out, resume=args.resume, progress=not args.quiet)
     print(json.dumps(summary))
     return 0

@@ -1,4 +1,6 @@
-"""What every training run in ``train/`` shares: the holdout split, the resume settings check, the checkpoint."""
+"""What every training run in ``train/`` shares: the learning-rate schedule, the holdout split, the resume settings
+check. Torch-free, so that the command modules can build their parsers without it; the checkpoint itself is
+written by :mod:`simshear_gym.train.loop`."""
 
 from __future__ import annotations
 
@@ -7,9 +9,6 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
-import torch
-
-from simshear_gym.io import atomic_write, write_json
 
 LR_SCHEDULES = ("constant", "cosine")
 
@@ -43,10 +42,6 @@ def check_same_settings(path: Path, saved_config: dict, config, free: tuple[str,
     mine = {k: v for k, v in asdict(config).items() if k not in free}
     if saved != mine:
         changed = sorted(k for k in mine if saved.get(k) != mine[k])
-        raise ValueError(f"{path}: checkpoint was trained with other settings ({changed}); use a new --out")
+        raise ValueError(f"{path}: trained with other settings ({changed}); to train with different settings, use "
+                         "a new --out")
 
-
-def save_checkpoint(run_dir: Path, state: dict, config, history: list[dict]) -> None:
-    """Write ``checkpoint.pt`` and ``history.json`` atomically."""
-    atomic_write(Path(run_dir) / "checkpoint.pt", lambda tmp: torch.save(state, tmp))
-    write_json(Path(run_dir) / "history.json", {"config": asdict(config), "epochs": history})

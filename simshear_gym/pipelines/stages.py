@@ -1,0 +1,101 @@
+"""Cached pipeline stages: each stage's work lands in a folder named by a content hash of its inputs and settings,
+and counts as done only once its record (``stage.json``) is written, last and atomically.
+
+So a rerun of a finished pipeline finds every record and does nothing; a run killed mid-stage finds that stage's
+folder without a record and runs the stage again in the same folder, where a resumable step (a trainer's
+checkpoint) picks up where it stopped; a change of settings or of an input's hash gives a new folder.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, is_dataclass
+from pathlib import Path
+from typing import Any
+
+from simshear_gym.io import write_json
+
+RECORD = "stage.json"
+
+
+def digest(value: Any) -> str:
+    """A short, stable content hash of JSON-able settings (dataclasses, paths and tuples allowed)."""
+    text = json.dumps(_plain(value), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha1(text.encode()).hexdigest()[:12]
+
+
+def _plain(value: Any) -> Any:
+    if is_dataclass(value) and not isinstance(value, type):
+        return _plain(asdict(value))
+    if isinstance(value, dict) or hasattr(value, "items"):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def file_fingerprint(paths: list[Path]) -> str:
+    """A hash of files' names, sizes and modification times (cheap: a data set's images are not read)."""
+    entries = []
+    for path in sorted(paths):
+        stat = path.stat()
+        entries.append(f"{path.name}|{stat.st_size}|{stat.st_mtime_ns}")
+    return hashlib.sha1("\n".join(entries).encode()).hexdigest()[:12]
+
+
+@dataclass
+class StageResult:
+    """What a stage left: its folder, its record (outputs, metrics, wall time) and whether it ran now."""
+
+    name: str
+    folder: Path
+    record: dict
+    ran: bool
+
+    @property
+    def outputs(self) -> dict:
+        return self.record["outputs"]
+
+
+@dataclass
+class StageRunner:
+    """Runs stages under ``root`` (``root/<stage>/<hash>/``) and keeps their records for the run's manifest."""
+
+    root: Path
+    log: Callable[[str], None] = print
+    results: list[StageResult] = field(default_factory=list)
+
+    def run(self, name: str, key: dict, work: Callable[[Path], dict]) -> StageResult:
+        """Run ``work(folder) -> {"outputs": {...}, "metrics": {...}}`` unless its record exists.
+
+        ``key`` is everything the stage's result depends on: settings, seeds and its inputs' hashes.
+        Output paths in the record are relative to ``root``."""
+        stage_hash = digest(key)
+        folder = self.root / name / stage_hash
+        record_path = folder / RECORD
+        if record_path.exists():
+            record = json.loads(record_path.read_text())
+            self.log(f"[{name}] cached ({folder.relative_to(self.root)})")
+            result = StageResult(name, folder, record, ran=False)
+        else:
+            folder.mkdir(parents=True, exist_ok=True)
+            resumed = any(folder.iterdir())
+            self.log(f"[{name}] {'resuming' if resumed else 'running'} in {folder.relative_to(self.root)}")
+            start = time.perf_counter()
+            produced = work(folder)
+            record = {"stage": name, "hash": stage_hash, "key": _plain(key),
+                      "outputs": _plain(produced.get("outputs", {})), "metrics": _plain(produced.get("metrics", {})),
+                      "wall_s": round(time.perf_counter() - start, 2), "resumed": resumed}
+            write_json(record_path, record)
+            self.log(f"[{name}] done in {record['wall_s']:.1f} s")
+            result = StageResult(name, folder, record, ran=True)
+        self.results.append(result)
+        return result
+
+    def relative(self, path: Path) -> str:
+        return str(Path(path).resolve().relative_to(self.root.resolve()))

@@ -1,0 +1,218 @@
+"""The epoch loop of the translator and GDNN trainers: epochs, time budget, holdout, best model, checkpoint, early
+stop, resume, progress bars, tensorboard.
+
+A trainer subclasses :class:`EpochTrainer` and keeps what is its own: data, networks, losses, and what its
+checkpoint holds besides the loop's counters (the hooks below). :meth:`EpochTrainer.fit` trains until
+``config.epochs`` epochs are done, ``config.patience_epochs`` epochs in a row bring no better holdout metric, or
+the time budget ``config.max_minutes`` (training time, counted across resumes) runs out. Each step sets the
+learning rate of every optimiser to :func:`~simshear_gym.train.runs.scheduled_lr` of the share of the run done
+(of its time budget when it has one, else of its steps). After each epoch, and in the epoch where the time runs out
+(a partial epoch), it measures the holdout metric, appends a record to the history, saves ``best.pt`` when the
+metric improves and writes ``checkpoint.pt`` and ``history.json`` atomically, so ``resume`` continues from the
+last finished epoch with the same numbers a straight run would give (the random generators are in the
+checkpoint).
+
+Run directory: ``config.json`` (written when ``fit`` starts), ``history.json`` (``{"config": ..., "epochs":
+[record, ...]}``; a record: ``epoch``, ``partial_epoch``, ``step``, ``elapsed_s``, ``train_<metric>`` (mean training
+loss of the epoch's steps), ``holdout_<metric>``), ``checkpoint.pt``, ``best.pt``, tensorboard logs under ``tb/``
+(every 20 steps ``train/<loss>`` and ``train/lr``; every epoch ``holdout/<metric>``, against steps and against
+whole minutes as ``holdout/<metric>_vs_minutes``, plus what the trainer's ``log_epoch`` adds).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from abc import ABC, abstractmethod
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch.utils.tensorboard import SummaryWriter
+from tqdm import tqdm
+
+from simshear_gym.io import atomic_write, write_json
+from simshear_gym.train.runs import check_same_settings, run_progress, scheduled_lr
+
+LOG_EVERY_STEPS = 20  # training scalars to tensorboard
+
+
+def save_checkpoint(run_dir: Path, state: dict, config, history: list[dict]) -> None:
+    """Write ``checkpoint.pt`` (``state``) and ``history.json`` atomically: a crash mid-write leaves the previous
+    files whole."""
+    atomic_write(Path(run_dir) / "checkpoint.pt", lambda tmp: torch.save(state, tmp))
+    write_json(Path(run_dir) / "history.json", {"config": asdict(config), "epochs": history})
+
+
+class EpochTrainer(ABC):
+    """Base of a trainer run in epochs; see the module docstring.
+
+    ``config`` is a frozen dataclass with at least ``epochs``, ``max_minutes`` (None: no budget),
+    ``patience_epochs``, ``lr``, ``lr_schedule`` and ``threads``. The loop's counters are attributes: ``epoch``
+    (finished epochs), ``step`` (optimiser steps), ``elapsed_s`` (training time), ``best_holdout``,
+    ``epochs_since_best`` and ``history`` (one record per epoch).
+
+    A subclass sets :attr:`metric` and implements the abstract hooks :meth:`epoch_batches`, :meth:`optimisers`,
+    :meth:`train_mode`, :meth:`train_batch`, :meth:`holdout_metric`, :meth:`save_best`, :meth:`trainer_state` and
+    :meth:`load_trainer_state` (and may override :meth:`log_epoch`).
+    """
+
+    metric: str = "loss"
+    """Name of the holdout metric (lower is better): history keys ``train_<metric>`` / ``holdout_<metric>``, the
+    checkpoint's and summary's ``best_holdout_<metric>``; ``train_batch`` reports the training loss under it."""
+    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs")
+    """Settings a resumed run may change."""
+
+    def __init__(self, config, run_dir: str | Path) -> None:
+        self.config = config
+        self.run_dir = Path(run_dir)
+        self.epoch = 0
+        self.step = 0
+        self.best_holdout = math.inf
+        self.epochs_since_best = 0
+        self.elapsed_s = 0.0
+        self.history: list[dict] = []
+
+    # ----------------------------------------------------------------------------------------------- hooks
+    @abstractmethod
+    def epoch_batches(self) -> list[np.ndarray]:
+        """The row indices of each of the next epoch's batches (drawn from the trainer's own generator); batches
+        of fewer than two rows are skipped but count in the schedule's steps per epoch."""
+
+    @abstractmethod
+    def optimisers(self) -> list[torch.optim.Optimizer]:
+        """The optimisers whose learning rate follows the schedule."""
+
+    @abstractmethod
+    def train_mode(self) -> None:
+        """Put the trained networks in training mode (``fit`` calls it once, at the start)."""
+
+    @abstractmethod
+    def train_batch(self, index: np.ndarray) -> dict[str, float]:
+        """One optimiser step on the training rows ``index``; returns the step's losses by name (the main one
+        under :attr:`metric`)."""
+
+    @abstractmethod
+    def holdout_metric(self) -> float:
+        """The metric on the held-out rows (lower is better); leaves the networks in training mode."""
+
+    @abstractmethod
+    def save_best(self, path: Path, card: dict[str, Any]) -> None:
+        """Save the network(s) as the run's best to ``path``, with ``card`` (``holdout_<metric>``, ``epoch``,
+        ``elapsed_s``) in the file."""
+
+    @abstractmethod
+    def trainer_state(self) -> dict:
+        """What the checkpoint holds besides the loop's counters: weights, optimisers, random generators."""
+
+    @abstractmethod
+    def load_trainer_state(self, state: dict) -> None:
+        """Restore :meth:`trainer_state` from a checkpoint's ``state``."""
+
+    def log_epoch(self, writer: SummaryWriter) -> None:
+        """Write more to tensorboard after each epoch's holdout (nothing by default)."""
+
+    # ----------------------------------------------------------------------------------------- persistence
+    def state(self) -> dict:
+        """Everything ``checkpoint.pt`` holds: the config, the loop's counters, then :meth:`trainer_state`."""
+        return {
+            "config": asdict(self.config), "epoch": self.epoch, "step": self.step,
+            f"best_holdout_{self.metric}": self.best_holdout, "epochs_since_best": self.epochs_since_best,
+            "elapsed_s": self.elapsed_s, "history": self.history,
+            **self.trainer_state(),
+        }
+
+    def save_checkpoint(self) -> None:
+        save_checkpoint(self.run_dir, self.state(), self.config, self.history)
+
+    def resume(self) -> bool:
+        """Continue from ``checkpoint.pt`` if there is one; returns whether it did. Refuses a checkpoint trained
+        with other settings (outside :attr:`resume_free`)."""
+        path = self.run_dir / "checkpoint.pt"
+        if not path.is_file():
+            return False
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        check_same_settings(path, state["config"], self.config, self.resume_free)
+        self.load_trainer_state(state)
+        self.epoch, self.step = state["epoch"], state["step"]
+        self.best_holdout, self.epochs_since_best = state[f"best_holdout_{self.metric}"], state["epochs_since_best"]
+        self.elapsed_s, self.history = state["elapsed_s"], state["history"]
+        return True
+
+    # -------------------------------------------------------------------------------------------- training
+    def fit(self, progress: bool = True) -> dict:
+        """Train until the epochs, the patience or the time budget run out (``progress``: show a bar per epoch);
+        returns a summary: ``epochs``, ``steps``, ``elapsed_s``, ``best_holdout_<metric>``, ``stopped_by``."""
+        config = self.config
+        torch.set_num_threads(config.threads)
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(self.run_dir / "config.json", asdict(config))
+        writer = SummaryWriter(str(self.run_dir / "tb"))
+        budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
+        stop_reason = "epochs"
+        self.train_mode()
+        try:
+            while self.epoch < config.epochs:
+                started = time.perf_counter() - self.elapsed_s
+                out_of_time, train_losses = self._train_epoch(writer, started, budget_s, progress)
+                self.epoch += 0 if out_of_time else 1
+                self._end_epoch(writer, started, out_of_time, train_losses)
+                if out_of_time:
+                    stop_reason = "time budget"
+                    break
+                if self.epochs_since_best >= config.patience_epochs:
+                    stop_reason = "early stopping"
+                    break
+        finally:
+            writer.close()
+        return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
+                f"best_holdout_{self.metric}": self.best_holdout, "stopped_by": stop_reason}
+
+    def _train_epoch(self, writer: SummaryWriter, started: float, budget_s: float,
+                     progress: bool) -> tuple[bool, list[float]]:
+        """One epoch's steps, or those that fit in the budget; returns (out of time, the steps' training losses)."""
+        config = self.config
+        batches = self.epoch_batches()
+        losses_seen = []
+        for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}", disable=not progress,
+                          leave=False):
+            if len(index) < 2:  # batch norm needs two rows
+                continue
+            done = run_progress(self.elapsed_s, budget_s, self.step, config.epochs * len(batches))
+            lr = scheduled_lr(config.lr, config.lr_schedule, done)
+            for optimiser in self.optimisers():
+                for group in optimiser.param_groups:
+                    group["lr"] = lr
+            losses = self.train_batch(index)
+            losses_seen.append(losses[self.metric])
+            self.step += 1
+            if self.step % LOG_EVERY_STEPS == 0:
+                for name, value in losses.items():
+                    writer.add_scalar(f"train/{name}", value, self.step)
+                writer.add_scalar("train/lr", lr, self.step)
+            self.elapsed_s = time.perf_counter() - started
+            if self.elapsed_s > budget_s:
+                return True, losses_seen
+        return False, losses_seen
+
+    def _end_epoch(self, writer: SummaryWriter, started: float, partial: bool, train_losses: list[float]) -> None:
+        """Holdout, history record, best model and checkpoint after an epoch (or the partial one at the budget)."""
+        metric = self.metric
+        holdout = self.holdout_metric()
+        self.elapsed_s = time.perf_counter() - started
+        self.history.append({"epoch": self.epoch, "partial_epoch": partial, "step": self.step,
+                             "elapsed_s": round(self.elapsed_s, 1),
+                             f"train_{metric}": float(np.mean(train_losses)) if train_losses else None,
+                             f"holdout_{metric}": holdout})
+        writer.add_scalar(f"holdout/{metric}", holdout, self.step)
+        writer.add_scalar(f"holdout/{metric}_vs_minutes", holdout, int(self.elapsed_s / 60))
+        self.log_epoch(writer)
+        if holdout < self.best_holdout:
+            self.best_holdout, self.epochs_since_best = holdout, 0
+            self.save_best(self.run_dir / "best.pt",
+                           {f"holdout_{metric}": holdout, "epoch": self.epoch, "elapsed_s": self.elapsed_s})
+        else:
+            self.epochs_since_best += 1
+        self.save_checkpoint()

@@ -1,0 +1,82 @@
+"""The settings of a ``simshear train posenet`` run (:mod:`simshear_gym.train.posenet`), saved as its
+``config.json``. Torch-free, so that the command builds its parser without torch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from simshear_gym.train.runs import scheduled_lr
+
+if TYPE_CHECKING:
+    from simshear_gym.models.gdnn import GDNNConfig
+
+SOURCES = ("real", "sim", "shpix2pix", "pix2pix", "env")
+CONTACTS = ("surface", "edge", "env")
+
+
+@dataclass(frozen=True)
+class PosenetTrainConfig:
+    """Everything a posenet training run depends on (saved as ``config.json`` beside its outputs).
+
+    The architecture fields default to :class:`simshear_gym.models.gdnn.GDNNConfig`'s defaults (written out here so
+    that the command needs no torch; ``tests/test_train_loop.py`` checks that they agree).
+    """
+
+    source: str = "real"
+    contact: str = "surface"
+    paired_dirs: tuple[str, ...] = ()
+    image_size_px: int = 64
+    conv_channels: tuple[int, ...] = (16, 32, 32, 64)
+    conv_kernels: tuple[int, ...] = (5, 3, 3, 3)
+    dense: tuple[int, ...] = (256,)
+    dropout: float = 0.1
+    beta: float = 0.5
+    shift: float = 0.025
+    blur_px: float = 0.0
+    erase: float = 0.0
+    epochs: int = 50
+    batch_size: int = 64
+    lr: float = 1e-3
+    lr_schedule: str = "constant"
+    holdout: float = 0.1
+    patience_epochs: int = 8
+    max_minutes: float | None = None
+    seed: int = 0
+    threads: int = 2
+    translators: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.source not in SOURCES:
+            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
+        if self.contact not in CONTACTS:
+            raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        if (self.source == "env") != (self.contact == "env"):
+            raise ValueError(f"source 'env' (sets of simshear collect-env) goes with contact 'env' and only with it, "
+                             f"got source {self.source!r}, contact {self.contact!r}")
+        if not self.paired_dirs:
+            raise ValueError("paired_dirs: give at least one paired set directory")
+        if self.epochs < 1 or self.batch_size < 2:
+            raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
+        if not 0.0 < self.holdout < 0.5:
+            raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
+        if not 0.0 <= self.shift < 0.5:
+            raise ValueError(f"shift must be in [0, 0.5) of the image size, got {self.shift}")
+        if not 0.0 <= self.blur_px <= 4.0:
+            raise ValueError(f"blur_px must be in [0, 4] px (a Gaussian std at the input size), got {self.blur_px}")
+        if not 0.0 <= self.erase < 0.5:
+            raise ValueError(f"erase must be in [0, 0.5) of the image size (a disc radius), got {self.erase}")
+        if not 0.0 <= self.beta <= 1.0:
+            raise ValueError(f"beta must be in [0, 1], got {self.beta}")
+        if self.lr <= 0:
+            raise ValueError(f"lr must be > 0, got {self.lr}")
+        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
+        self.gdnn_config()  # validates the architecture
+
+    def gdnn_config(self) -> GDNNConfig:
+        """The network's :class:`~simshear_gym.models.gdnn.GDNNConfig` (imports torch)."""
+        from simshear_gym.models.gdnn import GDNNConfig
+
+        return GDNNConfig(image_size_px=self.image_size_px, conv_channels=self.conv_channels,
+                          conv_kernels=self.conv_kernels, dense=self.dense, dropout=self.dropout,
+                          variables=self.contact)

@@ -1,0 +1,82 @@
+"""The settings of a ``simshear train translator`` run (:mod:`simshear_gym.train.translator`), saved as its
+``config.json``. Torch-free, so that the command builds its parser without torch."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from simshear_gym.train.runs import scheduled_lr
+
+if TYPE_CHECKING:
+    from simshear_gym.models.unet import UNetConfig
+
+ARCHS = ("shpix2pix", "pix2pix")
+"""Generator architectures: :data:`simshear_gym.models.translator.ARCHS`, written out here so that the command
+needs no torch (``tests/test_train_loop.py`` checks that they agree)."""
+DENSITY_POOL_PX = 8
+"""Square (px at the image size) over which the density loss compares the mean brightness: about two marker
+pitches at 128 px."""
+
+
+@dataclass(frozen=True)
+class TranslatorTrainConfig:
+    """Everything a translator training run depends on (saved as ``config.json`` beside its outputs)."""
+
+    arch: str = "shpix2pix"
+    paired_dirs: tuple[str, ...] = ()
+    image_size_px: int = 128
+    base_channels: int = 16
+    max_channels: int = 128
+    template: bool = True
+    shear_decoder: bool = False
+    decoder_scale: float = 1.0
+    flow_px: int = 0
+    epochs: int = 100
+    batch_size: int = 16
+    lr: float = 1e-3
+    lr_schedule: str = "constant"
+    l1_weight: float = 100.0
+    density_weight: float = 0.0
+    gan_weight: float = 0.0
+    holdout: float = 0.05
+    patience_epochs: int = 8
+    max_minutes: float | None = None
+    seed: int = 0
+    threads: int = 2
+    pose_weight: float = 0.0
+    pose_net: str = ""
+    pose_variables: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.arch not in ARCHS:
+            raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
+        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
+        if self.shear_decoder and self.arch != "shpix2pix":
+            raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
+        if not self.paired_dirs:
+            raise ValueError("paired_dirs: give at least one paired set directory")
+        if self.epochs < 1 or self.batch_size < 2:
+            raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
+        if not 0.0 < self.holdout < 0.5:
+            raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
+        if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0 or self.density_weight < 0:
+            raise ValueError("lr must be > 0 and the loss weights >= 0")
+        if self.pose_weight < 0 or (self.pose_weight > 0) != bool(self.pose_net):
+            raise ValueError(f"pose_weight {self.pose_weight} must be >= 0, and above 0 exactly when a pose_net "
+                             f"(real-image GDNN) is given, got pose_net {self.pose_net!r}")
+
+    def generator_config(self) -> UNetConfig:
+        """The generator's :class:`~simshear_gym.models.unet.UNetConfig` (imports torch)."""
+        from simshear_gym.models.unet import UNetConfig
+
+        depth = int(math.log2(self.image_size_px))
+        return UNetConfig(image_size_px=self.image_size_px, depth=depth, base_channels=self.base_channels,
+                          max_channels=self.max_channels, shear_dim=6 if self.arch == "shpix2pix" else 0,
+                          template=self.template, shear_decoder=self.shear_decoder,
+                          decoder_scale=self.decoder_scale, flow_px=self.flow_px)
+
+    def lr_at(self, progress: float) -> float:
+        """Learning rate after ``progress`` (0..1) of the run."""
+        return scheduled_lr(self.lr, self.lr_schedule, progress)

@@ -1,0 +1,199 @@
+"""The translator trainer of ``simshear train translator``: the paired rows in memory, and
+:class:`TranslatorTrainer` (generator, optional discriminator, the losses) on the shared epoch loop
+(:mod:`simshear_gym.train.loop`). The command, the objective and what the run directory holds:
+:mod:`simshear_gym.train.translator`; the run's settings: :mod:`simshear_gym.train.translator_config`.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from simshear_gym.data.labels import SHEAR_COLUMNS
+from simshear_gym.data.paired import load_paired
+from simshear_gym.models.translator import load_generator, normalise_shear, normalise_sim, save_generator
+from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetGenerator
+from simshear_gym.train.loop import EpochTrainer
+from simshear_gym.train.pose_consistency import PoseConsistency
+from simshear_gym.train.runs import split_holdout
+from simshear_gym.train.translator_config import DENSITY_POOL_PX, TranslatorTrainConfig
+
+
+@dataclass(frozen=True, eq=False)
+class PairedTensors:
+    """In-memory pairs: sim uint8 (N, H, W), shear float32 (N, 6) sensor frame, real uint8 (N, H, W), and for
+    the pose-consistency loss the rows' labels on its GDNN's normalised scale, float32 (N, D), or None."""
+
+    sim: torch.Tensor
+    shear: torch.Tensor
+    real: torch.Tensor
+    pose_labels: torch.Tensor | None = None
+
+    def __len__(self) -> int:
+        return len(self.sim)
+
+    def subset(self, index: np.ndarray) -> PairedTensors:
+        index = torch.as_tensor(index)
+        return PairedTensors(self.sim[index], self.shear[index], self.real[index],
+                             None if self.pose_labels is None else self.pose_labels[index])
+
+    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Model-ready float tensors of the rows ``index``: sim, shear, real, pose labels (or None)."""
+        index = torch.as_tensor(index)
+        real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
+        labels = None if self.pose_labels is None else self.pose_labels[index]
+        return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real, labels
+
+
+def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
+               pose: PoseConsistency | None = None) -> PairedTensors:
+    """Load replayed paired sets (sim render, shear, real image; the labels ``pose`` reads, if given) into memory."""
+    sims, shears, reals, labels = [], [], [], []
+    for directory in paired_dirs:
+        paired, real = load_paired(directory, data)
+        if real is None:
+            raise ValueError(f"{directory}: a random-contact set has no real images; translators train on replays")
+        sims.append(paired.load_images())
+        shears.append(paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32))
+        reals.append(real.load_images())
+        if pose is not None:
+            labels.append(pose.encoded_labels(paired.targets))
+        if sims[-1].shape != reals[-1].shape:
+            raise ValueError(f"{directory}: sim images {sims[-1].shape[1:]} and real images "
+                             f"{reals[-1].shape[1:]} differ in size")
+    return PairedTensors(torch.from_numpy(np.concatenate(sims)), torch.from_numpy(np.concatenate(shears)),
+                         torch.from_numpy(np.concatenate(reals)), torch.cat(labels) if pose is not None else None)
+
+
+class TranslatorTrainer(EpochTrainer):
+    """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it."""
+
+    metric = "l1"  # history: train_l1, holdout_l1 (mean absolute pixel error, images in [0, 1])
+
+    def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors,
+                 pose: PoseConsistency | None = None) -> None:
+        if (pose is not None) != (config.pose_weight > 0) or (pose is not None and pairs.pose_labels is None):
+            raise ValueError("a pose-consistency run (pose_weight > 0) needs its PoseConsistency and pairs loaded "
+                             "with it (load_pairs(..., pose=...)); a run without one takes neither")
+        super().__init__(config, run_dir)
+        self.pose = pose
+        torch.manual_seed(config.seed)
+        train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
+        self.train_pairs, self.holdout_pairs = pairs.subset(train_rows), pairs.subset(holdout_rows)
+        self.generator = UNetGenerator(config.generator_config())
+        if config.template:
+            self.generator.init_template(self.train_pairs.real.to(torch.float32).mean(0) / 255.0)
+        self.discriminator = PatchDiscriminator(PatchDiscriminatorConfig()) if config.gan_weight > 0 else None
+        self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=config.lr, betas=(0.5, 0.999))
+        self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=config.lr, betas=(0.5, 0.999))
+                      if self.discriminator is not None else None)
+        self.batch_rng = np.random.default_rng(config.seed + 1)
+
+    # ------------------------------------------------------------------------------------------- persistence
+    def trainer_state(self) -> dict:
+        return {
+            "generator": {"config": asdict(self.generator.config), "state_dict": self.generator.state_dict()},
+            "opt_g": self.opt_g.state_dict(),
+            "discriminator": self.discriminator.state_dict() if self.discriminator is not None else None,
+            "opt_d": self.opt_d.state_dict() if self.opt_d is not None else None,
+            "batch_rng": self.batch_rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
+        }
+
+    def load_trainer_state(self, state: dict) -> None:
+        self.generator.load_state_dict(state["generator"]["state_dict"])
+        self.opt_g.load_state_dict(state["opt_g"])
+        if self.discriminator is not None:
+            self.discriminator.load_state_dict(state["discriminator"])
+            self.opt_d.load_state_dict(state["opt_d"])
+        self.batch_rng.bit_generator.state = state["batch_rng"]
+        torch.set_rng_state(state["torch_rng"])
+
+    # ---------------------------------------------------------------------------------------------- training
+    def holdout_l1(self) -> float:
+        """Mean absolute error (images in [0, 1]) of the generated held-out images against the real ones."""
+        self.generator.eval()
+        total = 0.0
+        with torch.inference_mode():
+            for start in range(0, len(self.holdout_pairs), 64):
+                sim, shear, real, _ = self.holdout_pairs.batch(
+                    np.arange(start, min(start + 64, len(self.holdout_pairs))))
+                total += (self.generator(sim, shear if self.generator.config.shear_dim else None) - real
+                          ).abs().mean(dim=(1, 2, 3)).sum().item()
+        self.generator.train()
+        return total / len(self.holdout_pairs)
+
+    def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor,
+                   pose_labels: torch.Tensor | None = None) -> dict[str, float]:
+        config = self.config
+        shear_in = shear if self.generator.config.shear_dim else None
+        fake = self.generator(sim, shear_in)
+        losses = {}
+        if self.discriminator is not None:
+            self.opt_d.zero_grad(set_to_none=True)
+            d_real, d_fake = self.discriminator(sim, real), self.discriminator(sim, fake.detach())
+            loss_d = 0.5 * ((d_real - 1) ** 2).mean() + 0.5 * (d_fake ** 2).mean()
+            loss_d.backward()
+            self.opt_d.step()
+            losses["d"] = loss_d.item()
+        self.opt_g.zero_grad(set_to_none=True)
+        l1 = (fake - real).abs().mean()
+        loss = config.l1_weight * l1
+        if config.density_weight > 0:
+            density = (F.avg_pool2d(fake, DENSITY_POOL_PX) - F.avg_pool2d(real, DENSITY_POOL_PX)).abs().mean()
+            loss = loss + config.density_weight * density
+            losses["density"] = density.item()
+        if self.discriminator is not None:
+            gan = ((self.discriminator(sim, fake) - 1) ** 2).mean()
+            loss = loss + config.gan_weight * gan
+            losses["g_gan"] = gan.item()
+        if self.pose is not None:
+            pose_loss = self.pose.loss(fake, pose_labels)
+            loss = loss + config.pose_weight * pose_loss
+            losses["pose"] = pose_loss.item()
+        loss.backward()
+        self.opt_g.step()
+        losses["l1"] = l1.item()
+        return losses
+
+    # -------------------------------------------------------------------------------- the epoch loop's hooks
+    def epoch_batches(self) -> list[np.ndarray]:
+        order = self.batch_rng.permutation(len(self.train_pairs))
+        size = self.config.batch_size
+        return [order[i:i + size] for i in range(0, len(order) - 1, size)]  # no last batch of one row
+
+    def optimisers(self) -> list[torch.optim.Optimizer]:
+        return [self.opt_g] + ([self.opt_d] if self.opt_d is not None else [])
+
+    def train_mode(self) -> None:
+        self.generator.train()
+
+    def train_batch(self, index: np.ndarray) -> dict[str, float]:
+        return self.train_step(*self.train_pairs.batch(index))
+
+    def holdout_metric(self) -> float:
+        return self.holdout_l1()
+
+    def save_best(self, path: Path, card: dict) -> None:
+        save_generator(path, self.generator, half=False, card=card)
+
+    def log_epoch(self, writer) -> None:
+        """An image grid of six held-out rows: sim (brightened) | generated | real."""
+        sim, shear, real, _ = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
+        self.generator.eval()
+        with torch.inference_mode():
+            fake = self.generator(sim, shear if self.generator.config.shear_dim else None)
+        self.generator.train()
+        grid = torch.cat([torch.cat([(s * 4).clamp(0, 1), f, r], dim=2) for s, f, r in zip(sim, fake, real)], dim=2)
+        writer.add_image("holdout/sim_generated_real", grid, self.step)
+
+
+def export_run(run_dir: Path, path: Path, card: dict | None = None) -> Path:
+    """Ship a run's best generator as fp16 weights, with its training config and ``card`` in the file."""
+    generator, best = load_generator(Path(run_dir) / "best.pt")
+    config = json.loads((Path(run_dir) / "config.json").read_text())
+    return save_generator(path, generator, card={"best": best, "train_config": config, **(card or {})})
