@@ -5,11 +5,17 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
+
+import pytest
 
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.pipelines.config import load_config
-from simshear_gym.pipelines.run import run_pipeline
+from simshear_gym.pipelines.example_sensor import make_example
+from simshear_gym.pipelines.run import STAGES, run_pipeline
 from tests.test_pipeline_check import write_lab
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_rerun_is_cached_and_an_interrupted_stage_reruns_in_its_folder(tmp_path):
@@ -38,3 +44,37 @@ def test_rerun_is_cached_and_an_interrupted_stage_reruns_in_its_folder(tmp_path)
     assert fewer["results"][0]["ran"] and fewer["results"][0]["folder"] != first["results"][0]["folder"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sensor"] == "lab" and manifest["git_commit"] and manifest["profile"] == "smoke"
+
+
+def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
+    data = tmp_path / "data"
+    config = load_config(write_lab(data, rows=30))
+    out = tmp_path / "run"
+    stages = ("adapt", "collect", "translator", "posenet", "evaluate")
+    manifest = run_pipeline(config, out, data, "smoke", stages, workers=1)
+    assert all(result["ran"] for result in manifest["results"])
+    evaluation = json.loads((out / manifest["evaluation"]).read_text())
+    assert set(evaluation["translation"]["tap"]) == {"rows", "shpix2pix", "pix2pix", "nearest-label retrieval"}
+    # the lab's varying variables, in the simulation's frame: depth (lab y) and Rx (lab roll); nothing else
+    assert [spec.split(":")[0] for spec in evaluation["variables"]["surface"].split(",")] == ["z_mm", "rx_deg"]
+    assert set(evaluation["posenet"]["tap"]["ratio_shpix2pix_to_real"]) == {"z_mm", "rx_deg"}
+    for path in (manifest["models"]["translators"]["surface"]["shpix2pix"],
+                 manifest["models"]["posenets"]["models"]["surface"]["shpix2pix"]):
+        assert (out / path).is_file() and not path.startswith("/")
+    again = run_pipeline(config, out, data, "smoke", stages, workers=1)
+    assert not any(result["ran"] for result in again["results"])
+
+
+def test_stages_need_the_ones_before_them(tmp_path):
+    config = load_config(write_lab(tmp_path))
+    with pytest.raises(ValueError, match=r"need the stages before them too: add \['collect'\]"):
+        run_pipeline(config, tmp_path / "run", tmp_path, "smoke", ("adapt", "translator"))
+
+
+@pytest.mark.data
+def test_example_lab_smoke_trains_from_its_config_alone(data_root, tmp_path):
+    make_example(data_root, tmp_path / "lab", rows_per_split=48)
+    config = load_config(ROOT / "configs" / "example_lab.toml")
+    manifest = run_pipeline(config, tmp_path / "run", tmp_path / "lab", "smoke", STAGES, workers=1)
+    evaluation = json.loads((tmp_path / "run" / manifest["evaluation"]).read_text())
+    assert set(evaluation["posenet"]["surface_tap"]["shpix2pix"]) == {"z_mm", "rx_deg", "ry_deg", "mean_nll"}

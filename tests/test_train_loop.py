@@ -200,7 +200,7 @@ def test_a_failed_checkpoint_write_leaves_the_previous_one_whole(tmp_path, monke
 COMMAND_FLAGS = {
     posenet: {"--source", "--contact", "--paired", "--out", "--data", "--image-size", "--epochs", "--batch-size",
               "--lr", "--beta", "--holdout", "--patience-epochs", "--shift", "--seed", "--threads", "--blur",
-              "--erase", "--max-minutes", "--lr-schedule", "--translators", "--resume"},
+              "--erase", "--max-minutes", "--lr-schedule", "--translators", "--variables", "--resume"},
     translator: {"--arch", "--paired", "--out", "--data", "--lr-schedule", "--shear-decoder", "--flow",
                  "--image-size", "--base-channels", "--max-channels", "--decoder-scale", "--epochs", "--batch-size",
                  "--lr", "--l1-weight", "--density-weight", "--gan-weight", "--holdout", "--patience-epochs", "--seed",

@@ -196,11 +196,32 @@ env's Rz is the sensor's yaw error)."""
 
 
 def variable_set(name: str) -> VariableSet:
-    """Look up a variable set of :data:`VARIABLE_SETS` by name."""
-    try:
+    """A variable set of :data:`VARIABLE_SETS` by name, or one written inline (a sensor's own, from its data):
+    ``"NAME:COLUMN:LOW:HIGH[:periodic],..."``, e.g. ``"z_mm:pose_3:2.0:5.0,rx_deg:pose_4:-15:15"`` (the unit is
+    the name's suffix: ``_mm`` or ``_deg``). :func:`variable_spec` writes one."""
+    if name in VARIABLE_SETS:
         return VARIABLE_SETS[name]
-    except KeyError:
-        raise ValueError(f"unknown variable set {name!r}; expected one of {sorted(VARIABLE_SETS)}") from None
+    if ":" not in name:
+        raise ValueError(f"unknown variable set {name!r}; expected one of {sorted(VARIABLE_SETS)} or an inline "
+                         "spec NAME:COLUMN:LOW:HIGH[:periodic],...")
+    specs = []
+    for item in name.split(","):
+        parts = item.split(":")
+        if len(parts) not in (4, 5) or (len(parts) == 5 and parts[4] != "periodic"):
+            raise ValueError(f"variable spec {item!r}: expected NAME:COLUMN:LOW:HIGH[:periodic]")
+        unit = parts[0].rpartition("_")[2]
+        try:
+            low, high = float(parts[2]), float(parts[3])
+        except ValueError:
+            raise ValueError(f"variable spec {item!r}: LOW and HIGH must be numbers") from None
+        specs.append(OutputSpec(parts[0], unit, low, high, periodic=len(parts) == 5, column=parts[1]))
+    return VariableSet("inline", tuple(specs))
+
+
+def variable_spec(variables: VariableSet) -> str:
+    """The inline form of a variable set (see :func:`variable_set`)."""
+    return ",".join(f"{v.name}:{v.column}:{v.low:g}:{v.high:g}" + (":periodic" if v.periodic else "")
+                    for v in variables.variables)
 
 
 @dataclass(frozen=True)

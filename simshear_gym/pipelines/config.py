@@ -12,6 +12,10 @@ Tables (``configs/tactip331.toml`` describes the shipped sensor; ``configs/READM
   (:class:`~simshear_gym.data.adapter.DatasetConfig`).
 - ``[check]``: how many rows per dataset ``simshear pipeline check`` replays in simulation, and the least share of
   them that must make contact.
+- ``[profiles.<name>]``: the training stages' settings, budgets counted in epochs (:class:`Profile`,
+  :class:`TranslatorStage`, :class:`PosenetStage`); ``smoke`` (the test suite, seconds), ``quick`` (a laptop,
+  under 30 minutes) and ``full`` have built-in defaults (:data:`DEFAULT_PROFILES`) that a config's table overrides
+  key by key.
 
 Every error is a :class:`~simshear_gym.tables.ConfigError` naming the file, the key, the value and what was
 expected, raised before anything reads data.
@@ -20,7 +24,7 @@ expected, raised before anything reads data.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from simshear_gym.data.adapter import DatasetConfig, FrameConfig
@@ -46,6 +50,82 @@ class CheckConfig:
 
 
 @dataclass(frozen=True)
+class TranslatorStage:
+    """The translators' training (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields of
+    the same names): one per contact type and architecture in ``archs``. The budget is ``epochs``; a cosine
+    schedule runs over the steps, so a slower machine trains the same model. ``max_minutes`` is only a safety cap
+    (a run it stops is recorded as capped)."""
+
+    archs: tuple[str, ...] = ("shpix2pix", "pix2pix")
+    epochs: int = 20
+    batch_size: int = 16
+    lr: float = 1e-3
+    lr_schedule: str = "cosine"
+    base_channels: int = 16
+    max_channels: int = 128
+    decoder_scale: float = 1.0
+    density_weight: float = 0.0
+    holdout: float = 0.05
+    patience_epochs: int = 1000
+    seed: int = 0
+    threads: int = 2
+    max_minutes: float | None = None
+
+    def __post_init__(self) -> None:
+        if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
+            raise ValueError(f"archs must name shpix2pix and/or pix2pix, got {list(self.archs)}")
+        if "shpix2pix" not in self.archs:
+            raise ValueError("archs must include shpix2pix: the GDNN trains on its images")
+        if self.epochs < 1:
+            raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+
+
+@dataclass(frozen=True)
+class PosenetStage:
+    """The GDNNs' training (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields of the same
+    names): per contact type one on the real images (the reference) and one on the shPix2pix translations of the
+    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`."""
+
+    epochs: int = 30
+    batch_size: int = 64
+    image_size_px: int = 64
+    lr: float = 1e-3
+    lr_schedule: str = "cosine"
+    holdout: float = 0.1
+    patience_epochs: int = 1000
+    blur_px: float = 0.0
+    erase: float = 0.0
+    seed: int = 0
+    threads: int = 2
+    max_minutes: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1:
+            raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+
+
+@dataclass(frozen=True)
+class Profile:
+    """A profile: how many rows of each split the pipeline uses (None: all), how many validation rows per
+    dataset the evaluation reads (None: all), and the training stages' settings."""
+
+    rows_per_split: int | None = None
+    eval_rows: int | None = None
+    translator: TranslatorStage = TranslatorStage()
+    posenet: PosenetStage = PosenetStage()
+
+
+DEFAULT_PROFILES: dict[str, Profile] = {
+    "smoke": Profile(rows_per_split=48, eval_rows=24,
+                     translator=TranslatorStage(epochs=1, batch_size=8, base_channels=4, max_channels=16),
+                     posenet=PosenetStage(epochs=1, batch_size=16, image_size_px=32)),
+    "quick": Profile(translator=TranslatorStage(epochs=6), posenet=PosenetStage(epochs=20)),
+    "full": Profile(translator=TranslatorStage(epochs=30), posenet=PosenetStage(epochs=40)),
+}
+"""Built-in profiles; a config's ``[profiles.<name>]`` table overrides them key by key."""
+
+
+@dataclass(frozen=True)
 class ExperimentConfig:
     """A sensor's experiment config (see the module docstring); ``path`` is the file it was read from."""
 
@@ -56,6 +136,7 @@ class ExperimentConfig:
     replay: ReplayGeometry = ReplayGeometry()
     frame: FrameConfig = FrameConfig()
     check: CheckConfig = CheckConfig()
+    profiles: Mapping[str, Profile] = field(default_factory=lambda: dict(DEFAULT_PROFILES))
     path: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
@@ -64,8 +145,14 @@ class ExperimentConfig:
         if not self.datasets:
             raise ValueError("datasets must name at least one [datasets.<name>] table")
 
+    def profile(self, name: str) -> Profile:
+        try:
+            return self.profiles[name]
+        except KeyError:
+            raise ValueError(f"{self.path}: no profile {name!r}; it has {sorted(self.profiles)}") from None
 
-_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check")
+
+_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check", "profiles")
 
 
 def load_config(path: str | Path) -> ExperimentConfig:
@@ -86,11 +173,27 @@ def load_config(path: str | Path) -> ExperimentConfig:
     parts = {key: from_table(cls, table.get(key, {}), source, key)
              for key, cls in (("sensor", TacTipConfig), ("replay", ReplayGeometry), ("frame", FrameConfig),
                               ("check", CheckConfig))}
+    profiles = dict(DEFAULT_PROFILES)
+    for name, overrides in (table.get("profiles") or {}).items():
+        profiles[name] = _override(profiles.get(name, Profile()), overrides, source, f"profiles.{name}")
     for key in ("name", "description"):
         if key in table and not isinstance(table[key], str):
             raise ConfigError(f"{source}: {key} = {table[key]!r}; expected a string")
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
-                                datasets=datasets, path=path, **parts)
+                                datasets=datasets, profiles=profiles, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
+
+
+def _override(base: Profile, overrides: dict, source: str, key: str) -> Profile:
+    """``base`` with a TOML table's keys replaced (its stage tables key by key)."""
+    if not isinstance(overrides, dict):
+        raise ConfigError(f"{source}: [{key}] must be a table, got {overrides!r}")
+    table = {name: value for name, value in asdict(base).items()}
+    for name, value in overrides.items():
+        if name in ("translator", "posenet") and isinstance(value, dict):
+            table[name] = {**table[name], **value}
+        else:
+            table[name] = value
+    return from_table(Profile, table, source, key)

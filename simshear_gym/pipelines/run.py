@@ -5,7 +5,15 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
 1. ``adapt``: each dataset of the config as canonical tactile sets (train, val) in the simulation's frame
    (:mod:`simshear_gym.data.adapter`);
 2. ``collect``: every row replayed in simulation with the config's sensor: paired sets (sim image, shear, real
-   image, labels) (:mod:`simshear_gym.sim.collect`).
+   image, labels) (:mod:`simshear_gym.sim.collect`);
+3. ``translator``: per contact type, a shPix2pix (and a pix2pix baseline) on the paired training sets of that
+   contact, with the profile's settings (:mod:`simshear_gym.train.translator_trainer`);
+4. ``posenet``: per contact type, a GDNN on the real training images (the reference) and one on the shPix2pix
+   translations of the sim renders (the one a controller uses), estimating the variables that vary in the
+   sensor's data (depth, tilts, offsets, edge angle; shear where the data has it);
+5. ``evaluate``: on every dataset's real validation images: translation MAPE / SSIM against nearest-label
+   retrieval (the real training image with the closest labels), the GDNNs' MAE per variable against chance and
+   the translated-trained / real-trained ratio; written to ``evaluation.json``.
 
 The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, per stage its
 folder, whether it ran or was cached, wall time and metrics.
@@ -24,7 +32,11 @@ from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
 from simshear_gym.pipelines.stages import StageRunner, file_fingerprint
 
-STAGES: tuple[str, ...] = ("adapt", "collect")
+STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
+POSE_NAMES = {"pose_x": "x_mm", "pose_y": "y_mm", "pose_z": "z_mm", "pose_rx": "rx_deg", "pose_ry": "ry_deg",
+              "pose_rz": "rz_deg"}
+SHEAR_SPECS = (("move_x", "shear_x_mm", "shear_sensor_x_mm"), ("move_y", "shear_y_mm", "shear_sensor_y_mm"),
+               ("move_rz", "shear_rz_deg", "shear_sensor_rz_deg"))
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
     from simshear_gym.pipelines.config import ExperimentConfig
@@ -87,21 +99,182 @@ def stage_collect(runner: StageRunner, config: ExperimentConfig, adapted: dict, 
     return paired
 
 
+def contacts_of(config: ExperimentConfig) -> dict[str, list[str]]:
+    """{contact type: its datasets}."""
+    out: dict[str, list[str]] = {}
+    for name, dataset in config.datasets.items():
+        out.setdefault(dataset.contact, []).append(name)
+    return out
+
+
+def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, root: Path) -> str:
+    """The inline GDNN variable set of a contact type's datasets: every pose variable that varies in them (an
+    angle spanning more than 300 deg as a periodic one), and the sensor-frame shear x, y, Rz where a shear dataset
+    moves that way; ranges from the data."""
+    import pandas as pd
+
+    from simshear_gym.data.adapter import CANONICAL_COLUMNS
+    from simshear_gym.data.tactile_set import read_set
+
+    tables = [read_set(root / adapted[name][split]).targets for name in names for split in ("train", "val")]
+    targets = pd.concat(tables, ignore_index=True)
+    specs = []
+    for variable, label in POSE_NAMES.items():
+        column = CANONICAL_COLUMNS[variable]
+        low, high = float(targets[column].min()), float(targets[column].max())
+        if high - low <= 1e-6:
+            continue
+        if label.endswith("_deg") and high - low > 300.0:
+            specs.append(f"{label}:{column}:-180:180:periodic")
+        else:
+            specs.append(f"{label}:{column}:{low:.6g}:{high:.6g}")
+    shear_sets = [name for name in names if config.datasets[name].kind == "shear"]
+    if shear_sets:
+        moves = pd.concat([read_set(root / adapted[name]["train"]).targets for name in shear_sets])
+        for move, label, column in SHEAR_SPECS:
+            extent = float(moves[CANONICAL_COLUMNS[move]].abs().max())
+            if extent > 1e-6:
+                reach = extent * (1.5 if label.endswith("_mm") else 1.0)  # x, y rotate into the sensor frame
+                specs.append(f"{label}:{column}:{-reach:.6g}:{reach:.6g}")
+    return ",".join(specs)
+
+
+def stage_translator(runner: StageRunner, config: ExperimentConfig, profile, paired: dict) -> dict:
+    """{contact: {arch: path of the exported generator}}."""
+    from simshear_gym.train.translator_config import TranslatorTrainConfig
+
+    stage = profile.translator
+    weights: dict[str, dict[str, str]] = {}
+    for contact, names in contacts_of(config).items():
+        train_sets = [paired[name]["train"] for name in names]
+        for arch in stage.archs:
+            settings = {field: getattr(stage, field) for field in (
+                "epochs", "batch_size", "lr", "lr_schedule", "base_channels", "max_channels", "decoder_scale",
+                "density_weight", "holdout", "patience_epochs", "seed", "threads")}
+            key = {"paired": train_sets, "arch": arch, "settings": settings}
+
+            def work(folder: Path, arch=arch, train_sets=train_sets, settings=settings, contact=contact) -> dict:
+                import torch
+
+                from simshear_gym.models.translator import load_generator, save_generator
+                from simshear_gym.train.translator_trainer import TranslatorTrainer, load_pairs
+
+                train_config = TranslatorTrainConfig(
+                    arch=arch, paired_dirs=tuple(train_sets), image_size_px=config.sensor.image_size_px, **settings)
+                torch.set_num_threads(stage.threads)
+                pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root))
+                trainer = TranslatorTrainer(train_config, folder / "run", pairs)
+                trainer.resume()
+                summary = trainer.fit(progress=False)
+                generator, best = load_generator(folder / "run" / "best.pt")
+                path = folder / f"{arch}_{contact}.pt"
+                save_generator(path, generator, card={"sensor": config.name, "contact": contact, "arch": arch,
+                                                      "best": best, "train_config": _relative_config(train_config)})
+                return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
+
+            weights.setdefault(contact, {})[arch] = runner.run(f"translator/{contact}_{arch}", key, work).outputs[
+                "weights"]
+    return weights
+
+
+def stage_posenet(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, paired: dict,
+                  translators: dict) -> dict:
+    """{contact: {"real" | "shpix2pix": path of the GDNN}, "variables": {contact: spec}}."""
+    from simshear_gym.train.posenet_config import PosenetTrainConfig
+
+    stage = profile.posenet
+    models: dict[str, dict[str, str]] = {}
+    variables: dict[str, str] = {}
+    for contact, names in contacts_of(config).items():
+        variables[contact] = variables_for(config, names, adapted, runner.root)
+        train_sets = [paired[name]["train"] for name in names]
+        for source in ("real", "shpix2pix"):
+            settings = {field: getattr(stage, field) for field in (
+                "epochs", "batch_size", "image_size_px", "lr", "lr_schedule", "holdout", "patience_epochs",
+                "blur_px", "erase", "seed", "threads")}
+            used = (translators[contact]["shpix2pix"],) if source == "shpix2pix" else ()
+            key = {"paired": train_sets, "source": source, "translators": used, "variables": variables[contact],
+                   "settings": settings}
+
+            def work(folder: Path, source=source, train_sets=train_sets, used=used, contact=contact,
+                     settings=settings) -> dict:
+                import torch
+
+                from simshear_gym.models.posenet_io import load_posenet, save_posenet
+                from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
+
+                train_config = PosenetTrainConfig(source=source, contact=contact, paired_dirs=tuple(train_sets),
+                                                  translators=used, variables=variables[contact], **settings)
+                torch.set_num_threads(stage.threads)
+                data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
+                                   stage.image_size_px, translators=[str(runner.root / t) for t in used],
+                                   variables=variables[contact])
+                trainer = PosenetTrainer(train_config, folder / "run", data)
+                trainer.resume()
+                summary = trainer.fit(progress=False)
+                model, card = load_posenet(folder / "run" / "best.pt")
+                path = folder / f"posenet_{contact}_{source}.pt"
+                save_posenet(path, model, card={**card, "sensor": config.name,
+                                                "train_config": _relative_config(train_config)})
+                return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
+
+            models.setdefault(contact, {})[source] = runner.run(f"posenet/{contact}_{source}", key, work).outputs[
+                "weights"]
+    return {"models": models, "variables": variables}
+
+
+def _relative_config(train_config) -> dict:
+    """A training config for a card: its paths are already relative to the pipeline's run folder."""
+    from dataclasses import asdict
+
+    return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(train_config).items()}
+
+
+def stage_evaluate(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, paired: dict,
+                   translators: dict, posenets: dict) -> dict:
+    """Translation and GDNN figures on every dataset's real validation rows (see the module docstring)."""
+    key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
+           "eval_rows": profile.eval_rows}
+
+    def work(folder: Path) -> dict:
+        from simshear_gym.pipelines.evaluation import evaluate_sensor
+
+        figures = evaluate_sensor(config, runner.root, adapted, paired, translators, posenets, profile.eval_rows)
+        write_json(folder / "evaluation.json", figures)
+        return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
+
+    return runner.run("evaluate", key, work).record
+
+
 def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, stages: tuple[str, ...],
-                 rows_per_split: int | None, workers: int = 2) -> dict:
-    """Run the stages in order (each cached) and write ``out/manifest.json``; returns the manifest."""
+                 rows_per_split: int | None = None, workers: int = 2) -> dict:
+    """Run the stages in order (each cached) and write ``out/manifest.json``; returns the manifest.
+
+    ``rows_per_split`` overrides the profile's (None: the profile's)."""
+    missing = [stage for stage in STAGES[:max(STAGES.index(s) for s in stages) + 1] if stage not in stages]
+    if missing:
+        raise ValueError(f"stages {list(stages)} need the stages before them too: add {missing}")
+    profile_settings = config.profile(profile)
+    rows_per_split = rows_per_split if rows_per_split is not None else profile_settings.rows_per_split
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out)
     start = time.perf_counter()
     adapted = stage_adapt(runner, config, root, rows_per_split)
-    if "collect" in stages:
-        stage_collect(runner, config, adapted, workers)
+    paired = stage_collect(runner, config, adapted, workers) if "collect" in stages else None
+    translators = stage_translator(runner, config, profile_settings, paired) if "translator" in stages else None
+    posenets = (stage_posenet(runner, config, profile_settings, adapted, paired, translators)
+                if "posenet" in stages else None)
+    evaluation = (stage_evaluate(runner, config, profile_settings, adapted, paired, translators, posenets)
+                  if "evaluate" in stages else None)
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile, "stages": list(stages),
         "package_version": _version(), "git_commit": git_commit(),
         "wall_s": round(time.perf_counter() - start, 2),
+        "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
                      "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in runner.results],
+        "models": {"translators": translators, "posenets": posenets},
+        "evaluation": evaluation["outputs"]["evaluation"] if evaluation else None,
     }
     write_json(out / "manifest.json", manifest)
     return manifest

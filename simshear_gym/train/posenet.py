@@ -72,6 +72,8 @@ FLAG_HELP = {
     "threads": "torch CPU threads",
     "translators": "generator weights (.pt) to translate with instead of the shipped one; several: each row "
                    "through a randomly drawn one each time",
+    "variables": "the variables to estimate, inline (NAME:COLUMN:LOW:HIGH[:periodic],...; a sensor's own, as the "
+                 "pipeline writes them) instead of the contact type's set",
 }
 
 
@@ -95,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
     torch.set_num_threads(config.threads)
     data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
-                       translators=config.translators)
+                       translators=config.translators, variables=config.variables)
     trainer = PosenetTrainer(config, args.out, data)
     if args.resume and trainer.resume():
         print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")

@@ -45,6 +45,7 @@ class PosenetTrainConfig:
     seed: int = 0
     threads: int = 2
     translators: tuple[str, ...] = ()
+    variables: str = ""
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -79,4 +80,4 @@ class PosenetTrainConfig:
 
         return GDNNConfig(image_size_px=self.image_size_px, conv_channels=self.conv_channels,
                           conv_kernels=self.conv_kernels, dense=self.dense, dropout=self.dropout,
-                          variables=self.contact)
+                          variables=self.variables or self.contact)

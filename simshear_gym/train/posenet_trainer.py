@@ -64,12 +64,14 @@ class LabelledImages:
 
 def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
                 image_size_px: int = 128, batch: int = 64,
-                translators: tuple[str, ...] | list[str] = ()) -> LabelledImages:
+                translators: tuple[str, ...] | list[str] = (), variables: str = "") -> LabelledImages:
     """Images of ``source`` (see :mod:`simshear_gym.train.posenet`) and labels of the paired sets' rows;
-    ``translators``: generator weights to use instead of the shipped one (several give (N, K, H, W) renditions)."""
+    ``translators``: generator weights to use instead of the shipped one (several give (N, K, H, W) renditions);
+    ``variables``: an inline variable set (:func:`~simshear_gym.models.gdnn.variable_set`) instead of the
+    contact's."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
-    variables = variable_set(contact)
+    variables = variable_set(variables or contact)
     if source == "env":
         return _load_env_sets(paired_dirs, variables, image_size_px)
     translated = source in ARCHS  # the sim renders through translators of that architecture

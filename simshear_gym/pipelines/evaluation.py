@@ -1,0 +1,100 @@
+"""The pipeline's evaluation of a sensor's models on its own **real** validation images.
+
+- Translation, per dataset: MAPE and SSIM of each translator's images (from the val rows' sim renders and shear)
+  against the real images, and of nearest-label retrieval (for each val row, the real training image whose labels
+  are closest, every varying label scaled by its range) as the baseline a translator has to beat.
+- Pose and shear, per dataset: each GDNN's MAE per variable on the real images against chance (always predicting
+  the range centre) and, for the GDNN trained on translated images, its ratio to the real-trained reference.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from simshear_gym.data.adapter import CANONICAL_COLUMNS
+from simshear_gym.data.labels import SHEAR_COLUMNS
+from simshear_gym.data.paired import load_paired
+from simshear_gym.evaluate.metrics import mape, metrics, ssim
+from simshear_gym.models.gdnn_input import label_matrix, predict
+from simshear_gym.models.posenet_io import load_posenet
+from simshear_gym.models.translator import Translator
+
+
+def label_features(targets, columns: list[str], scales: np.ndarray) -> np.ndarray:
+    return targets[columns].to_numpy(np.float64) / scales
+
+
+def nearest_label_images(train_targets, train_images: np.ndarray, val_targets) -> np.ndarray:
+    """For each val row, the training image whose labels (every varying pose and move column, scaled by its
+    range) are closest."""
+    columns = [c for c in CANONICAL_COLUMNS.values()
+               if np.ptp(train_targets[c].to_numpy()) > 1e-9]
+    scales = np.array([max(np.ptp(train_targets[c].to_numpy()), 1e-9) for c in columns])
+    train = label_features(train_targets, columns, scales)
+    val = label_features(val_targets, columns, scales)
+    nearest = np.empty(len(val), dtype=np.int64)
+    for start in range(0, len(val), 500):
+        distance = ((val[start:start + 500, None] - train[None]) ** 2).sum(-1)
+        nearest[start:start + 500] = distance.argmin(1)
+    return train_images[nearest]
+
+
+def _images_at(images: np.ndarray, size_px: int) -> np.ndarray:
+    from simshear_gym.contract import resize_tactile
+
+    return resize_tactile(images, size_px)
+
+
+def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators: dict, posenets: dict,
+                    eval_rows: int | None) -> dict:
+    """The figures of the module docstring, with a flat ``summary`` for the manifest."""
+    translation, pose, summary = {}, {}, {}
+    loaded_translators = {contact: {arch: Translator.load(root / path) for arch, path in archs.items()}
+                          for contact, archs in translators.items()}
+    loaded_posenets = {contact: {source: load_posenet(root / path)[0] for source, path in sources.items()}
+                       for contact, sources in posenets["models"].items()}
+    for name, dataset in config.datasets.items():
+        val_paired, val_real = load_paired(root / paired[name]["val"], root)
+        train_paired, train_real = load_paired(root / paired[name]["train"], root)
+        rows = slice(0, eval_rows)
+        targets = val_paired.targets.iloc[rows].reset_index(drop=True)
+        real = val_real.load_images(use_cache=False)[rows]
+        sim = val_paired.load_images(use_cache=False)[rows]
+        shear = targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
+        entry = {"rows": len(targets)}
+        for arch, translator in loaded_translators[dataset.contact].items():
+            generated = np.concatenate([translator(sim[i:i + 64], shear[i:i + 64]) for i in range(0, len(sim), 64)])
+            generated = _images_at(generated, real.shape[-1])
+            entry[arch] = {"mape": float(mape(generated, real).mean()), "ssim": float(ssim(generated, real).mean())}
+        retrieved = nearest_label_images(train_paired.targets, train_real.load_images(use_cache=False),
+                                         targets)
+        entry["nearest-label retrieval"] = {"mape": float(mape(retrieved, real).mean()),
+                                            "ssim": float(ssim(retrieved, real).mean())}
+        translation[name] = entry
+        for arch in loaded_translators[dataset.contact]:
+            summary[f"translation/{name}/{arch}_mape"] = entry[arch]["mape"]
+        summary[f"translation/{name}/retrieval_mape"] = entry["nearest-label retrieval"]["mape"]
+
+        readings = {}
+        for source, model in loaded_posenets[dataset.contact].items():
+            truth = label_matrix(targets, model.variables)
+            figures = metrics(*predict(model, real), truth, model.variables)
+            readings[source] = {variable: {"mae": per["mae"], "chance_mae": per["chance_mae"],
+                                           "mae_over_chance": per["mae"] / max(per["chance_mae"], 1e-12)}
+                                for variable, per in figures["variables"].items()}
+            readings[source]["mean_nll"] = figures["mean_nll"]
+        reference, candidate = readings.get("real"), readings.get("shpix2pix")
+        if reference and candidate:
+            readings["ratio_shpix2pix_to_real"] = {
+                variable: candidate[variable]["mae"] / max(reference[variable]["mae"], 1e-12)
+                for variable in candidate if variable != "mean_nll"}
+        pose[name] = readings
+        for variable, per in (candidate or {}).items():
+            if variable != "mean_nll":
+                summary[f"posenet/{name}/{variable}_mae_over_chance"] = per["mae_over_chance"]
+        for variable, ratio in readings.get("ratio_shpix2pix_to_real", {}).items():
+            summary[f"posenet/{name}/{variable}_ratio_to_real"] = ratio
+    return {"sensor": config.name, "rows_per_dataset": eval_rows, "variables": posenets["variables"],
+            "translation": translation, "posenet": pose, "summary": summary}
