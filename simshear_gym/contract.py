@@ -17,8 +17,11 @@ The GDNN's own input (resize to its size, scale to [0, 1]) belongs to the model:
 from __future__ import annotations
 
 import functools
+import json
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -144,12 +147,76 @@ def shipped_translator(contact: str, arch: str = "shpix2pix"):
     return load_shipped(arch, contact)
 
 
+@functools.cache
+def translator_from(weights: str):
+    """A translator from a weights file (a sensor's own, from ``simshear pipeline run``), loaded once per process."""
+    from simshear_gym.models.translator import Translator
+
+    return Translator.load(weights)
+
+
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
-                   contact: str) -> np.ndarray:
-    """Raw 128 px sim images (B, 128, 128) -> observation images (B, S, S): translated in the translated
-    modes (one batched call, the shear as the tracker gives it), then resized by :func:`resize_tactile`."""
+                   contact: str, translator_weights: str | None = None) -> np.ndarray:
+    """Raw sim images (B, R, R) -> observation images (B, S, S): translated in the translated modes (one
+    batched call, the shear as the tracker gives it; by ``translator_weights`` if given, else the shipped
+    translator of ``contact``), then resized by :func:`resize_tactile`."""
     images = np.asarray(sim_uint8)
     if obs_mode in TRANSLATED_MODES:
         shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6)
-        images = shipped_translator(contact)(images, shear)
+        translator = translator_from(translator_weights) if translator_weights else shipped_translator(contact)
+        images = translator(resize_tactile(images, translator.image_size_px), shear)
     return resize_tactile(images, image_size_px)
+
+
+SENSOR_FILE = "sensor.json"
+DEFAULT_PIPELINE_RUNS = "runs/pipeline"
+
+
+@dataclass(frozen=True)
+class SensorModels:
+    """A sensor's own simulated TacTip and models, as ``simshear pipeline run`` exports them (``sensor.json`` in
+    its run folder): the TacTip's settings (:class:`~simshear_gym.sim.tactip.TacTipConfig` fields), and per
+    contact type the shPix2pix translator and the GDNN trained on its images (absolute paths once loaded)."""
+
+    name: str
+    tactip: dict
+    translators: dict
+    posenets: dict
+
+    def translator(self, contact: str) -> str:
+        return self._lookup(self.translators, contact, "translator")
+
+    def posenet(self, contact: str) -> str:
+        return self._lookup(self.posenets, contact, "GDNN")
+
+    def _lookup(self, table: dict, contact: str, what: str) -> str:
+        if contact not in table:
+            raise ValueError(f"sensor {self.name!r} has no {what} for {contact!r} contacts; it has {sorted(table)}")
+        return table[contact]
+
+
+def load_sensor(spec: str | os.PathLike) -> SensorModels:
+    """A sensor's models from its ``sensor.json``, a pipeline run folder holding one, or its experiment config
+    (``configs/<name>.toml``: the run folder ``runs/pipeline/<name>`` that ``simshear pipeline run`` writes by
+    default, relative to the working directory)."""
+    from simshear_gym.tables import read_toml
+
+    path = Path(spec)
+    if path.suffix == ".toml":
+        name = read_toml(path).get("name")
+        path = Path(DEFAULT_PIPELINE_RUNS) / str(name)
+    if path.is_dir():
+        path = path / SENSOR_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"no sensor models at {path} (from sensor={str(spec)!r}): run `simshear pipeline "
+                                "run CONFIG` first, or pass the sensor.json of a pipeline run folder")
+    record = json.loads(path.read_text())
+    try:
+        folder = path.parent
+        return SensorModels(
+            name=record["sensor"], tactip=dict(record["tactip"]),
+            translators={c: str(folder / p) for c, p in record["translators"].items()},
+            posenets={c: str(folder / p) for c, p in record["posenets"].items()})
+    except (KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path}: not a sensor file of simshear pipeline run ({error!r} missing or "
+                         "malformed)") from None

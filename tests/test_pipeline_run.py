@@ -7,8 +7,11 @@ import json
 import shutil
 from pathlib import Path
 
+import gymnasium as gym
 import pytest
 
+import simshear_gym.envs  # noqa: F401  (registers the envs)
+from simshear_gym.control.servo import ServoController
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.example_sensor import make_example
@@ -64,6 +67,24 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
     again = run_pipeline(config, out, data, "smoke", stages, workers=1)
     assert not any(result["ran"] for result in again["results"])
 
+    # the envs and the servo controller take the sensor's own models from the run folder
+    env = gym.make("SimShearTracking-v0", sensor=str(out), obs_mode="real")
+    base = env.unwrapped
+    assert base.tactip.config.dome_radius_mm == config.sensor.dome_radius_mm
+    assert base.translator_weights == str(out / manifest["models"]["translators"]["surface"]["shpix2pix"])
+    controller = ServoController.for_env(env)
+    assert controller.estimator.unread == ("shear_x_mm", "shear_y_mm", "shear_rz_deg")  # a tap-only sensor
+    observation, _ = env.reset(seed=0)
+    controller.reset()
+    for _ in range(5):
+        action = controller(observation)
+        assert env.action_space.contains(action)
+        observation, _, terminated, truncated, _ = env.step(action)
+        assert observation["tactile"].shape == (1, 128, 128)
+        if terminated or truncated:
+            break
+    env.close()
+
 
 def test_stages_need_the_ones_before_them(tmp_path):
     config = load_config(write_lab(tmp_path))
@@ -78,3 +99,13 @@ def test_example_lab_smoke_trains_from_its_config_alone(data_root, tmp_path):
     manifest = run_pipeline(config, tmp_path / "run", tmp_path / "lab", "smoke", STAGES, workers=1)
     evaluation = json.loads((tmp_path / "run" / manifest["evaluation"]).read_text())
     assert set(evaluation["posenet"]["surface_tap"]["shpix2pix"]) == {"z_mm", "rx_deg", "ry_deg", "mean_nll"}
+
+
+def test_a_sensor_without_a_pipeline_run_says_how_to_make_one(tmp_path):
+    from simshear_gym.contract import load_sensor
+
+    with pytest.raises(FileNotFoundError, match="run `simshear pipeline run CONFIG` first"):
+        load_sensor(tmp_path)
+    (tmp_path / "sensor.json").write_text('{"sensor": "lab"}')
+    with pytest.raises(ValueError, match="not a sensor file"):
+        load_sensor(tmp_path / "sensor.json")

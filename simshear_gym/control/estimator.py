@@ -26,6 +26,8 @@ import numpy as np
 
 STATE_VARIABLES = ("z_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 """The estimated state, in order (GDNN variable names): depth, shear x, shear y, shear Rz."""
+UNREAD_STD = 100.0
+"""The std (mm, deg) reported for a state variable the GDNN does not read (its mean is 0)."""
 DEFAULT_PROCESS_STD_MM = 0.4
 """Process noise when neither the config nor the env gives one: the tracking contact's 4 mm/s at 10 Hz."""
 
@@ -65,6 +67,7 @@ class TactileEstimator:
             BayesFilterConfig,
             DiscriminativeKalmanFilter,
         )
+        from simshear_gym.models.gdnn import OutputSpec
         from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
 
         if config.threads:
@@ -73,12 +76,15 @@ class TactileEstimator:
         path = Path(config.posenet) if config.posenet else shipped_posenet_path("surface")
         self.model, self.card = load_posenet(path)
         names = self.model.variables.names
-        missing = [name for name in STATE_VARIABLES if name not in names]
-        if missing:
-            raise ValueError(f"{path}: the GDNN predicts {names}, the estimator needs {STATE_VARIABLES} "
-                             f"(missing {missing})")
-        self._index = [names.index(name) for name in STATE_VARIABLES]
-        specs = [self.model.variables.variables[i] for i in self._index]
+        if "z_mm" not in names:
+            raise ValueError(f"{path}: the GDNN predicts {names}; the estimator needs at least the depth z_mm")
+        self.unread = tuple(name for name in STATE_VARIABLES if name not in names)
+        """State variables this GDNN does not read (a sensor recorded without shear): reported as 0 with
+        :data:`UNREAD_STD`, so the servo law leaves them alone."""
+        self._present = [i for i, name in enumerate(STATE_VARIABLES) if name in names]
+        self._index = [names.index(STATE_VARIABLES[i]) for i in self._present]
+        specs = [self.model.variables.variables[names.index(name)] if name in names
+                 else OutputSpec(name, name.rpartition("_")[2], -7.5, 7.5) for name in STATE_VARIABLES]
         process_mm = DEFAULT_PROCESS_STD_MM if config.process_std_mm is None else config.process_std_mm
         process = (process_mm,) * 3 + (config.process_std_deg,)
         self._filter = DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
@@ -106,7 +112,10 @@ class TactileEstimator:
         with torch.inference_mode():
             mean, std = self._inference(to_input(torch.from_numpy(image)[None]))
             mean, std = self.model.decode(mean, std)
-        return mean[0, self._index].numpy().astype(np.float64), std[0, self._index].numpy().astype(np.float64)
+        state_mean, state_std = np.zeros(len(STATE_VARIABLES)), np.full(len(STATE_VARIABLES), UNREAD_STD)
+        state_mean[self._present] = mean[0, self._index].numpy()
+        state_std[self._present] = std[0, self._index].numpy()
+        return state_mean, state_std
 
     def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Fuse one image; ``commanded_move`` (dx, dy, dz mm, dRz deg) is the move sent since the last image.

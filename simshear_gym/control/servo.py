@@ -64,8 +64,9 @@ class ServoController:
 
         base = env.unwrapped
         if estimator.posenet is None:
-            name = getattr(base, "estimator_posenet", "surface")
-            estimator = replace(estimator, posenet=str(shipped_posenet_path(name)))
+            name = getattr(base, "estimator_posenet", "surface")  # a shipped GDNN's name, or a sensor's weights
+            posenet = name if name.endswith(".pt") else str(shipped_posenet_path(name))
+            estimator = replace(estimator, posenet=posenet)
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
         return cls(base.reference_depth_mm, base.action_scale, gains, estimator)

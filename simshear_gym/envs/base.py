@@ -52,6 +52,7 @@ from simshear_gym.contract import (
     action_to_move,
     check_image_size,
     finish_tactile,
+    load_sensor,
     observation_space,
 )
 from simshear_gym.data.labels import wrap_deg
@@ -137,6 +138,10 @@ class SimShearEnv(gym.Env, EzPickle):
         render_mode: None or ``"rgb_array"``.
         reference_depth_mm: the depth to keep, label convention (face at ``SURFACE_DEPTH_MM`` = 2.2 mm).
         action_scale, reward, termination, mount, arm_config, shear_config: see their classes.
+        sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its
+            ``simshear pipeline run`` or that run's ``sensor.json``; :func:`~simshear_gym.contract.load_sensor`):
+            the TacTip renders with its dome and camera settings, its translator makes the images, and an
+            image-based controller reads them with its GDNN (``estimator_posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
             caller (the batched vector env); the observation space's image is then 1x128x128.
     """
@@ -150,7 +155,8 @@ class SimShearEnv(gym.Env, EzPickle):
                  action_scale: ActionScale = ActionScale(), reward: RewardConfig = RewardConfig(),
                  termination: TerminationConfig = TerminationConfig(), mount: TacTipMount = TacTipMount(),
                  arm_config: MG400ArmConfig = MG400ArmConfig(),
-                 shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False) -> None:
+                 shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False,
+                 sensor: str | None = None) -> None:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
         check_image_size(image_size_px)
@@ -177,7 +183,15 @@ class SimShearEnv(gym.Env, EzPickle):
         self.metadata = {**self.metadata, "render_fps": self.control_rate_hz}
 
         self.world = World()
-        self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
+        tactip_config = TacTipConfig(image_size_px=RENDER_SIZE_PX)
+        self.translator_weights: str | None = None
+        if sensor is not None:
+            models = load_sensor(sensor)
+            tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})
+            self.translator_weights = models.translator(self.translator_contact)
+            self.estimator_posenet = models.posenet(self.translator_contact)
+        self.sensor = sensor
+        self.tactip = TacTip(self.world, tactip_config)
         self.shear_tracker = ShearTracker(shear_config)
         self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
         self.T_work_face[2, 3] = SURFACE_DEPTH_MM
@@ -353,7 +367,7 @@ class SimShearEnv(gym.Env, EzPickle):
             image = sim
         else:
             image = finish_tactile(sim[None], state.shear_sensor[None], self.obs_mode, self.image_size_px,
-                                   self.translator_contact)[0]
+                                   self.translator_contact, self.translator_weights)[0]
         self._last_tactile = image
         tcp = np.clip(self.follower.tool_pose_mm_deg(), TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)
         obs = {"tactile": image[None], "tcp_pose": tcp}

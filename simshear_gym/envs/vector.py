@@ -66,7 +66,7 @@ class _EnvGroup:
             shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
             env = self.envs[0]
             batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
-                                              env.translator_contact)[:, None]
+                                              env.translator_contact, env.translator_weights)[:, None]
         return batch
 
     def reset(self, seeds: list, options: dict | None):
@@ -169,6 +169,7 @@ class SimShearVectorEnv(VectorEnv):
         self.single_action_space = single.action_space
         self.obs_mode, self.image_size_px = single.obs_mode, single.image_size_px
         self._contact = single.translator_contact
+        self._translator_weights = single.translator_weights
         single.close()
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -226,7 +227,7 @@ class SimShearVectorEnv(VectorEnv):
         if self._finish_in_main:
             shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
             batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
-                                              self._contact)[:, None]
+                                              self._contact, self._translator_weights)[:, None]
         return batch
 
     def _vector_infos(self, infos: list[dict]) -> dict:

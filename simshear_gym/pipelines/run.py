@@ -15,6 +15,9 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
    retrieval (the real training image with the closest labels), the GDNNs' MAE per variable against chance and
    the translated-trained / real-trained ratio; written to ``evaluation.json``.
 
+The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
+(``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
+
 The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, per stage its
 folder, whether it ran or was cached, wall time and metrics.
 """
@@ -24,9 +27,11 @@ from __future__ import annotations
 import argparse
 import subprocess
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from simshear_gym.contract import SENSOR_FILE
 from simshear_gym.data.adapter import adapt_dataset, write_canonical
 from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
@@ -266,6 +271,13 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
                 if "posenet" in stages else None)
     evaluation = (stage_evaluate(runner, config, profile_settings, adapted, paired, translators, posenets)
                   if "evaluate" in stages else None)
+    if translators and posenets:
+        write_json(out / SENSOR_FILE, {
+            "sensor": config.name, "config": str(config.path), "profile": profile,
+            "tactip": asdict(config.sensor),
+            "translators": {contact: archs["shpix2pix"] for contact, archs in translators.items()},
+            "posenets": {contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
+            "variables": posenets["variables"]})
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile, "stages": list(stages),
         "package_version": _version(), "git_commit": git_commit(),
