@@ -64,7 +64,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("pipeline", "check"), "simshear_gym.pipelines.check",
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
-     "from a sensor's data set to its models: adapt, replay in simulation, ... (cached stages)"),
+     "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
     (("pipeline", "make-example"), "simshear_gym.pipelines.example_sensor",
      "write the example second lab's data set (configs/example_lab.toml) from the real tactip331 images"),
 )
@@ -129,14 +129,47 @@ def command_parser(words: Sequence[str]) -> argparse.ArgumentParser:
     return parser
 
 
+# Errors that say what was wrong with the input or the setup (a file, a column, a host, a camera), raised by the
+# library with a message that names it: the CLI prints them as one line. Besides ValueError and OSError (missing
+# files, refused connections, timeouts), these, looked up only when their module is loaded (so that this module
+# imports none of them):
+INPUT_ERRORS: tuple[tuple[str, str], ...] = (
+    ("simshear_gym.real.camera", "CameraError"),
+    ("simshear_gym.real.safety", "SafetyError"),
+    ("simshear_gym.real.env", "RealEnvError"),
+    ("simshear_gym.real.mg400_client", "MG400Error"),
+    ("simshear_gym.real.mg400_client", "FeedbackStaleError"),
+)
+
+
+def is_input_error(error: BaseException) -> bool:
+    """Whether ``error`` reports bad input or an unusable setup (one ``simshear: error:`` line), not a bug."""
+    if isinstance(error, (ValueError, OSError)):
+        return True
+    for module_name, class_name in INPUT_ERRORS:
+        module = sys.modules.get(module_name)
+        error_type = getattr(module, class_name, None) if module is not None else None
+        if error_type is not None and isinstance(error, error_type):
+            return True
+    return False
+
+
+def error_line(error: BaseException) -> str:
+    """The one line the CLI prints for ``error``."""
+    text = "; ".join(line.strip() for line in str(error).splitlines() if line.strip())
+    return f"simshear: error: {text or type(error).__name__}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     module = importlib.import_module(args._module)
     try:
         return int(module.run(args) or 0)
-    except (ValueError, FileNotFoundError) as error:  # library errors carry their own explanation
-        print(f"simshear: error: {error}", file=sys.stderr)
+    except Exception as error:  # library errors carry their own explanation; anything else is a bug: traceback
+        if not is_input_error(error):
+            raise
+        print(error_line(error), file=sys.stderr)
         return 2
 
 

@@ -53,8 +53,7 @@ class CheckConfig:
 class TranslatorStage:
     """The translators' training (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields of
     the same names): one per contact type and architecture in ``archs``. The budget is ``epochs``; a cosine
-    schedule runs over the steps, so a slower machine trains the same model. ``max_minutes`` is only a safety cap
-    (a run it stops is recorded as capped)."""
+    schedule runs over the steps, so a slower machine trains the same model."""
 
     archs: tuple[str, ...] = ("shpix2pix", "pix2pix")
     epochs: int = 20
@@ -69,7 +68,6 @@ class TranslatorStage:
     patience_epochs: int = 1000
     seed: int = 0
     threads: int = 2
-    max_minutes: float | None = None
 
     def __post_init__(self) -> None:
         if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
@@ -97,7 +95,6 @@ class PosenetStage:
     erase: float = 0.0
     seed: int = 0
     threads: int = 2
-    max_minutes: float | None = None
 
     def __post_init__(self) -> None:
         if self.epochs < 1:
@@ -119,7 +116,7 @@ DEFAULT_PROFILES: dict[str, Profile] = {
     "smoke": Profile(rows_per_split=48, eval_rows=24,
                      translator=TranslatorStage(epochs=1, batch_size=8, base_channels=4, max_channels=16),
                      posenet=PosenetStage(epochs=1, batch_size=16, image_size_px=32)),
-    "quick": Profile(translator=TranslatorStage(epochs=6), posenet=PosenetStage(epochs=20)),
+    "quick": Profile(translator=TranslatorStage(epochs=14), posenet=PosenetStage(epochs=20)),
     "full": Profile(translator=TranslatorStage(epochs=30), posenet=PosenetStage(epochs=40)),
 }
 """Built-in profiles; a config's ``[profiles.<name>]`` table overrides them key by key."""
