@@ -61,6 +61,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "run the servo controller or an SB3 policy on the real (or emulated) MG400 with the TacTip, logging every step"),
     (("evaluate", "real-cycle"), "simshear_gym.evaluate.real_cycle",
      "compute per control cycle of the real path: preprocess, estimator, filter, servo law, ServoP to the emulator"),
+    (("evaluate", "soak"), "simshear_gym.evaluate.soak",
+     "fault soak of the real path: the servo controller on the MG400 emulator for 10,000 cycles, faults injected"),
     (("pipeline", "check"), "simshear_gym.pipelines.check",
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",

@@ -26,7 +26,7 @@ from simshear_gym.real.env import (
     tcp_pose_from_flange,
 )
 from simshear_gym.real.mg400_emulator import EmulatorConfig, FaultConfig, MG400Emulator
-from simshear_gym.real.safety import SafetyConfig
+from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
 START = (300.0, 0.0, 0.0, 0.0)
 PERIOD_S = 0.05
@@ -194,8 +194,10 @@ def test_target_outside_the_workspace_is_refused_and_never_sent(emulator):
 
 
 def test_target_beyond_the_arms_reach_is_refused(emulator):
+    # a workspace wider than the safe default, and a 141 mm move to the start: loosened by name
     env = make_env(emulator, start_pose_mm_deg=(441.0, 0.0, 0.0, 0.0), action_scale=ActionScale(step_mm=4.0),
-                   safety=SafetyConfig(x_range_mm=(150.0, 500.0), radius_range_mm=(180.0, 500.0)))
+                   safety=UnsafeSafetyConfig(x_range_mm=(150.0, 500.0), radius_range_mm=(180.0, 500.0),
+                                             max_move_mm=200.0, max_move_deg=90.0))
     try:
         env.reset()
         _, _, terminated, _, info = env.step(np.array([1.0, 0.0, 0.0, 0.0]))  # flange x 445: out of reach
@@ -206,10 +208,11 @@ def test_target_beyond_the_arms_reach_is_refused(emulator):
         env.close()
 
 
-def test_start_pose_is_validated_by_the_safety_layer_on_reset(emulator):
-    env = make_env(emulator, safety=SafetyConfig(max_move_mm=50.0))  # emulator starts 118 mm from START
+def test_start_pose_is_validated_by_the_safety_layer_on_reset(make_emulator):
+    emulator = make_emulator(initial_joints_deg=(0.0, 0.0, 0.0, 0.0))  # the flange 118 mm from START
+    env = make_env(emulator)  # the safe default jump: max_move_mm = 50
     try:
-        with pytest.raises(Exception, match="max_move_mm"):
+        with pytest.raises(Exception, match=r"step of 119.080 mm .* exceeds max_move_mm = 50 mm"):
             env.reset()
         assert emulator.received_commands("motion") == []
     finally:
@@ -356,3 +359,57 @@ def test_actions_outside_the_space_raise(emulator):
         assert servo_commands(emulator) == []
     finally:
         env.close()
+
+
+def test_joint_feedback_that_disagrees_with_the_pose_ends_the_episode_and_a_reset_recovers(emulator):
+    from simshear_gym.real.mg400_emulator import FeedbackFault
+
+    env = make_env(emulator)
+    try:
+        env.reset()
+        assert not env.step(np.array([0.5, 0.0, 0.0, 0.0]))[2]
+        emulator.set_faults(FaultConfig(corrupt_feedback_every=1, feedback_faults=(FeedbackFault.INCONSISTENT,)))
+        infos = [env.step(np.array([0.5, 0.0, 0.0, 0.0]))[4]]
+        while not infos[-1]["termination"] and len(infos) < 4:
+            infos.append(env.step(np.array([0.5, 0.0, 0.0, 0.0]))[4])
+        assert infos[-1]["termination"] == "feedback_mismatch"
+        assert "max_pose_mismatch_mm" in infos[-1]["safety_event"]
+        sent = len(servo_commands(emulator))
+        time.sleep(0.1)
+        assert len(servo_commands(emulator)) == sent
+        before = emulator.received_commands("motion")
+        with pytest.raises(Exception, match="max_pose_mismatch_mm"):
+            env.reset()  # still disagreeing: nothing is sent
+        assert emulator.received_commands("motion") == before
+        emulator.set_faults(FaultConfig())
+        time.sleep(0.05)
+        env.reset()  # agreeing again: a new episode
+        assert not env.step(np.zeros(4))[2]
+    finally:
+        env.close()
+
+
+def test_an_action_that_is_not_finite_is_refused_and_never_sent(emulator):
+    env = make_env(emulator)
+    try:
+        env.reset()
+        _, _, terminated, _, info = env.step(np.array([np.nan, 0.0, 0.0, 0.0]))
+        assert terminated and info["termination"] == "safety_refused"
+        assert "not finite" in info["safety_event"] and servo_commands(emulator) == []
+    finally:
+        env.close()
+
+
+def test_frozen_camera_frames_stop_the_episode(emulator):
+    frame = np.full((128, 128), 90, np.uint8)
+    env = make_env(emulator, camera=VirtualCamera(lambda: frame.copy()), frozen_frame_limit=3)
+    try:
+        env.reset()  # frame 1
+        assert not env.step(np.zeros(4))[2]  # frame 2, the same
+        _, _, terminated, _, info = env.step(np.zeros(4))  # frame 3, the same
+        assert terminated and info["termination"] == "camera_stall"
+        assert "3 identical frames in a row" in info["safety_event"]
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="frozen_frame_limit"):
+        RealEnvConfig(frozen_frame_limit=1)

@@ -32,24 +32,51 @@ from simshear_gym.data.tactile_set import TactileDataError, TactileSet, read_set
 REAL_IMAGE_COLUMN = "real_image"
 
 
-def load_paired(directory: str | os.PathLike, root: str | os.PathLike | None = None
+def load_paired(directory: str | os.PathLike, root: str | os.PathLike | None = None, load_real: bool = True
                 ) -> tuple[TactileSet, TactileSet | None]:
-    """A paired set and, for replayed sets, the real set it pairs with (None for random contacts).
+    """A paired set and, for replayed sets, the real set it pairs with (None for random contacts, and when
+    ``load_real`` is False: a caller that uses only the sim renders and labels does not need the real set).
 
     The real set's ``targets`` are reordered to the paired set's rows, so image ``i`` of both belong together.
+
+    Raises:
+        TactileDataError: the set, its ``meta.json`` (missing, not an object, ``real_set`` not a path), its
+            ``real_image`` column (missing, empty, naming an image the real set lacks) or the real set is
+            malformed; the message names the file, row or column.
     """
+    meta_file = Path(directory) / "meta.json"
     paired = read_set(directory, required_columns=POSE_COLUMNS + MOVE_COLUMNS + SHEAR_COLUMNS)
+    if not meta_file.is_file():
+        raise TactileDataError(f"{meta_file}: missing; a paired set records its contact type and the real set it "
+                               "pairs with there (simshear collect writes it)")
     real_relative = paired.meta.get("real_set")
     if not real_relative:
+        return paired, None
+    if not isinstance(real_relative, str):
+        raise TactileDataError(f"{meta_file}: 'real_set' must be the real set's directory (a string), got "
+                               f"{real_relative!r}")
+    targets_file = paired.root / "targets.csv"
+    if REAL_IMAGE_COLUMN not in paired.targets.columns:
+        raise TactileDataError(f"{targets_file}: column {REAL_IMAGE_COLUMN!r} is missing; a replayed paired set "
+                               f"(meta.json real_set {real_relative!r}) names each row's real image there; found "
+                               f"columns {list(paired.targets.columns)}")
+    names = paired.targets[REAL_IMAGE_COLUMN]
+    empty = names.isna() | (names.astype(str).str.strip() == "")
+    if empty.any():
+        row = int(np.flatnonzero(empty.to_numpy())[0])
+        raise TactileDataError(f"{targets_file}: row {row + 1}, column {REAL_IMAGE_COLUMN!r}: empty; expected the "
+                               f"name of the real image in {real_relative}")
+    if not load_real:
         return paired, None
     real_dir = Path(real_relative)
     if paired.meta.get("real_set_relative_to_data_root"):
         real_dir = data_root(root) / real_dir
     real = read_set(real_dir)
     index = pd.Index(real.targets[IMAGE_COLUMN])
-    positions = index.get_indexer(paired.targets[REAL_IMAGE_COLUMN])
+    positions = index.get_indexer(names.astype(str))
     if (positions < 0).any():
-        missing = paired.targets[REAL_IMAGE_COLUMN].iloc[int(np.flatnonzero(positions < 0)[0])]
-        raise TactileDataError(f"{paired.root}/targets.csv: real_image {missing!r} is not in {real_dir}")
+        row = int(np.flatnonzero(positions < 0)[0])
+        raise TactileDataError(f"{targets_file}: row {row + 1}, real_image {names.iloc[row]!r} is not in "
+                               f"{real_dir}")
     real = TactileSet(real.root, real.targets.iloc[positions].reset_index(drop=True), real.meta)
     return paired, real

@@ -21,6 +21,7 @@ from simshear_gym.data.labels import (
     IMAGE_COLUMN,
     MOVE_COLUMNS,
     POSE_COLUMNS,
+    SHEAR_COLUMNS,
     shear_to_sensor_frame,
 )
 from simshear_gym.data.paths import cache_dir
@@ -29,6 +30,10 @@ from simshear_gym.io import atomic_write
 
 class TactileDataError(ValueError):
     """A tactile-data set is malformed; the message names the file, row or column and what was expected."""
+
+
+LABEL_COLUMNS: tuple[str, ...] = POSE_COLUMNS + MOVE_COLUMNS + SHEAR_COLUMNS
+"""Label columns that, wherever a set has them, must hold finite numbers (checked when the set is read)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,7 +118,9 @@ def read_set(
 
     Args:
         directory: holds ``targets.csv``, ``images/`` and optionally ``meta.json``.
-        required_columns: label columns that must exist and be numeric (besides ``sensor_image``).
+        required_columns: label columns that must exist and be numeric (besides ``sensor_image``). Every other
+            label column the set has (:data:`LABEL_COLUMNS`) must hold finite numbers too: NaN / inf labels are
+            refused here, not found as NaN metrics later.
         image_size_px: if given, the first image must be this many pixels square (all are checked on load).
 
     Raises:
@@ -125,14 +132,20 @@ def read_set(
         raise TactileDataError(f"{targets_file}: missing; a set directory needs targets.csv and images/")
     try:
         targets = pd.read_csv(targets_file)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as error:
-        raise TactileDataError(f"{targets_file}: not a readable CSV ({error})") from None
+    except pd.errors.EmptyDataError:
+        raise TactileDataError(f"{targets_file}: empty; expected a header with {IMAGE_COLUMN!r} and the label "
+                               "columns, then one row per image") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as error:
+        reason = " ".join(str(error).split())
+        raise TactileDataError(f"{targets_file}: not a readable CSV ({reason})") from None
     for column in (IMAGE_COLUMN,) + tuple(required_columns):
         if column not in targets.columns:
             raise TactileDataError(
                 f"{targets_file}: column {column!r} is missing; found columns {list(targets.columns)}"
             )
-    for column in required_columns:
+    if targets.empty:
+        raise TactileDataError(f"{targets_file}: no data rows (only the header); expected one row per image")
+    for column in dict.fromkeys(tuple(required_columns) + tuple(c for c in LABEL_COLUMNS if c in targets.columns)):
         numeric = pd.to_numeric(targets[column], errors="coerce")
         bad = numeric.isna() | ~np.isfinite(numeric.to_numpy(np.float64, na_value=np.nan))
         if bad.any():
@@ -142,6 +155,13 @@ def read_set(
                 "is not a finite number"
             )
         targets[column] = numeric.astype(np.float64)
+    names = targets[IMAGE_COLUMN]
+    empty = names.isna() | (names.astype(str).str.strip() == "")
+    if empty.any():
+        row = int(np.flatnonzero(empty.to_numpy())[0])
+        raise TactileDataError(f"{targets_file}: row {row + 1}, column {IMAGE_COLUMN!r}: empty; expected an image "
+                               "file name in images/")
+    targets[IMAGE_COLUMN] = names.astype(str)
     images_dir = root / "images"
     if not images_dir.is_dir():
         raise TactileDataError(f"{images_dir}: missing; expected the images named in {targets_file.name}")
@@ -160,8 +180,11 @@ def read_set(
     if meta_file.is_file():
         try:
             meta = json.loads(meta_file.read_text())
-        except json.JSONDecodeError as error:
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise TactileDataError(f"{meta_file}: not valid JSON ({error})") from None
+        if not isinstance(meta, dict):
+            raise TactileDataError(f"{meta_file}: expected a JSON object (keys such as 'contact'), got "
+                                   f"{type(meta).__name__}")
     return TactileSet(root=root, targets=targets, meta=meta)
 
 

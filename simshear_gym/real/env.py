@@ -10,8 +10,9 @@ and observation spaces are the sim env's, from the one definition both use
 flange: the last *commanded* flange target moved by the action in the sensor frame (the commanded target, not the
 measured pose, so that a lagging arm does not shorten the moves the estimator's motion model assumes). The target
 passes the :class:`~simshear_gym.real.safety.SafetyLayer` in :meth:`MG400Client.servo_p` (reachability and joint
-limits through the kinematics, the workspace box, and the step per command); a refused target is never sent and
-ends the episode (``info["termination"] == "safety_refused"``, the reason in ``info["safety_event"]``).
+limits through the kinematics, the workspace box, the step and the speed per command); a refused target is never
+sent and ends the episode (``info["termination"] == "safety_refused"``, the reason in ``info["safety_event"]``). An
+action that is not finite (a NaN estimate) is refused the same way.
 
 **Observation** ``Dict``: ``tactile`` uint8 (1, S, S), the camera frame preprocessed
 (:func:`~simshear_gym.real.camera.preprocess`, 128 px binary) and resized to S = ``image_size_px`` as the sim env
@@ -21,12 +22,17 @@ frame, from the 30004 feedback's flange pose and the mount (the controller's too
 
 **Reward** 0 every step: the real robot has no ground truth to score against.
 
-**Termination** (``info["termination"]``): ``safety_refused`` (a target outside the limits or too large a step),
-``robot_error`` (the controller refused a command or is in error mode), ``lost_connection`` (a connection dropped,
-or the feedback is older than ``SafetyConfig.max_feedback_age_s``), ``camera_stall`` (no new frame, or one older
-than ``SafetyConfig.max_camera_frame_age_s``), ``camera_ended`` (a recording ran out) and ``lost_contact`` (the
-optional ``contact_check`` callback says so and ``SafetyConfig.stop_on_lost_contact``). After a termination nothing
-more is sent: the arm stops at its last servo target; :meth:`RealTactileEnv.reset` starts again.
+**Termination** (``info["termination"]``): ``safety_refused`` (a target outside the limits, too large a step or
+too fast, or an action that is not finite), ``feedback_mismatch`` (the robot's joint feedback and its reported
+pose disagree: where it is is not known), ``robot_error`` (the controller refused a command or is in error mode),
+``lost_connection`` (a connection dropped, a reply timed out, or the feedback is older than
+``SafetyConfig.max_feedback_age_s``), ``camera_stall`` (no new frame, one older than
+``SafetyConfig.max_camera_frame_age_s``, or ``frozen_frame_limit`` identical frames in a row), ``camera_ended`` (a
+recording ran out) and ``lost_contact`` (the optional ``contact_check`` callback says so and
+``SafetyConfig.stop_on_lost_contact``); ``controller_error`` when the loop driving the env could not compute an
+action (the controller refused a NaN estimate) and ended the episode with :meth:`RealTactileEnv.end_episode`. After
+a termination nothing more is sent: the arm stops at its last servo target; :meth:`RealTactileEnv.reset` starts
+again.
 
 **Timing**: ``step`` sends its command at once, waits until one control period after the previous observation
 and then reads the camera and the feedback, so commands go out at a fixed period as long as the caller's compute
@@ -78,6 +84,7 @@ from simshear_gym.real.mg400_client import (
     MG400TimeoutError,
 )
 from simshear_gym.real.safety import (
+    FeedbackMismatchError,
     MotionKind,
     SafetyConfig,
     SafetyError,
@@ -100,8 +107,8 @@ from simshear_gym.transforms import invert, rz_matrix
 
 logger = logging.getLogger(__name__)
 
-TERMINATIONS: tuple[str, ...] = ("safety_refused", "robot_error", "lost_connection", "camera_stall", "camera_ended",
-                                 "lost_contact")
+TERMINATIONS: tuple[str, ...] = ("safety_refused", "feedback_mismatch", "robot_error", "lost_connection",
+                                 "camera_stall", "camera_ended", "lost_contact", "controller_error")
 """Every value ``info["termination"]`` takes besides ``""``."""
 
 STOP_TERMINATIONS: dict[StopReason, str] = {
@@ -170,14 +177,19 @@ class RealEnvConfig:
         camera_source: device index, video file or image folder (:class:`CameraSource`), used unless a frame
             source is passed to the env.
         camera_stall_timeout_s: a live camera that gives no new frame for this long raises (ends the episode), s.
+        frozen_frame_limit: this many byte-identical camera frames in a row end the episode (a frozen driver; a
+            real camera's noise makes two equal frames all but impossible); None for a noise-free simulated camera.
         preprocess: camera frame -> 128 px binary tactile image; None when the source already gives tactile
             images (a simulated camera, a folder of processed images).
         image_size_px: S of the ``tactile`` observation, 128 or 64 (as the sim env).
         start_pose_mm_deg: flange pose ``(x, y, z mm, R deg)`` in the base frame that ``reset`` moves to (with
-            MovJ), checked against the arm's limits and the safety workspace on construction.
+            one MovJ, so the robot must be within ``safety.max_move_mm`` of it), checked against the arm's limits
+            and the safety workspace on construction.
         action_scale: full-scale move per step (the sim env's ``ActionScale``).
         mount: the TacTip on the flange (the sim env's ``TacTipMount``).
-        safety: limits, step sizes and stop thresholds; its ``dry_run`` must stay False (use ``dry_run`` here).
+        safety: limits, step sizes, speeds and stop thresholds (the safe defaults; loosening them takes an
+            :class:`~simshear_gym.real.safety.UnsafeSafetyConfig`); its ``dry_run`` must stay False (use
+            ``dry_run`` here).
         dry_run: check and log motion commands instead of sending them (see the module docstring).
         enable_robot: send EnableRobot on reset when the robot is disabled.
         connect_timeout_s, reply_timeout_s: network timeouts, s.
@@ -192,6 +204,7 @@ class RealEnvConfig:
     servo_margin_s: float = 0.02
     camera_source: str = "0"
     camera_stall_timeout_s: float = 0.5
+    frozen_frame_limit: int | None = 20
     preprocess: PreprocessConfig | None = field(default_factory=default_config)
     image_size_px: int = 128
     start_pose_mm_deg: tuple[float, float, float, float] = (300.0, 0.0, 0.0, 0.0)
@@ -221,6 +234,9 @@ class RealEnvConfig:
                 raise ValueError(f"RealEnvConfig.{name} must be finite and > 0 s, got {value!r}")
         if self.safety.dry_run:
             raise ValueError("set dry_run on RealEnvConfig, not on its SafetyConfig (one place decides)")
+        limit = self.frozen_frame_limit
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int) or limit < 2):
+            raise ValueError(f"RealEnvConfig.frozen_frame_limit must be None or an int >= 2, got {limit!r}")
         start = tuple(float(v) for v in self.start_pose_mm_deg)
         if len(start) != 4 or not all(math.isfinite(v) for v in start):
             raise ValueError(f"RealEnvConfig.start_pose_mm_deg must be 4 finite numbers (x, y, z mm, R deg), "
@@ -235,6 +251,11 @@ class RealEnvConfig:
             logger.warning("a full-scale action (%.3f mm, %.3f deg) exceeds the safety step limit (%g mm, %g deg): "
                            "such actions end the episode", step_mm, self.action_scale.step_deg,
                            self.safety.max_step_mm, self.safety.max_step_deg)
+        t_s = self.servo_time_s
+        if step_mm / t_s > self.safety.max_speed_mm_s or self.action_scale.step_deg / t_s > self.safety.max_speed_deg_s:
+            logger.warning("a full-scale action (%.3f mm, %.3f deg in t = %g s) exceeds the safety speed limit "
+                           "(%g mm/s, %g deg/s): such actions end the episode", step_mm, self.action_scale.step_deg,
+                           t_s, self.safety.max_speed_mm_s, self.safety.max_speed_deg_s)
 
     @property
     def servo_time_s(self) -> float:
@@ -252,13 +273,14 @@ class RealEnvConfig:
         return {
             "robot_ip": self.robot_ip, "ports": [self.dashboard_port, self.motion_port, self.feedback_port],
             "control_period_s": self.control_period_s, "servo_time_s": self.servo_time_s,
-            "camera_source": self.camera_source,
+            "camera_source": self.camera_source, "frozen_frame_limit": self.frozen_frame_limit,
             "preprocess": None if self.preprocess is None else self.preprocess.to_dict(),
             "image_size_px": self.image_size_px, "start_pose_mm_deg": list(self.start_pose_mm_deg),
             "action_scale": {"step_mm": self.action_scale.step_mm, "step_deg": self.action_scale.step_deg},
             "mount": {"tcp_offset_mm": self.mount.tcp_offset_mm, "mount_rz_deg": self.mount.mount_rz_deg},
             "safety": {key: (list(value) if isinstance(value, tuple) else value)
                        for key, value in vars(self.safety).items() if key not in ("geometry", "limits")},
+            "safety_unsafe": list(self.safety.loosened()),
             "dry_run": self.dry_run,
         }
 
@@ -310,6 +332,8 @@ class RealTactileEnv(gym.Env):
         self._snapshot = StatusSnapshot(connected=False)
         self._camera_frame_age_s: float | None = None
         self._in_contact: bool | None = None
+        self._previous_frame: np.ndarray | None = None
+        self._repeated_frames = 0
 
     # -- connection ----------------------------------------------------------------------------------------------
 
@@ -355,7 +379,8 @@ class RealTactileEnv(gym.Env):
 
         Raises:
             RealEnvError: the robot is in error mode or the move to the start pose failed.
-            SafetyError: the start pose is refused (nothing is sent).
+            SafetyError: the start pose is refused, e.g. farther than ``max_move_mm`` (nothing is sent), or
+                :class:`~simshear_gym.real.safety.FeedbackMismatchError`: the robot's joints and pose disagree.
             MG400ConnectionError: the robot cannot be reached.
         """
         super().reset(seed=seed)
@@ -383,6 +408,8 @@ class RealTactileEnv(gym.Env):
         self.commands_sent = 0
         self.safety_events = []
         self._last_frame_time = None
+        self._previous_frame = None
+        self._repeated_frames = 0
         self._t0 = time.monotonic()
         self._termination = ""
         obs, stop = self._observe()
@@ -399,9 +426,14 @@ class RealTactileEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         if self._termination:
             raise RuntimeError(f"the episode ended ({self._termination}); call reset() before step()")
-        move = action_to_move(action, self.action_scale)
-        target = move_to_flange_target(self._commanded, move, self.config.mount)
-        stop = self._send(target)
+        array = np.asarray(action, dtype=np.float64)
+        if array.shape == (4,) and not np.all(np.isfinite(array)):
+            stop: tuple[str, str] | None = ("safety_refused", f"action {array.tolist()} is not finite (a NaN / inf "
+                                            "estimate?): nothing sent")
+        else:
+            move = action_to_move(action, self.action_scale)
+            target = move_to_flange_target(self._commanded, move, self.config.mount)
+            stop = self._send(target)
         overrun_s = 0.0
         if stop is None:
             delay_s = self._next_tick - time.monotonic()
@@ -424,6 +456,20 @@ class RealTactileEnv(gym.Env):
             info["safety_event"] = stop[1]
         return obs, 0.0, bool(reason), False, info
 
+    def end_episode(self, termination: str, event: str):
+        """End the running episode without sending anything (the caller could not compute an action, e.g. the
+        controller refused a NaN estimate): ``step``'s return value with ``terminated`` True."""
+        if termination not in TERMINATIONS:
+            raise ValueError(f"termination must be one of {TERMINATIONS}, got {termination!r}")
+        if self._termination != "":
+            raise RuntimeError("no episode is running; call reset() first")
+        self.safety_events.append(event)
+        logger.warning("real env: episode stopped (%s): %s", termination, event)
+        self._termination = termination
+        info = self._info(stop_reason=termination, action=np.full(4, np.nan), overrun_s=0.0)
+        info["safety_event"] = event
+        return self._last_obs, 0.0, True, False, info
+
     def _wait_until_at(self, pose: np.ndarray, tolerance: float = 0.5, timeout_s: float = 2.0) -> None:
         """Wait for a feedback packet that shows the queue done and the arm at ``pose`` (Sync answers before the
         newest packet shows it)."""
@@ -443,6 +489,8 @@ class RealTactileEnv(gym.Env):
         """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""
         try:
             self.client.servo_p(*target, t_s=self.config.servo_time_s)
+        except FeedbackMismatchError as error:
+            return "feedback_mismatch", f"target {target.round(3).tolist()} not sent: {error}"
         except SafetyError as error:
             return "safety_refused", f"target {target.round(3).tolist()} refused, not sent: {error}"
         except MG400Error as error:
@@ -468,6 +516,7 @@ class RealTactileEnv(gym.Env):
         frame_age_s = None if self._last_frame_time is None else now - self._last_frame_time
         if frame is not None:
             self._last_frame_time = now
+            stop = stop or self._frozen(frame)
             tactile = tactile_from_frame(frame, self.config.preprocess, self.config.image_size_px)
         else:
             tactile = (self._last_obs["tactile"][0] if self._last_obs is not None
@@ -478,6 +527,9 @@ class RealTactileEnv(gym.Env):
         except FeedbackStaleError as error:
             flange = None
             stop = stop or ("lost_connection", f"robot feedback lost: {error}")
+        mismatch = self.client.feedback_mismatch
+        if mismatch is not None:
+            stop = stop or ("feedback_mismatch", f"robot feedback: {mismatch}")
         if flange is not None:
             tcp = tcp_pose_from_flange(flange, self.config.mount)
             self._flange = flange
@@ -497,6 +549,20 @@ class RealTactileEnv(gym.Env):
         if stop is None and decision.stop:
             stop = (self._classify(decision.reason), "; ".join(decision.reasons))
         return obs, stop
+
+    def _frozen(self, frame: np.ndarray) -> tuple[str, str] | None:
+        """("camera_stall", why) once ``frozen_frame_limit`` byte-identical frames came in a row."""
+        limit = self.config.frozen_frame_limit
+        if limit is None:
+            return None
+        previous = self._previous_frame
+        same = previous is not None and previous.shape == frame.shape and np.array_equal(previous, frame)
+        self._repeated_frames = self._repeated_frames + 1 if same else 1
+        self._previous_frame = np.array(frame, copy=True)
+        if self._repeated_frames >= limit:
+            return "camera_stall", (f"camera frozen: {self._repeated_frames} identical frames in a row "
+                                    f"(frozen_frame_limit = {limit})")
+        return None
 
     @staticmethod
     def _classify(reason: StopReason) -> str:

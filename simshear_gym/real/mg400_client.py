@@ -1,14 +1,25 @@
 """TCP/IP client for a Dobot MG400 (dashboard 29999, motion 30003, feedback 30004) and a servo streamer.
 
 Every request waits for its reply (with a timeout); a non-zero ErrorID raises :class:`MG400Error`. Every motion
-command passes the :class:`~simshear_gym.real.safety.SafetyLayer` first (joint limits only when none is given),
-so nothing outside the arm's limits is ever sent.
+command passes the full :class:`~simshear_gym.real.safety.SafetyLayer` first: the arm's joint limits, the
+workspace, the step and speed of servo commands and the jump of queued moves, with the safe defaults of
+:class:`~simshear_gym.real.safety.SafetyConfig` when no safety layer is given (loosening them takes an explicit
+:class:`~simshear_gym.real.safety.UnsafeSafetyConfig`).
+
+Where the robot is: the step of a command is measured from the last target sent, or, when there is none (first
+command, after a stop or a reset), from the robot's *reported* pose (Cartesian step) and its reported joints
+(per-joint steps). The client trusts a measurement only when the two agree (forward kinematics within
+``SafetyConfig.max_pose_mismatch_mm`` / ``_deg``), and it checks every feedback packet the same way: one that
+disagrees stops all motion commands (:class:`~simshear_gym.real.safety.FeedbackMismatchError`, naming both) until
+:meth:`MG400Client.reset_reference` and a measurement that agrees. A command whose reply was lost (timeout, dropped
+connection) may or may not be in force, so the next target must be within the limits of both it and the robot's
+measured pose.
 
 Poses are ``(x_mm, y_mm, z_mm, r_deg)`` in the robot base frame; joints ``(J1, J2, J3, J4)`` in deg.
 
 Example::
 
-    with MG400Client(MG400ClientConfig(host="192.168.1.6"), SafetyLayer(SafetyConfig())) as robot:
+    with MG400Client(MG400ClientConfig(host="192.168.1.6")) as robot:  # the safe default limits
         robot.enable_robot()
         robot.mov_l(300.0, 0.0, 50.0, 0.0)
         robot.sync()
@@ -22,19 +33,19 @@ import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.real.safety import (
+    FeedbackMismatchError,
     MotionKind,
     SafetyConfig,
     SafetyLayer,
     StatusSnapshot,
 )
-from simshear_gym.robots.mg400.kinematics import forward
 from simshear_gym.robots.mg400.protocol import (
     DASHBOARD_PORT,
     FEEDBACK_PORT,
@@ -228,10 +239,14 @@ class _ReplyChannel:
 
 
 class _FeedbackReader:
-    """Reads the 30004 stream in a thread, validates packets and keeps only the newest."""
+    """Reads the 30004 stream in a thread, validates packets and keeps only the newest; ``check`` runs on every
+    valid packet and the first reason it gives (joints and pose disagree) is kept until :meth:`clear_mismatch`."""
 
-    def __init__(self, host: str, port: int, connect_timeout_s: float) -> None:
+    def __init__(self, host: str, port: int, connect_timeout_s: float,
+                 check: Callable[[MG400Feedback], str | None] | None = None) -> None:
         self._where = f"feedback port {host}:{port}"
+        self._check = check
+        self._mismatch: str | None = None
         self._sock = _connect("feedback", host, port, connect_timeout_s)
         self._sock.settimeout(0.1)
         self._buffer = FeedbackBuffer()
@@ -258,6 +273,15 @@ class _FeedbackReader:
             packets, reasons = self._buffer.feed(data)
             for reason in reasons:
                 logger.warning("rejected an MG400 feedback packet: %s", reason)
+            for packet in packets if self._check is not None else ():
+                mismatch = self._check(packet)
+                if mismatch is not None:
+                    with self._lock:
+                        first = self._mismatch is None
+                        if first:
+                            self._mismatch = mismatch
+                    if first:
+                        logger.error("MG400 %s: %s", self._where, mismatch)
             if packets:
                 with self._lock:
                     self._latest = (packets[-1], time.monotonic())
@@ -277,6 +301,16 @@ class _FeedbackReader:
     @property
     def rejected(self) -> int:
         return self._buffer.rejected
+
+    @property
+    def mismatch(self) -> str | None:
+        """The first disagreement between joints and pose seen since :meth:`clear_mismatch`, or None."""
+        with self._lock:
+            return self._mismatch
+
+    def clear_mismatch(self) -> None:
+        with self._lock:
+            self._mismatch = None
 
     @property
     def received(self) -> int:
@@ -336,17 +370,20 @@ class MG400Client:
 
     Args:
         config: host, ports and timeouts.
-        safety: the safety layer every motion command passes; default: the arm's joint limits only.
+        safety: the safety layer every motion command passes; default: ``SafetyLayer(SafetyConfig())``, the safe
+            defaults for tactile work near a surface.
     """
 
     def __init__(self, config: MG400ClientConfig | None = None, safety: SafetyLayer | None = None) -> None:
         self.config = config if config is not None else MG400ClientConfig()
-        self.safety = safety if safety is not None else SafetyLayer(SafetyConfig.arm_limits_only())
+        self.safety = safety if safety is not None else SafetyLayer(SafetyConfig())
         self._dashboard: _ReplyChannel | None = None
         self._motion: _ReplyChannel | None = None
         self._feedback: _FeedbackReader | None = None
-        # Joints of the last target sent (where the robot is, or is heading); None -> measure the robot.
-        self._reference_joints: np.ndarray | None = None
+        # (pose, joints) of the last target sent (where the robot is, or is heading); None -> measure the robot.
+        self._reference: tuple[np.ndarray, np.ndarray] | None = None
+        # (pose, joints) of a target whose reply was lost: it may be in force, so the next step is checked from it too.
+        self._uncertain: tuple[np.ndarray, np.ndarray] | None = None
         self._motion_lock = threading.RLock()
 
     # -- connection ----------------------------------------------------------------------------------------------
@@ -358,7 +395,8 @@ class MG400Client:
             self._dashboard = _ReplyChannel("dashboard", cfg.host, cfg.dashboard_port, cfg.connect_timeout_s)
             self._motion = _ReplyChannel("motion", cfg.host, cfg.motion_port, cfg.connect_timeout_s)
             if cfg.use_feedback:
-                self._feedback = _FeedbackReader(cfg.host, cfg.feedback_port, cfg.connect_timeout_s)
+                self._feedback = _FeedbackReader(cfg.host, cfg.feedback_port, cfg.connect_timeout_s,
+                                                 check=self._packet_mismatch)
         except MG400ConnectionError:
             self.close()
             raise
@@ -412,12 +450,12 @@ class MG400Client:
     def disable_robot(self) -> None:
         """``DisableRobot()``."""
         self._request("dashboard", format_command("DisableRobot"))
-        self._reference_joints = None
+        self._forget_targets()
 
     def clear_error(self) -> None:
         """``ClearError()``; follow with :meth:`continue_`."""
         self._request("dashboard", format_command("ClearError"))
-        self._reference_joints = None
+        self._forget_targets()
 
     def continue_(self) -> None:
         """``Continue()``."""
@@ -426,11 +464,11 @@ class MG400Client:
     def reset_robot(self) -> None:
         """``ResetRobot()``: stop and clear the motion queue."""
         self._request("dashboard", format_command("ResetRobot"))
-        self._reference_joints = None
+        self._forget_targets()
 
     def emergency_stop(self) -> None:
         """``EmergencyStop()``."""
-        self._reference_joints = None
+        self._forget_targets()
         self._request("dashboard", format_command("EmergencyStop"))
 
     def speed_factor(self, percent: int) -> None:
@@ -528,37 +566,90 @@ class MG400Client:
                 pass
         return self.get_pose()
 
+    def measured_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The robot's reported pose ``(x_mm, y_mm, z_mm, r_deg)`` and joints (deg), from one fresh feedback packet
+        if available, else ``GetAngle()`` and ``GetPose()``, checked to agree.
+
+        Raises:
+            FeedbackMismatchError: the joints' forward kinematics and the pose disagree beyond the tolerance.
+        """
+        feedback = None
+        if self._feedback is not None:
+            try:
+                feedback = self._feedback.latest(self.config.feedback_max_age_s)
+            except FeedbackStaleError:
+                feedback = None
+        if feedback is not None:
+            pose, joints, source = feedback.tool_vector_actual, feedback.q_actual_deg, "feedback"
+        else:
+            joints, pose, source = self.get_angle(), self.get_pose(), "GetAngle() and GetPose()"
+        self.safety.check_feedback_agreement(joints, pose, f"MG400 at {self.config.host}, {source}")
+        return np.array(pose, dtype=float), np.array(joints, dtype=float)
+
+    @property
+    def feedback_mismatch(self) -> str | None:
+        """Why a feedback packet since :meth:`reset_reference` had joints and pose that disagree, or None."""
+        return None if self._feedback is None else self._feedback.mismatch
+
+    def _packet_mismatch(self, feedback: MG400Feedback) -> str | None:
+        return self.safety.feedback_mismatch(feedback.q_actual_deg, feedback.tool_vector_actual)
+
     # -- motion (all through the safety layer) -------------------------------------------------------------------
 
     def reset_reference(self) -> None:
-        """Forget the last target sent, so the next safety check measures the robot first."""
-        self._reference_joints = None
+        """Forget the last target sent and any disagreeing feedback seen, so that the next motion command measures
+        the robot afresh (and checks that its joints and pose agree) first."""
+        self._forget_targets()
+        if self._feedback is not None:
+            self._feedback.clear_mismatch()
 
-    def _current_joints(self) -> np.ndarray:
-        if self._reference_joints is None:
-            self._reference_joints = self.measured_joints()
-        return self._reference_joints
+    def _forget_targets(self) -> None:
+        self._reference = None
+        self._uncertain = None
 
-    def _send_motion(self, command: str, target_joints: np.ndarray) -> None:
+    def _reference_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(pose, joints) the next step is measured from; refuses while the feedback disagrees."""
+        mismatch = self.feedback_mismatch
+        if mismatch is not None:
+            raise FeedbackMismatchError(f"MG400 at {self.config.host}, feedback: {mismatch}; not sending anything "
+                                        "until reset_reference() and a measurement that agrees")
+        if self._reference is None:
+            self._reference = self.measured_state()
+        return self._reference
+
+    def _send_motion(self, command: str, target_pose: np.ndarray, target_joints: np.ndarray) -> None:
+        target = (np.asarray(target_pose, dtype=float), np.asarray(target_joints, dtype=float))
         try:
             self.safety.submit(command, lambda text: self._request("motion", text))
-        except BaseException:
-            self._reference_joints = None
+        except MG400Error:  # the controller answered: refused, not in force
+            self._reference = None
             raise
-        self._reference_joints = np.asarray(target_joints, dtype=float)
+        except BaseException:  # no answer: it may be in force
+            self._reference = None
+            self._uncertain = target
+            raise
+        self._reference = target
+        self._uncertain = None
 
-    def _cartesian(self, name: str, pose: Sequence[float], kind: MotionKind, **keywords: float) -> None:
+    def _cartesian(self, name: str, pose: Sequence[float], kind: MotionKind, duration_s: float | None = None,
+                   **keywords: float) -> None:
         target = _four(pose, f"{name} target (x_mm, y_mm, z_mm, r_deg)")
         with self._motion_lock:
-            current = forward(self._current_joints(), self.safety.config.geometry)
-            joints = self.safety.check_target(current, target, kind)
-            self._send_motion(format_command(name, *target, **keywords), joints)
+            current_pose, current_joints = self._reference_state()
+            joints = self.safety.check_target(current_pose, target, kind, duration_s, current_joints)
+            if self._uncertain is not None:
+                self.safety.check_target(self._uncertain[0], target, kind, duration_s, self._uncertain[1])
+            self._send_motion(format_command(name, *target, **keywords), np.array(target), joints)
 
-    def _joint(self, name: str, joints_deg: Sequence[float], kind: MotionKind, **keywords: float) -> None:
+    def _joint(self, name: str, joints_deg: Sequence[float], kind: MotionKind, duration_s: float | None = None,
+               **keywords: float) -> None:
         target = _four(joints_deg, f"{name} target (J1, J2, J3, J4) deg")
         with self._motion_lock:
-            self.safety.check_joint_target(self._current_joints(), target, kind)
-            self._send_motion(format_command(name, *target, **keywords), np.array(target))
+            current_pose, current_joints = self._reference_state()
+            pose = self.safety.check_joint_target(current_joints, target, kind, duration_s, current_pose)
+            if self._uncertain is not None:
+                self.safety.check_joint_target(self._uncertain[1], target, kind, duration_s, self._uncertain[0])
+            self._send_motion(format_command(name, *target, **keywords), np.array(pose), np.array(target))
 
     def mov_j(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float) -> None:
         """Queue ``MovJ`` (joint-space move to a Cartesian pose)."""
@@ -575,12 +666,12 @@ class MG400Client:
     def servo_p(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float, t_s: float = 0.1) -> None:
         """``ServoP``: replace the servo target with a pose, reached in ``t_s`` (0.004..3600 s)."""
         self._servo_time(t_s)
-        self._cartesian("ServoP", (x_mm, y_mm, z_mm, r_deg), MotionKind.SERVO, t=t_s)
+        self._cartesian("ServoP", (x_mm, y_mm, z_mm, r_deg), MotionKind.SERVO, t_s, t=t_s)
 
     def servo_j(self, j1_deg: float, j2_deg: float, j3_deg: float, j4_deg: float, t_s: float = 0.1) -> None:
         """``ServoJ``: replace the servo target with joint angles, reached in ``t_s`` (0.004..3600 s)."""
         self._servo_time(t_s)
-        self._joint("ServoJ", (j1_deg, j2_deg, j3_deg, j4_deg), MotionKind.SERVO, t=t_s)
+        self._joint("ServoJ", (j1_deg, j2_deg, j3_deg, j4_deg), MotionKind.SERVO, t_s, t=t_s)
 
     @staticmethod
     def _servo_time(t_s: float) -> None:
@@ -649,11 +740,15 @@ class ServoStreamer:
         self.commands_sent = 0
 
     def start(self) -> ServoStreamer:
-        """Start streaming from the measured pose."""
+        """Start streaming from the measured pose, once the robot's joints and pose agree.
+
+        Raises:
+            FeedbackMismatchError: they do not (nothing is sent).
+        """
         if self._thread is not None:
             raise RuntimeError("ServoStreamer already started")
-        self._commanded = np.array(self.client.measured_pose(), dtype=float)
         self.client.reset_reference()
+        self._commanded = self.client.measured_state()[0]
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="mg400-servo", daemon=True)
         self._thread.start()

@@ -5,9 +5,10 @@ It listens on 127.0.0.1 only and speaks the protocol of :mod:`simshear_gym.robot
 * Dashboard (29999): EnableRobot, DisableRobot, ClearError, Continue, ResetRobot, EmergencyStop, SpeedFactor,
   User, Tool, RobotMode, GetPose, GetAngle, GetErrorID.
 * Motion (30003): MovJ, MovL, JointMovJ (queued, executed in order at ``joint_speed_deg_s`` /
-  ``linear_speed_mm_s`` scaled by SpeedFactor), Sync (answers when the queue is empty; -1 if the robot is then in
-  error mode), ServoP / ServoJ (replace the servo target, reached linearly over ``t``; refused while queued moves
-  run; a move queued during a servo motion starts when that motion ends).
+  ``linear_speed_mm_s`` scaled by SpeedFactor: the controller plans them, so they never trip a speed limit), Sync
+  (answers when the queue is empty; -1 if the robot is then in error mode), ServoP / ServoJ (replace the servo
+  target, reached linearly over ``t``; refused while queued moves run; a move queued during a servo motion starts
+  when that motion ends).
 * Feedback (30004): a 1440-byte packet every ``feedback_period_s``.
 
 A target beyond the joint limits puts the robot in error mode with alarm 18 (joint limit), an unreachable one with
@@ -15,8 +16,23 @@ alarm 23 (out of working area); the command is answered with ErrorID -1. Motion 
 robot is disabled or in error mode. ClearError clears the alarms; EmergencyStop stops and disables. When the
 connections are dropped (fault injection), the emulated robot stops where it is.
 
-Faults (:class:`FaultConfig`): an alarm during motion, dropped connections after N commands, replies split across
-TCP segments, corrupt or partial feedback packets, slow replies.
+**Speed limits.** A servo command is not planned by the controller: it asks the arm to reach its target from where
+it is in ``t``. One that would need more than the arm can do (any joint faster than ``max_joint_speed_deg_s``, or
+the flange faster than ``max_linear_speed_mm_s``) raises an overspeed alarm (48 + the index of the joint that is
+fastest against its limit, J1 = 48 .. J4 = 51, the controller's overspeed alarms), is answered -1 and stops the
+arm where it is; it does not move at the limit speed instead, because a controller that quietly stretched the
+motion would lag every later target of the stream. (Our model of the MG400's servo mode; the limits' defaults,
+300 deg/s per joint and 1000 mm/s at the flange, are of the order of the arm's datasheet, not measured.)
+
+The emulator starts at :data:`READY_POSE_MM_DEG`, the tactile start pose of
+:class:`~simshear_gym.real.env.RealEnvConfig` (``initial_joints_deg`` to start elsewhere, e.g. all joints zero:
+the flange at (284, 0, 118)).
+
+Faults (:class:`FaultConfig`, also swapped at run time with :meth:`MG400Emulator.set_faults`): an alarm during
+motion, dropped connections after N commands, replies split across TCP segments, corrupt, partial or inconsistent
+(joints that disagree with the pose) feedback packets, slow replies; and at run time :meth:`~MG400Emulator.
+inject_alarm`, :meth:`~MG400Emulator.pause_feedback` (stale feedback) and :meth:`~MG400Emulator.drop_connections`.
+Every motion command is recorded with the state it found (:meth:`MG400Emulator.motion_records`), for audits.
 
 Command line (hooked up by the ``simshear`` CLI): ``simshear mg400-emulator --host 127.0.0.1 --dashboard-port ...``
 via :func:`add_arguments` and :func:`run`.
@@ -35,12 +51,14 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.robots.mg400.kinematics import (
+    JOINT_NAMES,
+    KinematicsError,
     LimitError,
     MG400Geometry,
     MG400Limits,
@@ -48,10 +66,12 @@ from simshear_gym.robots.mg400.kinematics import (
     check_joint_limits,
     check_pose_reachable,
     forward,
+    inverse,
 )
 from simshear_gym.robots.mg400.protocol import (
     ALARM_JOINT_LIMIT,
     ALARM_OUT_OF_WORKSPACE,
+    ALARM_OVERSPEED,
     DASHBOARD_PORT,
     ERROR_FAILED,
     ERROR_OK,
@@ -78,6 +98,16 @@ logger = logging.getLogger(__name__)
 
 _POLL_S = 0.05  # how often blocked threads look at the stop flag
 
+READY_POSE_MM_DEG: tuple[float, float, float, float] = (300.0, 0.0, 0.0, 0.0)
+"""Where the emulated flange starts: the default tactile start pose of the real env, mm and deg."""
+
+READY_JOINTS_DEG: tuple[float, float, float, float] = tuple(  # type: ignore[assignment]
+    float(v) for v in inverse(*READY_POSE_MM_DEG))
+"""The joints of :data:`READY_POSE_MM_DEG`, deg."""
+
+INCONSISTENT_FEEDBACK_OFFSET_DEG = 5.0
+"""How far J1 of an inconsistent feedback packet is turned from the joints the pose was computed from, deg."""
+
 
 class FeedbackFault(enum.Enum):
     """Kinds of bad feedback packet the emulator can send."""
@@ -85,6 +115,7 @@ class FeedbackFault(enum.Enum):
     BAD_LENGTH = "bad-length"  # length field 1439
     BAD_TEST_VALUE = "bad-test-value"  # test value 0
     PARTIAL = "partial"  # only the first half of the packet
+    INCONSISTENT = "inconsistent"  # a well-formed packet whose joints disagree with its pose (J1 turned 5 deg)
 
 
 @dataclass(frozen=True)
@@ -99,7 +130,7 @@ class FaultConfig:
         split_replies_bytes: send each reply in chunks of this many bytes, ``split_delay_s`` apart.
         split_delay_s: pause between reply chunks, s.
         corrupt_feedback_every: every N-th feedback packet is bad, cycling through ``feedback_faults``.
-        feedback_faults: which bad packets to send.
+        feedback_faults: which bad packets to send (by default the malformed ones: not ``INCONSISTENT``).
         reply_delay_s: delay before each reply, s.
         slow_commands: command names (case-insensitive) that get ``reply_delay_s``; empty: all commands.
     """
@@ -110,7 +141,8 @@ class FaultConfig:
     split_replies_bytes: int | None = None
     split_delay_s: float = 0.002
     corrupt_feedback_every: int | None = None
-    feedback_faults: tuple[FeedbackFault, ...] = tuple(FeedbackFault)
+    feedback_faults: tuple[FeedbackFault, ...] = (FeedbackFault.BAD_LENGTH, FeedbackFault.BAD_TEST_VALUE,
+                                                  FeedbackFault.PARTIAL)
     reply_delay_s: float = 0.0
     slow_commands: tuple[str, ...] = ()
 
@@ -140,7 +172,9 @@ class EmulatorConfig:
         joint_speed_deg_s: joint speed of MovJ/JointMovJ at SpeedFactor 100, deg/s.
         linear_speed_mm_s: Cartesian speed of MovL at SpeedFactor 100, mm/s.
         rotation_speed_deg_s: R speed of MovL at SpeedFactor 100, deg/s.
-        initial_joints_deg: start joints (J1..J4), deg.
+        max_joint_speed_deg_s: the arm's joint speed limit: a servo command needing more raises overspeed, deg/s.
+        max_linear_speed_mm_s: the flange's speed limit: a servo command needing more raises overspeed, mm/s.
+        initial_joints_deg: start joints (J1..J4), deg (default: those of :data:`READY_POSE_MM_DEG`).
         pose_value_count: numbers returned by GetPose/GetAngle (4 per the guide, 6 as field firmware does).
         max_queue: queued moves accepted before answering -1.
         faults: fault injection.
@@ -155,7 +189,9 @@ class EmulatorConfig:
     joint_speed_deg_s: float = 180.0
     linear_speed_mm_s: float = 500.0
     rotation_speed_deg_s: float = 360.0
-    initial_joints_deg: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    max_joint_speed_deg_s: float = 300.0
+    max_linear_speed_mm_s: float = 1000.0
+    initial_joints_deg: tuple[float, float, float, float] = READY_JOINTS_DEG
     pose_value_count: int = 6
     max_queue: int = 50
     faults: FaultConfig = field(default_factory=FaultConfig)
@@ -176,7 +212,8 @@ class EmulatorConfig:
             port = getattr(self, name)
             if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
                 raise ValueError(f"EmulatorConfig.{name} must be an int in 0..65535 (0: ephemeral), got {port!r}")
-        for name in ("feedback_period_s", "joint_speed_deg_s", "linear_speed_mm_s", "rotation_speed_deg_s"):
+        for name in ("feedback_period_s", "joint_speed_deg_s", "linear_speed_mm_s", "rotation_speed_deg_s",
+                     "max_joint_speed_deg_s", "max_linear_speed_mm_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EmulatorConfig.{name} must be finite and > 0, got {value!r}")
@@ -190,6 +227,34 @@ class EmulatorConfig:
             check_joint_limits(self.initial_joints_deg, self.limits)
         except LimitError as error:
             raise ValueError(f"EmulatorConfig.initial_joints_deg is outside the limits: {error}") from error
+
+
+@dataclass(frozen=True)
+class MotionRecord:
+    """One motion command as the emulator received it, with the state it found (for audits).
+
+    Attributes:
+        time_s: emulator time at receipt, s.
+        command: the command text.
+        servo: ServoP / ServoJ (True) or a queued move (False); Sync is not recorded.
+        target_pose, target_joints: the target, ``(x, y, z mm, R deg)`` and deg (None where it has no solution).
+        duration_s: a servo command's ``t``, s (None for queued moves).
+        in_force_pose, in_force_joints: where the arm was heading when it arrived: the running servo target, the
+            last queued target, or the actual pose when idle.
+        actual_pose: the flange's actual pose at receipt.
+        error_id: the ErrorID of the reply.
+    """
+
+    time_s: float
+    command: str
+    servo: bool
+    target_pose: tuple[float, ...] | None
+    target_joints: tuple[float, ...] | None
+    duration_s: float | None
+    in_force_pose: tuple[float, ...]
+    in_force_joints: tuple[float, ...]
+    actual_pose: tuple[float, ...]
+    error_id: int
 
 
 @dataclass(frozen=True)
@@ -253,6 +318,8 @@ class MG400Emulator:
         self._dropped = False
         self._drop_generation = 0
         self._packets_sent = 0
+        self._feedback_paused_until = 0.0
+        self._records: list[MotionRecord] = []
         self._handlers: dict[tuple[str, str], Handler] = {
             ("dashboard", "enablerobot"): self._enable,
             ("dashboard", "disablerobot"): self._disable,
@@ -404,6 +471,30 @@ class MG400Emulator:
             self._drop_generation += 1
             self._cond.notify_all()
         self._close_clients()
+
+    def set_faults(self, faults: FaultConfig) -> None:
+        """Swap the fault injection now (the once-only faults, alarm and drop, are armed again)."""
+        with self._cond:
+            self.config = replace(self.config, faults=faults)
+            self._alarm_fired = False
+        with self._clients_lock:
+            self._dropped = False
+            self._command_count = 0
+
+    def inject_alarm(self, alarm_id: int) -> None:
+        """Raise ``alarm_id`` now, as a controller would mid-motion: error mode, the arm stops where it is."""
+        with self._cond:
+            self._raise_alarm(int(alarm_id), "injected alarm")
+
+    def pause_feedback(self, duration_s: float) -> None:
+        """Send no feedback packet for ``duration_s`` seconds (stale feedback); the arm keeps moving."""
+        with self._cond:
+            self._feedback_paused_until = time.monotonic() + float(duration_s)
+
+    def motion_records(self) -> list[MotionRecord]:
+        """Every motion command received so far (Sync excepted), with the state it found, oldest first."""
+        with self._cond:
+            return list(self._records)
 
     def _close_clients(self) -> None:
         with self._clients_lock:
@@ -608,18 +699,55 @@ class MG400Emulator:
             return False
         return True
 
+    def _in_force(self) -> tuple[np.ndarray, np.ndarray]:
+        """(pose, joints) the arm is heading to (lock held): the last queued target, the running motion's end, or
+        where it is."""
+        geometry = self.config.geometry
+        if self._queue:
+            item = self._queue[-1]
+            try:
+                joints = (np.array(item.target) if item.joint_target
+                          else inverse(*item.target, geometry=geometry))
+                return np.array(forward(joints, geometry)), joints
+            except KinematicsError:
+                pass
+        if self._active is not None:
+            return self._active.end_pose.copy(), self._active.end_joints.copy()
+        return np.array(forward(self._joints, geometry)), self._joints.copy()
+
+    def _record_motion(self, cmd: ParsedCommand, servo: bool, target: Sequence[float], joint_target: bool,
+                duration_s: float | None, error_id: int, in_force: tuple[np.ndarray, np.ndarray]) -> None:
+        """Append a :class:`MotionRecord` (lock held)."""
+        geometry = self.config.geometry
+        try:
+            joints = np.array(target) if joint_target else inverse(*target, geometry=geometry)
+            pose = np.array(forward(joints, geometry)) if joint_target else np.array(target, dtype=float)
+            target_pose, target_joints = tuple(float(v) for v in pose), tuple(float(v) for v in joints)
+        except KinematicsError:
+            target_pose, target_joints = (None if joint_target else tuple(float(v) for v in target)), None
+        self._records.append(MotionRecord(
+            self._time_s, cmd.text, servo, target_pose, target_joints, duration_s,
+            tuple(float(v) for v in in_force[0]), tuple(float(v) for v in in_force[1]),
+            tuple(float(v) for v in forward(self._joints, geometry)), int(error_id)))
+
     def _queue_move(self, cmd: ParsedCommand, joint_target: bool, linear: bool) -> tuple[int, Sequence[object]]:
         error_id, target, _ = self._numbers(cmd, 4)
         if error_id != ERROR_OK:
             return error_id, ()
         with self._cond:
-            if self._alarms or not self._enabled or len(self._queue) >= self.config.max_queue:
-                return ERROR_FAILED, ()
-            if not self._check_target(cmd, target, joint_target):
-                return ERROR_FAILED, ()
-            self._queue.append(_Queued(cmd.text, tuple(target), joint_target, linear))
-            self._cond.notify_all()
-        return ERROR_OK, ()
+            in_force = self._in_force()
+            error_id = self._accept_move(cmd, target, joint_target, linear)
+            self._record_motion(cmd, False, target, joint_target, None, error_id, in_force)
+        return error_id, ()
+
+    def _accept_move(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool, linear: bool) -> int:
+        if self._alarms or not self._enabled or len(self._queue) >= self.config.max_queue:
+            return ERROR_FAILED
+        if not self._check_target(cmd, target, joint_target):
+            return ERROR_FAILED
+        self._queue.append(_Queued(cmd.text, tuple(target), joint_target, linear))
+        self._cond.notify_all()
+        return ERROR_OK
 
     def _servo(self, cmd: ParsedCommand, joint_target: bool) -> tuple[int, Sequence[object]]:
         error_id, target, named = self._numbers(cmd, 4, keywords=("t",))
@@ -629,25 +757,55 @@ class MG400Emulator:
         if not SERVO_TIME_RANGE_S[0] <= duration_s <= SERVO_TIME_RANGE_S[1]:
             return parameter_range_error(5), ()
         with self._cond:
-            busy = bool(self._queue) or (self._active is not None and not self._active.servo)
-            if self._alarms or not self._enabled or busy:
-                return ERROR_FAILED, ()
-            if not self._check_target(cmd, target, joint_target):
-                return ERROR_FAILED, ()
-            geometry = self.config.geometry
-            start_joints = self._joints.copy()
-            start_pose = np.array(forward(start_joints, geometry))
-            if joint_target:
-                end_joints = np.array(target)
-                end_pose = np.array(forward(end_joints, geometry))
-            else:
-                end_pose = np.array(target)
-                end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
-                end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
-            self._active = _Motion(start_joints, end_joints, start_pose, end_pose, linear=not joint_target,
-                                   duration_s=duration_s, servo=True)
-            self._cond.notify_all()
-        return ERROR_OK, ()
+            in_force = self._in_force()
+            error_id = self._accept_servo(cmd, target, joint_target, duration_s)
+            self._record_motion(cmd, True, target, joint_target, duration_s, error_id, in_force)
+        return error_id, ()
+
+    def _accept_servo(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool,
+                      duration_s: float) -> int:
+        busy = bool(self._queue) or (self._active is not None and not self._active.servo)
+        if self._alarms or not self._enabled or busy:
+            return ERROR_FAILED
+        if not self._check_target(cmd, target, joint_target):
+            return ERROR_FAILED
+        geometry = self.config.geometry
+        start_joints = self._joints.copy()
+        start_pose = np.array(forward(start_joints, geometry))
+        if joint_target:
+            end_joints = np.array(target)
+            end_pose = np.array(forward(end_joints, geometry))
+        else:
+            end_pose = np.array(target)
+            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
+            end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+        overspeed = self._overspeed(start_joints, end_joints, start_pose, end_pose, duration_s,
+                                    wrap_j4=not joint_target)
+        if overspeed is not None:
+            self._raise_alarm(*overspeed)
+            return ERROR_FAILED
+        self._active = _Motion(start_joints, end_joints, start_pose, end_pose, linear=not joint_target,
+                               duration_s=duration_s, servo=True)
+        self._cond.notify_all()
+        return ERROR_OK
+
+    def _overspeed(self, start_joints: np.ndarray, end_joints: np.ndarray, start_pose: np.ndarray,
+                   end_pose: np.ndarray, duration_s: float, wrap_j4: bool) -> tuple[int, str] | None:
+        """(alarm, reason) when reaching the target in ``duration_s`` needs more than the arm's speed limits."""
+        cfg = self.config
+        deltas = end_joints - start_joints
+        if wrap_j4:  # ServoP: R is unwrapped next to the start, so J4 turns the short way
+            deltas[3] = wrap_deg(deltas[3])
+        joint_speeds = np.abs(deltas) / duration_s
+        linear_speed = float(np.linalg.norm(end_pose[:3] - start_pose[:3])) / duration_s
+        ratios = joint_speeds / cfg.max_joint_speed_deg_s
+        fastest = int(np.argmax(ratios))
+        if ratios[fastest] <= 1.0 + 1e-9 and linear_speed <= cfg.max_linear_speed_mm_s * (1.0 + 1e-9):
+            return None
+        return (ALARM_OVERSPEED + fastest,
+                f"servo target needs {JOINT_NAMES[fastest]} at {joint_speeds[fastest]:.1f} deg/s (limit "
+                f"{cfg.max_joint_speed_deg_s:g}) and the flange at {linear_speed:.1f} mm/s (limit "
+                f"{cfg.max_linear_speed_mm_s:g}) to arrive in t = {duration_s:g} s")
 
     def _sync(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]] | None:
         if cmd.args or cmd.keywords:
@@ -696,7 +854,6 @@ class MG400Emulator:
 
     def _serve_commands(self, port: str, conn: socket.socket) -> None:
         buffer = CommandBuffer()
-        faults = self.config.faults
         try:
             while not self._stop.is_set():
                 try:
@@ -713,6 +870,7 @@ class MG400Emulator:
                     if reply is None:
                         return
                     name = text.split("(", 1)[0].strip().lower()
+                    faults = self.config.faults  # read per command: set_faults swaps it at run time
                     if faults.reply_delay_s > 0.0 and (not faults.slow_commands or name in faults.slow_commands):
                         if self._stop.wait(faults.reply_delay_s):
                             return
@@ -752,6 +910,11 @@ class MG400Emulator:
     def _bad_packet(self, packet: bytes, fault: FeedbackFault) -> bytes:
         if fault is FeedbackFault.PARTIAL:
             return packet[: FEEDBACK_PACKET_BYTES // 2]
+        if fault is FeedbackFault.INCONSISTENT:
+            feedback = self._feedback()
+            joints = list(feedback.q_actual_deg)
+            joints[0] += INCONSISTENT_FEEDBACK_OFFSET_DEG
+            return pack_feedback(replace(feedback, q_actual_deg=tuple(joints)))
         corrupt = bytearray(packet)
         if fault is FeedbackFault.BAD_LENGTH:
             struct.pack_into("<H", corrupt, 0, FEEDBACK_PACKET_BYTES - 1)
@@ -761,7 +924,6 @@ class MG400Emulator:
 
     def _tick_loop(self) -> None:
         period_s = self.config.feedback_period_s
-        faults = self.config.faults
         last = time.monotonic()
         next_tick = last
         tick = 0
@@ -771,12 +933,16 @@ class MG400Emulator:
             last = now
             tick += 1
             packet = pack_feedback(self._feedback())
+            faults = self.config.faults  # read per tick: set_faults swaps it at run time
             every = faults.corrupt_feedback_every
             if every is not None and tick % every == 0:
                 kinds = faults.feedback_faults
                 packet = self._bad_packet(packet, kinds[(tick // every - 1) % len(kinds)])
             with self._clients_lock:
                 clients = list(self._feedback_clients)
+            with self._cond:
+                if time.monotonic() < self._feedback_paused_until:
+                    clients = []  # stale feedback: the arm moves on, nothing is sent
             for conn in clients:
                 try:
                     conn.sendall(packet)

@@ -114,9 +114,16 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     termination, policy_ms = "", []
     for step in range(1, steps + 1):
         start = time.perf_counter()
-        action = controller(observation)
-        policy_ms.append(1000.0 * (time.perf_counter() - start))
-        observation, _, terminated, truncated, info = env.step(action)
+        try:
+            action = controller(observation)
+        except (ValueError, FloatingPointError) as error:  # e.g. a NaN estimate the servo law refuses: a safe stop
+            action = None
+            policy_ms.append(1000.0 * (time.perf_counter() - start))
+            observation, _, terminated, truncated, info = env.end_episode(
+                "controller_error", f"the controller could not compute an action, nothing sent: {error}")
+        else:
+            policy_ms.append(1000.0 * (time.perf_counter() - start))
+            observation, _, terminated, truncated, info = env.step(action)
         truth = truth_source[-1] if truth_source else None
         estimate = controller.last_estimate if with_estimate else None
         rows.append(_row(step, observation, info, action, estimate, policy_ms[-1], truth))
@@ -236,8 +243,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-size", type=int, default=128, choices=(64, 128), help="tactile observation size")
     parser.add_argument("--start-pose", type=float, nargs=4, default=(300.0, 0.0, 0.0, 0.0),
                         metavar=("X", "Y", "Z", "R"), help="flange start pose, mm and deg (default 300 0 0 0)")
-    parser.add_argument("--max-step-mm", type=float, default=5.0, help="safety: largest translation per command")
-    parser.add_argument("--max-step-deg", type=float, default=5.0, help="safety: largest rotation per command")
+    parser.add_argument("--max-step-mm", type=float, default=5.0,
+                        help="safety: largest translation per command, mm (default 5, the safe default and most)")
+    parser.add_argument("--max-step-deg", type=float, default=5.0,
+                        help="safety: largest rotation per command, deg (default 5, the safe default and most)")
+    parser.add_argument("--unsafe-limits", action="store_true",
+                        help="allow --max-step-mm / --max-step-deg looser than the safe defaults (logged as UNSAFE)")
     parser.add_argument("--posenet", default=None, help="GDNN weights for the servo controller (default: shipped)")
     parser.add_argument("--reference-depth-mm", type=float, default=4.0,
                         help="depth the servo controller holds, labels' convention (default 4.0)")
@@ -278,6 +289,8 @@ def command_line(args: argparse.Namespace) -> str:
                   "--surface-travel-mm", f"{args.surface_travel_mm:g}"]
     if args.dry_run:
         words.append("--dry-run")
+    if getattr(args, "unsafe_limits", False):
+        words.append("--unsafe-limits")
     return " ".join(shlex.quote(word) for word in words)
 
 
@@ -309,7 +322,7 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.servo import ServoController
     from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv
-    from simshear_gym.real.safety import SafetyConfig
+    from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(args.threads)
@@ -317,13 +330,19 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
     preprocess_config = _preprocess_config(args.preprocess)
+    safety_type = UnsafeSafetyConfig if args.unsafe_limits else SafetyConfig
+    try:
+        safety = safety_type(max_step_mm=args.max_step_mm, max_step_deg=args.max_step_deg,
+                             stop_on_lost_contact=args.min_depth_mm is not None)
+    except ValueError as error:
+        raise ValueError(f"--max-step-mm / --max-step-deg: {error} (the flag --unsafe-limits)") from None
     config = RealEnvConfig(
         robot_ip=args.robot, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
         feedback_port=args.feedback_port, control_period_s=args.period_s, camera_source=str(args.camera),
         preprocess=preprocess_config, image_size_px=args.image_size, start_pose_mm_deg=tuple(args.start_pose),
-        safety=SafetyConfig(max_step_mm=args.max_step_mm, max_step_deg=args.max_step_deg,
-                            stop_on_lost_contact=args.min_depth_mm is not None),
-        dry_run=args.dry_run)
+        safety=safety, dry_run=args.dry_run,
+        # a simulated camera has no noise: equal frames in a row are no sign of a frozen driver
+        frozen_frame_limit=None if args.camera == SIM_SURFACE_CAMERA else RealEnvConfig.frozen_frame_limit)
     if args.camera != SIM_SURFACE_CAMERA:
         env = RealTactileEnv(config)  # the camera is opened on the first reset
     else:

@@ -1,12 +1,21 @@
-"""The real-robot safety layer, in one place: target checks, stop conditions and dry-run.
+"""The real-robot safety layer, in one place: target checks, feedback agreement, stop conditions and dry-run.
 
 Every motion command the MG400 client sends passes :meth:`SafetyLayer.check_target` (Cartesian targets) or
 :meth:`SafetyLayer.check_joint_target` (joint targets) first, and then :meth:`SafetyLayer.submit`, which only logs
 in dry-run mode. A refused target raises :class:`SafetyError` and nothing is sent.
 
 Checks, in order: the arm's joint limits and the J2/J3 coupling (via :mod:`simshear_gym.robots.mg400.kinematics`),
-the workspace box and radius, the step from the current pose, and for queued moves the path in between (sampled
-every ``path_check_step_mm``; MovL is straight in Cartesian space, MovJ/JointMovJ straight in joint space).
+the workspace box and radius, the step from the current pose (Cartesian from the pose, per joint from the joints),
+for servo commands the speed (step / ``t``, Cartesian and per joint), and for queued moves the path in between
+(sampled every ``path_check_step_mm``; MovL is straight in Cartesian space, MovJ/JointMovJ straight in joint space).
+:meth:`SafetyLayer.check_feedback_agreement` checks that joint feedback and the reported pose agree (forward
+kinematics within ``max_pose_mismatch_mm`` / ``_deg``); the client runs it before it trusts a measurement and on
+every feedback packet.
+
+**Safe by default.** :class:`SafetyConfig`'s defaults are limits for tactile work near a surface (5 mm and
+50 mm/s per servo command, 50 mm per queued move). A :class:`SafetyConfig` cannot loosen them: a looser value
+raises ``ValueError``. Loosening takes :class:`UnsafeSafetyConfig`, whose name says so and whose loosened limits
+:class:`SafetyLayer` logs as a warning when it is built.
 
 Poses are ``(x_mm, y_mm, z_mm, r_deg)`` in the robot base frame; joints ``(J1, J2, J3, J4)`` in deg.
 """
@@ -17,8 +26,8 @@ import enum
 import logging
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import TypeVar
+from dataclasses import dataclass, field, fields
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
@@ -37,15 +46,23 @@ logger = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
+DEFAULT_SERVO_TIME_S = 0.1
+"""The controller's default ``t`` of ServoP / ServoJ, s: the speed check's duration when none is given."""
+
 
 class SafetyError(RuntimeError):
     """A command was refused by the safety layer; nothing was sent to the robot."""
 
 
+class FeedbackMismatchError(SafetyError):
+    """The joint feedback and the reported pose disagree (forward kinematics beyond the tolerance): the robot's
+    state is not known, so nothing is sent."""
+
+
 class MotionKind(enum.Enum):
     """How the robot moves to a target, which decides the step limit and the path check."""
 
-    SERVO = "servo"  # ServoP / ServoJ: small step per command (max_step_*), no path check
+    SERVO = "servo"  # ServoP / ServoJ: small step per command (max_step_*), speed step / t (max_speed_*)
     LINEAR = "linear"  # MovL: queued, straight line in Cartesian space (max_move_*)
     JOINT = "joint"  # MovJ / JointMovJ: queued, straight line in joint space (max_move_*)
 
@@ -55,19 +72,33 @@ def _range(pair: tuple[float, float], name: str) -> None:
         raise ValueError(f"SafetyConfig.{name} must be (lower, upper) with lower < upper, got {pair!r}")
 
 
+# Limits where a larger value is looser, and (lower, upper) ranges where a wider one is.
+_UPPER_LIMITS: tuple[str, ...] = ("max_step_mm", "max_step_deg", "max_speed_mm_s", "max_speed_deg_s", "max_move_mm",
+                                  "max_move_deg", "max_pose_mismatch_mm", "max_pose_mismatch_deg",
+                                  "path_check_step_mm")
+_RANGES: tuple[str, ...] = ("x_range_mm", "y_range_mm", "z_range_mm", "radius_range_mm", "r_range_deg")
+_JOINT_RANGES: tuple[str, ...] = ("j1_deg", "j2_deg", "j3_deg", "j4_deg")
+
+
 @dataclass(frozen=True)
 class SafetyConfig:
-    """Limits enforced before any motion command is sent.
+    """Limits enforced before any motion command is sent; the defaults are safe for tactile work near a surface
+    and a ``SafetyConfig`` may only tighten them (loosening takes :class:`UnsafeSafetyConfig`).
 
     Attributes:
-        max_step_mm: largest translation of one servo command from the current/previous target, mm.
+        max_step_mm: largest translation of one servo command from the previous target (or the measured pose), mm.
         max_step_deg: largest R change and per-joint change of one servo command, deg.
-        max_move_mm: largest translation of one queued move (MovJ/MovL/JointMovJ), mm.
+        max_speed_mm_s: largest Cartesian speed of one servo command: its translation over its ``t``, mm/s.
+        max_speed_deg_s: largest R and per-joint speed of one servo command: change over ``t``, deg/s.
+        max_move_mm: largest translation (jump) of one queued move (MovJ/MovL/JointMovJ), mm.
         max_move_deg: largest R change and per-joint change of one queued move, deg.
         x_range_mm, y_range_mm, z_range_mm: workspace box of the flange in the base frame, mm.
         radius_range_mm: allowed horizontal distance of the flange from the J1 axis, mm.
         r_range_deg: allowed flange rotation R, deg.
         path_check_step_mm: spacing of the points checked along a queued move, mm.
+        max_pose_mismatch_mm: largest distance between the reported flange position and the forward kinematics
+            of the reported joints, mm (more: the feedback disagrees and the client stops).
+        max_pose_mismatch_deg: the same for R, deg.
         max_feedback_age_s: feedback older than this counts as a lost connection, s.
         max_camera_frame_age_s: a camera frame older than this counts as a stalled camera, s.
         stop_on_lost_contact: stop when the snapshot says contact was lost.
@@ -75,16 +106,23 @@ class SafetyConfig:
         geometry, limits: the arm model (mm) and joint limits (deg).
     """
 
+    unsafe: ClassVar[bool] = False
+    """True only for :class:`UnsafeSafetyConfig`: may loosen the limits."""
+
     max_step_mm: float = 5.0
     max_step_deg: float = 5.0
-    max_move_mm: float = 200.0
-    max_move_deg: float = 90.0
+    max_speed_mm_s: float = 50.0
+    max_speed_deg_s: float = 50.0
+    max_move_mm: float = 50.0
+    max_move_deg: float = 45.0
     x_range_mm: tuple[float, float] = (150.0, 440.0)
     y_range_mm: tuple[float, float] = (-250.0, 250.0)
     z_range_mm: tuple[float, float] = (-150.0, 150.0)
     radius_range_mm: tuple[float, float] = (180.0, 440.0)
     r_range_deg: tuple[float, float] = (-180.0, 180.0)
     path_check_step_mm: float = 5.0
+    max_pose_mismatch_mm: float = 1.0
+    max_pose_mismatch_deg: float = 1.0
     max_feedback_age_s: float = 0.1
     max_camera_frame_age_s: float = 0.5
     stop_on_lost_contact: bool = True
@@ -93,22 +131,58 @@ class SafetyConfig:
     limits: MG400Limits = field(default_factory=MG400Limits)
 
     def __post_init__(self) -> None:
-        for name in ("max_step_mm", "max_step_deg", "max_move_mm", "max_move_deg", "path_check_step_mm",
-                     "max_feedback_age_s", "max_camera_frame_age_s"):
+        for name in _UPPER_LIMITS + ("max_feedback_age_s", "max_camera_frame_age_s"):
             value = getattr(self, name)
             if math.isnan(value) or value <= 0.0:
                 raise ValueError(f"SafetyConfig.{name} must be > 0, got {value!r}")
         if math.isinf(self.path_check_step_mm):
             raise ValueError("SafetyConfig.path_check_step_mm must be finite")
-        for name in ("x_range_mm", "y_range_mm", "z_range_mm", "radius_range_mm", "r_range_deg"):
+        for name in _RANGES:
             _range(getattr(self, name), name)
+        loosened = self.loosened()
+        if loosened and not self.unsafe:
+            raise ValueError(f"{type(self).__name__}: {'; '.join(loosened)}: looser than the safe defaults; "
+                             "loosening the robot's limits takes an explicit UnsafeSafetyConfig(...)")
+
+    def loosened(self) -> tuple[str, ...]:
+        """The limits looser than the safe defaults, each as ``"name = value (safe default: ...)"``."""
+        safe = {f.name: f.default for f in fields(SafetyConfig) if f.name in _UPPER_LIMITS + _RANGES}
+        out = [f"{name} = {getattr(self, name)!r} (safe default {safe[name]!r})" for name in _UPPER_LIMITS
+               if getattr(self, name) > safe[name]]
+        for name in _RANGES:
+            (lower, upper), (safe_lower, safe_upper) = getattr(self, name), safe[name]
+            if lower < safe_lower or upper > safe_upper:
+                out.append(f"{name} = {(lower, upper)!r} (safe default {(safe_lower, safe_upper)!r})")
+        arm = MG400Limits()
+        for name in _JOINT_RANGES:
+            (lower, upper), (safe_lower, safe_upper) = getattr(self.limits, name), getattr(arm, name)
+            if lower < safe_lower or upper > safe_upper:
+                out.append(f"limits.{name} = {(lower, upper)!r} (the arm's {(safe_lower, safe_upper)!r})")
+        for name in ("j3_minus_j2_max_deg",):
+            if getattr(self.limits, name) > getattr(arm, name):
+                out.append(f"limits.{name} = {getattr(self.limits, name)!r} (the arm's {getattr(arm, name)!r})")
+        if self.limits.j2_min_when_j3_nonpositive_deg < arm.j2_min_when_j3_nonpositive_deg:
+            out.append(f"limits.j2_min_when_j3_nonpositive_deg = {self.limits.j2_min_when_j3_nonpositive_deg!r} "
+                       f"(the arm's {arm.j2_min_when_j3_nonpositive_deg!r})")
+        return tuple(out)
+
+
+@dataclass(frozen=True)
+class UnsafeSafetyConfig(SafetyConfig):
+    """A :class:`SafetyConfig` that may loosen the safe defaults: the explicit, named choice to do so.
+
+    :class:`SafetyLayer` logs every loosened limit as a warning when it is built. Use it for bench tests away from
+    any surface, never as a default.
+    """
+
+    unsafe: ClassVar[bool] = True
 
     @classmethod
-    def arm_limits_only(cls, dry_run: bool = False) -> SafetyConfig:
-        """Only the arm's joint limits: unbounded workspace and steps (the client's default)."""
+    def arm_limits_only(cls, dry_run: bool = False) -> UnsafeSafetyConfig:
+        """Only the arm's joint limits: unbounded workspace, steps, speeds and jumps."""
         inf = math.inf
-        return cls(max_step_mm=inf, max_step_deg=inf, max_move_mm=inf, max_move_deg=inf,
-                   x_range_mm=(-inf, inf), y_range_mm=(-inf, inf), z_range_mm=(-inf, inf),
+        return cls(max_step_mm=inf, max_step_deg=inf, max_speed_mm_s=inf, max_speed_deg_s=inf, max_move_mm=inf,
+                   max_move_deg=inf, x_range_mm=(-inf, inf), y_range_mm=(-inf, inf), z_range_mm=(-inf, inf),
                    radius_range_mm=(0.0, inf), r_range_deg=(-inf, inf), dry_run=dry_run)
 
 
@@ -177,10 +251,16 @@ _ROBOT_MODE_ERROR = 9  # RobotMode.ERROR; kept numeric so this module does not d
 
 
 class SafetyLayer:
-    """Checks targets against the arm, the workspace and the step limits; decides stop/continue; dry-run."""
+    """Checks targets against the arm, the workspace, the step, speed and jump limits and the feedback against
+    itself; decides stop/continue; dry-run. Built with an :class:`UnsafeSafetyConfig`, it logs the loosened
+    limits as a warning."""
 
     def __init__(self, config: SafetyConfig | None = None) -> None:
         self.config = config if config is not None else SafetyConfig()
+        if self.config.unsafe:
+            loosened = self.config.loosened()
+            logger.warning("UNSAFE safety limits in use (%s): %s", type(self.config).__name__,
+                           "; ".join(loosened) if loosened else "none loosened")
 
     @property
     def dry_run(self) -> bool:
@@ -190,13 +270,18 @@ class SafetyLayer:
     # -- targets -------------------------------------------------------------------------------------------------
 
     def check_target(self, current_pose: Sequence[float], target_pose: Sequence[float],
-                     kind: MotionKind = MotionKind.SERVO) -> np.ndarray:
+                     kind: MotionKind = MotionKind.SERVO, duration_s: float | None = None,
+                     current_joints: Sequence[float] | None = None) -> np.ndarray:
         """Validate a Cartesian target.
 
         Args:
-            current_pose: where the robot is (or was last sent), ``(x_mm, y_mm, z_mm, r_deg)``.
+            current_pose: where the robot is (its reported pose) or was last sent, ``(x_mm, y_mm, z_mm, r_deg)``;
+                the Cartesian step is measured from it.
             target_pose: the commanded pose, same units.
-            kind: the motion type, which picks the step limit and the path check.
+            kind: the motion type, which picks the step limit, the speed check and the path check.
+            duration_s: a servo command's ``t``, s (default :data:`DEFAULT_SERVO_TIME_S`); the speed is step / t.
+            current_joints: the joints at ``current_pose`` (the reported joints, or the last target's); default:
+                its inverse kinematics. The per-joint steps are measured from them.
 
         Returns:
             The target's joint angles, deg.
@@ -208,17 +293,23 @@ class SafetyLayer:
         target = self._pose(target_pose, "target_pose")
         target_joints = self._reachable(target, "target")
         self._check_workspace(target, "target")
-        current_joints = self._joints_or_none(current)
-        self._check_step(current, target, current_joints, target_joints, kind)
+        joints = self._joints_or_none(current) if current_joints is None else self._pose(current_joints,
+                                                                                         "current_joints")
+        self._check_step(current, target, joints, target_joints, kind, duration_s)
         if kind is MotionKind.LINEAR:
             self._check_linear_path(current, target)
-        elif kind is MotionKind.JOINT and current_joints is not None:
-            self._check_joint_path(current_joints, target_joints)
+        elif kind is MotionKind.JOINT and joints is not None:
+            self._check_joint_path(joints, target_joints)
         return target_joints
 
     def check_joint_target(self, current_joints_deg: Sequence[float], target_joints_deg: Sequence[float],
-                           kind: MotionKind = MotionKind.SERVO) -> tuple[float, float, float, float]:
+                           kind: MotionKind = MotionKind.SERVO, duration_s: float | None = None,
+                           current_pose: Sequence[float] | None = None) -> tuple[float, float, float, float]:
         """Validate a joint target (ServoJ, JointMovJ); ``MotionKind.LINEAR`` is treated as ``JOINT``.
+
+        Args:
+            current_pose: the reported pose at ``current_joints_deg`` (default their forward kinematics); the
+                Cartesian step is measured from it.
 
         Returns:
             The target's flange pose ``(x_mm, y_mm, z_mm, r_deg)``.
@@ -235,11 +326,39 @@ class SafetyLayer:
                 from error
         target = np.array(forward(target_joints, self.config.geometry))
         self._check_workspace(target, "target")
-        current = np.array(forward(current_joints, self.config.geometry))
-        self._check_step(current, target, current_joints, target_joints, kind)
+        current = (np.array(forward(current_joints, self.config.geometry)) if current_pose is None
+                   else self._pose(current_pose, "current_pose"))
+        self._check_step(current, target, current_joints, target_joints, kind, duration_s)
         if kind is not MotionKind.SERVO:
             self._check_joint_path(current_joints, target_joints)
         return tuple(float(v) for v in target)  # type: ignore[return-value]
+
+    def feedback_mismatch(self, joints_deg: Sequence[float], pose: Sequence[float]) -> str | None:
+        """Why the reported joints and pose disagree (forward kinematics beyond ``max_pose_mismatch_*``), or None
+        when they agree."""
+        joints = np.asarray(joints_deg, dtype=float).reshape(-1)
+        reported = np.asarray(pose, dtype=float).reshape(-1)
+        if joints.shape != (4,) or reported.shape != (4,) or not (np.all(np.isfinite(joints))
+                                                                   and np.all(np.isfinite(reported))):
+            return (f"feedback is not 4 finite joints and a 4-number pose: joints {joints.tolist()}, "
+                    f"pose {reported.tolist()}")
+        expected = np.array(forward(joints, self.config.geometry))
+        distance_mm = float(np.linalg.norm(expected[:3] - reported[:3]))
+        r_deg = abs(wrap_deg(expected[3] - reported[3]))
+        cfg = self.config
+        if distance_mm > cfg.max_pose_mismatch_mm or r_deg > cfg.max_pose_mismatch_deg:
+            return (f"the joint feedback {self._fmt(joints)} deg puts the flange at {self._fmt(expected)} (mm, deg) "
+                    f"but the reported pose is {self._fmt(reported)}: {distance_mm:.3f} mm and {r_deg:.3f} deg "
+                    f"apart (max_pose_mismatch_mm = {cfg.max_pose_mismatch_mm:g}, max_pose_mismatch_deg = "
+                    f"{cfg.max_pose_mismatch_deg:g})")
+        return None
+
+    def check_feedback_agreement(self, joints_deg: Sequence[float], pose: Sequence[float],
+                                 source: str = "feedback") -> None:
+        """Raise :class:`FeedbackMismatchError` when the reported joints and pose disagree."""
+        reason = self.feedback_mismatch(joints_deg, pose)
+        if reason is not None:
+            raise FeedbackMismatchError(f"{source}: {reason}; not sending anything until they agree")
 
     # -- stop conditions -----------------------------------------------------------------------------------------
 
@@ -312,10 +431,14 @@ class SafetyLayer:
                                   f"[{lower:g}, {upper:g}] {unit}")
 
     def _check_step(self, current: np.ndarray, target: np.ndarray, current_joints: np.ndarray | None,
-                    target_joints: np.ndarray, kind: MotionKind) -> None:
+                    target_joints: np.ndarray, kind: MotionKind, duration_s: float | None) -> None:
         cfg = self.config
-        if kind is MotionKind.SERVO:
+        servo = kind is MotionKind.SERVO
+        if servo:
             max_mm, max_deg, names = cfg.max_step_mm, cfg.max_step_deg, ("max_step_mm", "max_step_deg")
+            t_s = DEFAULT_SERVO_TIME_S if duration_s is None else float(duration_s)
+            if not (math.isfinite(t_s) and t_s > 0.0):
+                raise SafetyError(f"servo time t = {duration_s!r} s must be finite and > 0")
         else:
             max_mm, max_deg, names = cfg.max_move_mm, cfg.max_move_deg, ("max_move_mm", "max_move_deg")
         step_mm = float(np.linalg.norm(target[:3] - current[:3]))
@@ -325,13 +448,24 @@ class SafetyLayer:
         step_r_deg = abs(wrap_deg(target[3] - current[3]))
         if step_r_deg > max_deg:
             raise SafetyError(f"R step of {step_r_deg:.3f} deg exceeds {names[1]} = {max_deg:g} deg")
+        joint_steps: list[tuple[str, float]] = []
         if current_joints is not None:
             for index, name in enumerate(JOINT_NAMES):
                 delta = target_joints[index] - current_joints[index]
                 if index == 3:
                     delta = wrap_deg(delta)
+                joint_steps.append((name, abs(float(delta))))
                 if abs(delta) > max_deg:
                     raise SafetyError(f"{name} step of {abs(delta):.3f} deg exceeds {names[1]} = {max_deg:g} deg")
+        if not servo:
+            return
+        if step_mm / t_s > cfg.max_speed_mm_s:
+            raise SafetyError(f"speed of {step_mm / t_s:.1f} mm/s ({step_mm:.3f} mm in t = {t_s:g} s) exceeds "
+                              f"max_speed_mm_s = {cfg.max_speed_mm_s:g} mm/s")
+        for name, step_deg in [("R", step_r_deg)] + joint_steps:
+            if step_deg / t_s > cfg.max_speed_deg_s:
+                raise SafetyError(f"{name} speed of {step_deg / t_s:.1f} deg/s ({step_deg:.3f} deg in t = {t_s:g} s) "
+                                  f"exceeds max_speed_deg_s = {cfg.max_speed_deg_s:g} deg/s")
 
     def _check_linear_path(self, start: np.ndarray, end: np.ndarray) -> None:
         distance_mm = float(np.linalg.norm(end[:3] - start[:3]))

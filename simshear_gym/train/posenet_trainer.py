@@ -90,7 +90,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     digests = [weights_digest(translator) for translator in chosen]  # the translation cache's keys
     images, labels = [], []
     for directory in paired_dirs:
-        paired, real = load_paired(directory, data)
+        paired, real = load_paired(directory, data, load_real=source == "real")  # only "real" reads the real set
         if paired.meta.get("contact") not in (None, contact):
             raise ValueError(f"{directory}: a {paired.meta['contact']!r} paired set, but --contact {contact}")
         if source == "real":
