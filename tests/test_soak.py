@@ -49,13 +49,6 @@ def test_a_seeded_soak_stays_within_the_limits_and_handles_every_fault():
         assert result["fault_outcomes"][kind].get("recovered", 0) >= 1, (kind, result["fault_outcomes"][kind])
 
 
-@pytest.mark.slow
-def test_the_full_soak_of_ten_thousand_cycles():
-    cycles = 10_000
-    result = run_soak(SoakConfig(cycles=cycles, seed=0, posenet=posenet_path()), synthetic_frames(seed=0))
-    check(result, cycles)
-
-
 def _record(command: str, target, in_force=READY_POSE_MM_DEG, servo: bool = True, t_s: float = 0.04,
             error_id: int = 0) -> MotionRecord:
     in_force_joints = tuple(inverse(*in_force))
