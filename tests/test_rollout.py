@@ -182,3 +182,12 @@ def test_every_option_says_what_it_is_for(module):
     importlib.import_module(module).add_arguments(parser)
     options = [action for action in parser._actions if action.option_strings and action.dest != "help"]
     assert options and [a.option_strings for a in options if not (a.help or "").strip()] == []
+
+
+def test_sensor_option_names_what_is_missing_and_excludes_posenet(emulator, raw_frames, tmp_path, capsys):
+    args = rollout_args(emulator, raw_frames, "servo", tmp_path / "run", 2)
+    assert cli.main(args + ["--sensor", str(tmp_path / "nowhere")]) == 2
+    assert "run `simshear pipeline run CONFIG` first" in capsys.readouterr().err
+    assert cli.main(args + ["--sensor", str(tmp_path), "--posenet", "w.pt"]) == 2
+    assert "not both" in capsys.readouterr().err
+    assert emulator.received_commands("motion") == []

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.contract import load_sensor
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
     EstimatingController,
@@ -250,6 +251,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--unsafe-limits", action="store_true",
                         help="allow --max-step-mm / --max-step-deg looser than the safe defaults (logged as UNSAFE)")
     parser.add_argument("--posenet", default=None, help="GDNN weights for the servo controller (default: shipped)")
+    parser.add_argument("--sensor", default=None,
+                        help="a sensor's own GDNN for the servo controller: its configs/<name>.toml, the folder of its "
+                             "`simshear pipeline run` or that run's sensor.json (instead of --posenet)")
     parser.add_argument("--reference-depth-mm", type=float, default=4.0,
                         help="depth the servo controller holds, labels' convention (default 4.0)")
     parser.add_argument("--min-depth-mm", type=float, default=None,
@@ -282,6 +286,8 @@ def command_line(args: argparse.Namespace) -> str:
         words += ["--out", str(args.out)]
     if args.posenet:
         words += ["--posenet", str(args.posenet)]
+    if args.sensor:
+        words += ["--sensor", str(args.sensor)]
     if args.min_depth_mm is not None:
         words += ["--min-depth-mm", f"{args.min_depth_mm:g}"]
     if args.camera == SIM_SURFACE_CAMERA:
@@ -355,7 +361,10 @@ def run(args: argparse.Namespace) -> int:
                                   config.mount, raw_frame_layout=preprocess_config)
         env = RealTactileEnv(config, camera=camera)
         holder.append(env)
-    estimator_config = EstimatorConfig(posenet=args.posenet)
+    if args.sensor and args.posenet:
+        raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
+    posenet = load_sensor(args.sensor).posenet("surface") if args.sensor else args.posenet
+    estimator_config = EstimatorConfig(posenet=posenet)
     try:
         controller: Controller
         if args.controller == "servo":
