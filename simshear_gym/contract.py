@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
+from simshear_gym.tables import read_toml
 from simshear_gym.transforms import pose_to_matrix
 
 OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
@@ -199,8 +200,6 @@ def load_sensor(spec: str | os.PathLike) -> SensorModels:
     """A sensor's models from its ``sensor.json``, a pipeline run folder holding one, or its experiment config
     (``configs/<name>.toml``: the run folder ``runs/pipeline/<name>`` that ``simshear pipeline run`` writes by
     default, relative to the working directory)."""
-    from simshear_gym.tables import read_toml
-
     path = Path(spec)
     if path.suffix == ".toml":
         name = read_toml(path).get("name")

@@ -299,8 +299,8 @@ def resolve(path: str, root: Path) -> Path:
     return candidate if candidate.is_absolute() else root / candidate
 
 
-def read_labels(config: DatasetConfig, root: Path, where: str = "") -> list[tuple[DataFile, pd.DataFrame]]:
-    """Each file's CSV, checked for the columns the config names."""
+def read_labels(config: DatasetConfig, root: Path, where: str = "") -> list[tuple[DataFile, Path, pd.DataFrame]]:
+    """Each file with its CSV's path and table, checked for the columns the config names."""
     tables = []
     for data_file in config.files:
         csv_path = resolve(data_file.csv, root)
@@ -315,7 +315,7 @@ def read_labels(config: DatasetConfig, root: Path, where: str = "") -> list[tupl
         missing = [column for column in needed if column not in table.columns]
         if missing:
             raise TactileDataError(f"{where}{csv_path}: missing column {missing[0]!r}; it has {list(table.columns)}")
-        tables.append((data_file, table))
+        tables.append((data_file, csv_path, table))
     return tables
 
 
@@ -375,8 +375,7 @@ def adapt_dataset(config: DatasetConfig, frame: FrameConfig, root: Path, name: s
     ``max_rows_per_split`` keeps the first rows of each split (a quick look, or a smoke run)."""
     where = f"dataset {name!r}: " if name else ""
     parts: dict[str, list[tuple[list[Path], pd.DataFrame, np.ndarray]]] = {split: [] for split in SPLITS}
-    for data_file, table in read_labels(config, root, where):
-        csv_path = resolve(data_file.csv, root)
+    for data_file, csv_path, table in read_labels(config, root, where):
         labels, lab = canonical_labels(config, frame, table, csv_path)
         splits = split_rows(config, data_file, table, csv_path)
         images_dir = resolve(data_file.images, root)

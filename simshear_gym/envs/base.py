@@ -190,7 +190,6 @@ class SimShearEnv(gym.Env, EzPickle):
             tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})
             self.translator_weights = models.translator(self.translator_contact)
             self.estimator_posenet = models.posenet(self.translator_contact)
-        self.sensor = sensor
         self.tactip = TacTip(self.world, tactip_config)
         self.shear_tracker = ShearTracker(shear_config)
         self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])

@@ -51,14 +51,18 @@ def label_features(tactile_set: TactileSet, contact: str) -> np.ndarray:
     return np.stack(pose_features + shear_features, axis=1)
 
 
+def nearest_rows(train_features: np.ndarray, val_features: np.ndarray, chunk: int = 500) -> np.ndarray:
+    """(N_val,) index of the training row nearest (Euclidean) to each val row's features."""
+    nearest = np.empty(len(val_features), dtype=np.int64)
+    for start in range(0, len(val_features), chunk):
+        distance = ((val_features[start:start + chunk, None] - train_features[None]) ** 2).sum(-1)
+        nearest[start:start + chunk] = distance.argmin(1)
+    return nearest
+
+
 def nearest_label_images(train: TactileSet, val: TactileSet, contact: str) -> np.ndarray:
     """For every val row, the real training image whose labels are closest."""
-    train_features, val_features = label_features(train, contact), label_features(val, contact)
-    nearest = np.empty(len(val), dtype=np.int64)
-    for start in range(0, len(val), 500):
-        distance = ((val_features[start:start + 500, None] - train_features[None]) ** 2).sum(-1)
-        nearest[start:start + 500] = distance.argmin(1)
-    return train.load_images()[nearest]
+    return train.load_images()[nearest_rows(label_features(train, contact), label_features(val, contact))]
 
 
 def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float]:

@@ -13,38 +13,25 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.contract import resize_tactile
 from simshear_gym.data.adapter import CANONICAL_COLUMNS
 from simshear_gym.data.labels import SHEAR_COLUMNS
 from simshear_gym.data.paired import load_paired
 from simshear_gym.evaluate.metrics import mape, metrics, ssim
+from simshear_gym.evaluate.translation import nearest_rows
 from simshear_gym.models.gdnn_input import label_matrix, predict
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import Translator
 
 
-def label_features(targets, columns: list[str], scales: np.ndarray) -> np.ndarray:
-    return targets[columns].to_numpy(np.float64) / scales
-
-
 def nearest_label_images(train_targets, train_images: np.ndarray, val_targets) -> np.ndarray:
     """For each val row, the training image whose labels (every varying pose and move column, scaled by its
     range) are closest."""
-    columns = [c for c in CANONICAL_COLUMNS.values()
-               if np.ptp(train_targets[c].to_numpy()) > 1e-9]
-    scales = np.array([max(np.ptp(train_targets[c].to_numpy()), 1e-9) for c in columns])
-    train = label_features(train_targets, columns, scales)
-    val = label_features(val_targets, columns, scales)
-    nearest = np.empty(len(val), dtype=np.int64)
-    for start in range(0, len(val), 500):
-        distance = ((val[start:start + 500, None] - train[None]) ** 2).sum(-1)
-        nearest[start:start + 500] = distance.argmin(1)
-    return train_images[nearest]
-
-
-def _images_at(images: np.ndarray, size_px: int) -> np.ndarray:
-    from simshear_gym.contract import resize_tactile
-
-    return resize_tactile(images, size_px)
+    columns = [c for c in CANONICAL_COLUMNS.values() if np.ptp(train_targets[c].to_numpy()) > 1e-9]
+    scales = np.array([np.ptp(train_targets[c].to_numpy()) for c in columns])
+    train = train_targets[columns].to_numpy(np.float64) / scales
+    val = val_targets[columns].to_numpy(np.float64) / scales
+    return train_images[nearest_rows(train, val)]
 
 
 def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators: dict, posenets: dict,
@@ -66,7 +53,7 @@ def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators
         entry = {"rows": len(targets)}
         for arch, translator in loaded_translators[dataset.contact].items():
             generated = np.concatenate([translator(sim[i:i + 64], shear[i:i + 64]) for i in range(0, len(sim), 64)])
-            generated = _images_at(generated, real.shape[-1])
+            generated = resize_tactile(generated, real.shape[-1])
             entry[arch] = {"mape": float(mape(generated, real).mean()), "ssim": float(ssim(generated, real).mean())}
         retrieved = nearest_label_images(train_paired.targets, train_real.load_images(use_cache=False),
                                          targets)

@@ -25,15 +25,19 @@ folder, whether it ran or was cached, wall time and metrics.
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import pandas as pd
+
 from simshear_gym.contract import SENSOR_FILE
-from simshear_gym.data.adapter import adapt_dataset, write_canonical
+from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, resolve, write_canonical
 from simshear_gym.data.paths import data_root
+from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
 from simshear_gym.pipelines.stages import StageRunner, file_fingerprint
 
@@ -56,8 +60,6 @@ def git_commit() -> str:
 
 
 def _dataset_files(config: ExperimentConfig, name: str, root: Path) -> list[Path]:
-    from simshear_gym.data.adapter import resolve
-
     return [resolve(data_file.csv, root) for data_file in config.datasets[name].files]
 
 
@@ -116,11 +118,6 @@ def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, roo
     """The inline GDNN variable set of a contact type's datasets: every pose variable that varies in them (an
     angle spanning more than 300 deg as a periodic one), and the sensor-frame shear x, y, Rz where a shear dataset
     moves that way; ranges from the data."""
-    import pandas as pd
-
-    from simshear_gym.data.adapter import CANONICAL_COLUMNS
-    from simshear_gym.data.tactile_set import read_set
-
     tables = [read_set(root / adapted[name][split]).targets for name in names for split in ("train", "val")]
     targets = pd.concat(tables, ignore_index=True)
     specs = []
@@ -153,16 +150,13 @@ def stage_translator(runner: StageRunner, config: ExperimentConfig, profile, pai
     for contact, names in contacts_of(config).items():
         train_sets = [paired[name]["train"] for name in names]
         for arch in stage.archs:
-            settings = {field: getattr(stage, field) for field in (
-                "epochs", "batch_size", "lr", "lr_schedule", "base_channels", "max_channels", "decoder_scale",
-                "density_weight", "holdout", "patience_epochs", "seed", "threads")}
+            settings = {name: value for name, value in asdict(stage).items() if name != "archs"}
             key = {"paired": train_sets, "arch": arch, "settings": settings}
 
             def work(folder: Path, arch=arch, train_sets=train_sets, settings=settings, contact=contact) -> dict:
                 import torch
 
-                from simshear_gym.models.translator import load_generator, save_generator
-                from simshear_gym.train.translator_trainer import TranslatorTrainer, load_pairs
+                from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
 
                 train_config = TranslatorTrainConfig(
                     arch=arch, paired_dirs=tuple(train_sets), image_size_px=config.sensor.image_size_px, **settings)
@@ -171,10 +165,8 @@ def stage_translator(runner: StageRunner, config: ExperimentConfig, profile, pai
                 trainer = TranslatorTrainer(train_config, folder / "run", pairs)
                 trainer.resume()
                 summary = trainer.fit(progress=False)
-                generator, best = load_generator(folder / "run" / "best.pt")
-                path = folder / f"{arch}_{contact}.pt"
-                save_generator(path, generator, card={"sensor": config.name, "contact": contact, "arch": arch,
-                                                      "best": best, "train_config": _relative_config(train_config)})
+                path = export_run(folder / "run", folder / f"{arch}_{contact}.pt",
+                                  card={"sensor": config.name, "contact": contact, "arch": arch})
                 return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
             weights.setdefault(contact, {})[arch] = runner.run(f"translator/{contact}_{arch}", key, work).outputs[
@@ -194,9 +186,7 @@ def stage_posenet(runner: StageRunner, config: ExperimentConfig, profile, adapte
         variables[contact] = variables_for(config, names, adapted, runner.root)
         train_sets = [paired[name]["train"] for name in names]
         for source in ("real", "shpix2pix"):
-            settings = {field: getattr(stage, field) for field in (
-                "epochs", "batch_size", "image_size_px", "lr", "lr_schedule", "holdout", "patience_epochs",
-                "blur_px", "erase", "seed", "threads")}
+            settings = asdict(stage)
             used = (translators[contact]["shpix2pix"],) if source == "shpix2pix" else ()
             key = {"paired": train_sets, "source": source, "translators": used, "variables": variables[contact],
                    "settings": settings}
@@ -219,20 +209,13 @@ def stage_posenet(runner: StageRunner, config: ExperimentConfig, profile, adapte
                 summary = trainer.fit(progress=False)
                 model, card = load_posenet(folder / "run" / "best.pt")
                 path = folder / f"posenet_{contact}_{source}.pt"
-                save_posenet(path, model, card={**card, "sensor": config.name,
-                                                "train_config": _relative_config(train_config)})
+                train_record = json.loads((folder / "run" / "config.json").read_text())  # paths relative to the run
+                save_posenet(path, model, card={**card, "sensor": config.name, "train_config": train_record})
                 return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
             models.setdefault(contact, {})[source] = runner.run(f"posenet/{contact}_{source}", key, work).outputs[
                 "weights"]
     return {"models": models, "variables": variables}
-
-
-def _relative_config(train_config) -> dict:
-    """A training config for a card: its paths are already relative to the pipeline's run folder."""
-    from dataclasses import asdict
-
-    return {key: list(value) if isinstance(value, tuple) else value for key, value in asdict(train_config).items()}
 
 
 def stage_evaluate(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, paired: dict,
