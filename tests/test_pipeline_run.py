@@ -16,7 +16,7 @@ from simshear_gym.data.tactile_set import read_set
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.example_sensor import make_example
 from simshear_gym.pipelines.run import STAGES, run_pipeline
-from tests.test_pipeline_check import write_lab
+from tests.test_pipeline_check import GOOD, write_lab
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -84,6 +84,41 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
         if terminated or truncated:
             break
     env.close()
+
+
+POOLED = GOOD + """
+[profiles.smoke]
+jobs = 2
+[[profiles.smoke.pool]]
+name = "tilt"
+contact = "surface"
+draws = 2
+seed = 1
+density_weight = 10.0
+pose_weight = 1.0
+pose_variables = ["rx_deg"]
+[profiles.smoke.posenet]
+random_contacts = { surface = 12 }
+"""
+
+
+def test_a_pool_of_generators_and_random_contacts_side_by_side(tmp_path):
+    data = tmp_path / "data"
+    config = load_config(write_lab(data, rows=30, config=POOLED))
+    out = tmp_path / "run"
+    manifest = run_pipeline(config, out, data, "smoke", STAGES, workers=1)
+    assert manifest["jobs"] == 2
+    records = {r["stage"]: r for r in manifest["results"]}
+    assert records["collect/random_surface"]["metrics"] == {"rows": 12}
+    tilt = json.loads((out / records["translator/surface_tilt"]["folder"] / "run" / "config.json").read_text())
+    real = manifest["models"]["posenets"]["models"]["surface"]["real"]
+    assert (tilt["pose_net"], tilt["pose_variables"], tilt["seed"]) == (real, ["rx_deg"], 1)  # after the real GDNN
+    gdnn = json.loads((out / records["posenet/surface_shpix2pix"]["folder"] / "stage.json").read_text())["key"]
+    translators = manifest["models"]["translators"]["surface"]
+    assert gdnn["translators"] == [translators["shpix2pix"], translators["tilt"], translators["tilt"]]
+    assert gdnn["paired"][-1].startswith("collect/random_surface/")  # the random contacts, translated too
+    again = run_pipeline(config, out, data, "smoke", STAGES, workers=1)
+    assert not any(result["ran"] for result in again["results"])
 
 
 def test_stages_need_the_ones_before_them(tmp_path):

@@ -20,6 +20,7 @@ from simshear_gym.train.runs import scheduled_lr
 class FakeConfig:
     epochs: int = 3
     max_minutes: float | None = None
+    cap_minutes: float | None = None
     patience_epochs: int = 10
     lr: float = 0.1
     lr_schedule: str = "constant"
@@ -134,6 +135,18 @@ def test_time_budget_stops_inside_an_epoch_and_checkpoints_it(tmp_path):
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"] == summary["steps"]
 
 
+def test_wall_clock_cap_stops_the_run_but_leaves_the_schedule_on_the_steps(tmp_path):
+    config = FakeConfig(epochs=1000, rows=20, cap_minutes=0.05 / 60, step_sleep_s=0.01, lr_schedule="cosine")
+    trainer = FakeTrainer(config, tmp_path / "run")
+    summary = trainer.fit(progress=False)
+    assert summary["stopped_by"] == "wall-clock cap" and trainer.history[-1]["partial_epoch"]
+    steps = 1000 * 10  # the schedule still spans every epoch's steps, not the cap's minutes
+    assert trainer.lrs_seen == pytest.approx([scheduled_lr(0.1, "cosine", i / steps) for i in range(summary["steps"])])
+    budgeted = FakeTrainer(FakeConfig(epochs=1000, max_minutes=1.0, cap_minutes=0.05 / 60, step_sleep_s=0.01),
+                           tmp_path / "both").fit(progress=False)
+    assert budgeted["stopped_by"] == "wall-clock cap"  # the cap comes first
+
+
 def test_resume_continues_to_the_same_history_and_weights(tmp_path):
     straight = FakeTrainer(FakeConfig(epochs=4), tmp_path / "straight")
     straight.fit(progress=False)
@@ -200,12 +213,12 @@ def test_a_failed_checkpoint_write_leaves_the_previous_one_whole(tmp_path, monke
 COMMAND_FLAGS = {
     posenet: {"--source", "--contact", "--paired", "--out", "--data", "--image-size", "--epochs", "--batch-size",
               "--lr", "--beta", "--holdout", "--patience-epochs", "--shift", "--seed", "--threads", "--blur",
-              "--erase", "--max-minutes", "--lr-schedule", "--translators", "--variables", "--resume"},
+              "--erase", "--max-minutes", "--cap-minutes", "--lr-schedule", "--translators", "--variables", "--resume"},
     translator: {"--arch", "--paired", "--out", "--data", "--lr-schedule", "--shear-decoder", "--flow",
                  "--image-size", "--base-channels", "--max-channels", "--decoder-scale", "--epochs", "--batch-size",
                  "--lr", "--l1-weight", "--density-weight", "--gan-weight", "--holdout", "--patience-epochs", "--seed",
-                 "--threads", "--max-minutes", "--pose-net", "--pose-weight", "--pose-variables", "--no-template",
-                 "--resume", "--export"},
+                 "--threads", "--max-minutes", "--cap-minutes", "--pose-net", "--pose-weight", "--pose-variables",
+                 "--no-template", "--resume", "--export"},
     rl: {"--algo", "--out", "--timesteps", "--obs-mode", "--image-size", "--n-envs", "--n-steps", "--batch-size",
          "--learning-rate", "--checkpoint-steps", "--seed", "--threads", "--resume", "--quiet"},
 }

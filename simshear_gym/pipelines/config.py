@@ -27,7 +27,7 @@ from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from simshear_gym.data.adapter import DatasetConfig, FrameConfig
+from simshear_gym.data.adapter import CONTACTS, DatasetConfig, FrameConfig
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.tables import ConfigError, from_table, read_toml
@@ -68,8 +68,11 @@ class TranslatorStage:
     patience_epochs: int = 1000
     seed: int = 0
     threads: int = 2
+    cap_minutes: float | None = None
 
     def __post_init__(self) -> None:
+        if self.cap_minutes is not None and self.cap_minutes <= 0:
+            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
         if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
             raise ValueError(f"archs must name shpix2pix and/or pix2pix, got {list(self.archs)}")
         if "shpix2pix" not in self.archs:
@@ -82,7 +85,10 @@ class TranslatorStage:
 class PosenetStage:
     """The GDNNs' training (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields of the same
     names): per contact type one on the real images (the reference) and one on the shPix2pix translations of the
-    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`."""
+    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`. The translated-image
+    GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws`` times) and the
+    profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
+    label ranges in the training data (no real image needed: they are translated like the replays)."""
 
     epochs: int = 30
     batch_size: int = 64
@@ -95,21 +101,85 @@ class PosenetStage:
     erase: float = 0.0
     seed: int = 0
     threads: int = 2
+    cap_minutes: float | None = None
+    translator_draws: int = 1
+    random_contacts: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.epochs < 1:
             raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        if self.cap_minutes is not None and self.cap_minutes <= 0:
+            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+        if self.translator_draws < 1:
+            raise ValueError(f"translator_draws must be >= 1, got {self.translator_draws!r}")
+        bad = {contact: n for contact, n in self.random_contacts.items()
+               if contact not in CONTACTS or not isinstance(n, int) or n < 0}
+        if bad:
+            raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
+
+
+@dataclass(frozen=True)
+class PoolGenerator:
+    """One more shPix2pix generator of a contact type (``contact``; "" for every one) for the GDNN to train on:
+    the translator stage's settings with these replaced. With ``pose_weight`` > 0 it trains with the
+    pose-consistency loss (:mod:`simshear_gym.train.pose_consistency`) read by the contact's real-image GDNN on
+    ``pose_variables`` (all of its variables when empty), so it runs after that GDNN. The GDNN on translated
+    images draws each row's generator at random, this one ``draws`` times as often as a generator listed once."""
+
+    name: str
+    contact: str = ""
+    draws: int = 1
+    seed: int = 0
+    epochs: int | None = None
+    density_weight: float = 0.0
+    pose_weight: float = 0.0
+    pose_variables: tuple[str, ...] = ()
+    decoder_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "").isalnum():
+            raise ValueError(f"name must be letters, digits or '_' (it names a stage), got {self.name!r}")
+        if self.contact not in ("", *CONTACTS):
+            raise ValueError(f"contact must be one of {list(CONTACTS)} or '' (every one), got {self.contact!r}")
+        if self.draws < 1 or (self.epochs is not None and self.epochs < 1):
+            raise ValueError(f"draws and epochs must be >= 1, got {self.draws!r}, {self.epochs!r}")
+        if self.pose_weight < 0 or self.density_weight < 0:
+            raise ValueError(f"pose_weight and density_weight must be >= 0, got {self.pose_weight!r}, "
+                             f"{self.density_weight!r}")
+        if self.pose_variables and self.pose_weight == 0:
+            raise ValueError(f"pose_variables {list(self.pose_variables)} need pose_weight > 0")
+
+    def overrides(self) -> dict:
+        """The :class:`TranslatorStage` settings this generator replaces."""
+        values = {"seed": self.seed, "density_weight": self.density_weight, "epochs": self.epochs,
+                  "decoder_scale": self.decoder_scale}
+        return {name: value for name, value in values.items() if value is not None}
 
 
 @dataclass(frozen=True)
 class Profile:
     """A profile: how many rows of each split the pipeline uses (None: all), how many validation rows per
-    dataset the evaluation reads (None: all), and the training stages' settings."""
+    dataset the evaluation reads (None: all), how many training steps run side by side (``jobs`` worker
+    processes; give the stages ``threads`` = cores / jobs), the training stages' settings and the pool of extra
+    generators for the translated-image GDNN (``[[profiles.<name>.pool]]``, :class:`PoolGenerator`)."""
 
     rows_per_split: int | None = None
     eval_rows: int | None = None
+    jobs: int = 1
     translator: TranslatorStage = TranslatorStage()
     posenet: PosenetStage = PosenetStage()
+    pool: tuple[PoolGenerator, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {self.jobs!r}")
+        names = [generator.name for generator in self.pool]
+        if len(set(names)) != len(names):
+            raise ValueError(f"pool: generator names must differ, got {names}")
+
+    def pool_for(self, contact: str) -> tuple[PoolGenerator, ...]:
+        """The pool's generators of a contact type."""
+        return tuple(generator for generator in self.pool if generator.contact in ("", contact))
 
 
 DEFAULT_PROFILES: dict[str, Profile] = {
@@ -141,6 +211,13 @@ class ExperimentConfig:
             raise ValueError(f"name must be letters, digits, '-' or '_' (it names folders), got {self.name!r}")
         if not self.datasets:
             raise ValueError("datasets must name at least one [datasets.<name>] table")
+        contacts = {dataset.contact for dataset in self.datasets.values()}
+        for name, profile in self.profiles.items():
+            unused = sorted(({g.contact for g in profile.pool if g.contact}
+                             | {c for c, n in profile.posenet.random_contacts.items() if n}) - contacts)
+            if unused:
+                raise ValueError(f"profiles.{name}: contact type {unused[0]!r} in pool or random_contacts, but the "
+                                 f"datasets have only {sorted(contacts)}")
 
     def profile(self, name: str) -> Profile:
         try:

@@ -7,13 +7,19 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
 2. ``collect``: every row replayed in simulation with the config's sensor: paired sets (sim image, shear, real
    image, labels) (:mod:`simshear_gym.sim.collect`);
 3. ``translator``: per contact type, a shPix2pix (and a pix2pix baseline) on the paired training sets of that
-   contact, with the profile's settings (:mod:`simshear_gym.train.translator_trainer`);
-4. ``posenet``: per contact type, a GDNN on the real training images (the reference) and one on the shPix2pix
-   translations of the sim renders (the one a controller uses), estimating the variables that vary in the
-   sensor's data (depth, tilts, offsets, edge angle; shear where the data has it);
+   contact, with the profile's settings (:mod:`simshear_gym.train.translator_trainer`), and the profile's pool of
+   further shPix2pix generators (other seeds, density and pose-consistency losses:
+   :class:`~simshear_gym.pipelines.config.PoolGenerator`);
+4. ``posenet``: per contact type, a GDNN on the real images (the reference) and one on the translations of the
+   sim renders (the one a controller uses), each row through a generator drawn from the shPix2pix and the pool
+   (plus the profile's random sim contacts), estimating the variables that vary in the sensor's data (depth,
+   tilts, offsets, edge angle; shear where the data has it);
 5. ``evaluate``: on every dataset's real validation images: translation MAPE / SSIM against nearest-label
    retrieval (the real training image with the closest labels), the GDNNs' MAE per variable against chance and
    the translated-trained / real-trained ratio; written to ``evaluation.json``.
+
+Stages 3-5 are steps of a graph (:mod:`simshear_gym.pipelines.schedule`), run ``jobs`` at a time in worker
+processes: a pose-consistency generator starts once its contact's real-image GDNN is done.
 
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
@@ -29,6 +35,7 @@ import json
 import subprocess
 import time
 from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,7 +46,8 @@ from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, resolve,
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
-from simshear_gym.pipelines.stages import StageRunner, file_fingerprint
+from simshear_gym.pipelines.schedule import Step, run_steps
+from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
 POSE_NAMES = {"pose_x": "x_mm", "pose_y": "y_mm", "pose_z": "z_mm", "pose_rx": "rx_deg", "pose_ry": "ry_deg",
@@ -141,86 +149,90 @@ def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, roo
     return ",".join(specs)
 
 
-def stage_translator(runner: StageRunner, config: ExperimentConfig, profile, paired: dict) -> dict:
-    """{contact: {arch: path of the exported generator}}."""
-    from simshear_gym.train.translator_config import TranslatorTrainConfig
-
-    stage = profile.translator
-    weights: dict[str, dict[str, str]] = {}
-    for contact, names in contacts_of(config).items():
-        train_sets = [paired[name]["train"] for name in names]
-        for arch in stage.archs:
-            settings = {name: value for name, value in asdict(stage).items() if name != "archs"}
-            key = {"paired": train_sets, "arch": arch, "settings": settings}
-
-            def work(folder: Path, arch=arch, train_sets=train_sets, settings=settings, contact=contact) -> dict:
-                import torch
-
-                from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
-
-                train_config = TranslatorTrainConfig(
-                    arch=arch, paired_dirs=tuple(train_sets), image_size_px=config.sensor.image_size_px, **settings)
-                torch.set_num_threads(stage.threads)
-                pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root))
-                trainer = TranslatorTrainer(train_config, folder / "run", pairs)
-                trainer.resume()
-                summary = trainer.fit(progress=False)
-                path = export_run(folder / "run", folder / f"{arch}_{contact}.pt",
-                                  card={"sensor": config.name, "contact": contact, "arch": arch})
-                return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
-
-            weights.setdefault(contact, {})[arch] = runner.run(f"translator/{contact}_{arch}", key, work).outputs[
-                "weights"]
-    return weights
+def _translator_settings(stage, generator=None) -> dict:
+    settings = {name: value for name, value in asdict(stage).items() if name != "archs"}
+    return {**settings, **(generator.overrides() if generator else {})}
 
 
-def stage_posenet(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, paired: dict,
-                  translators: dict) -> dict:
-    """{contact: {"real" | "shpix2pix": path of the GDNN}, "variables": {contact: spec}}."""
-    from simshear_gym.train.posenet_config import PosenetTrainConfig
+def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
+                    generator, runner: StageRunner, done: dict) -> StageResult:
+    """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
+    (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``)."""
+    settings = _translator_settings(stage, generator)
+    pose_net = ""
+    if generator is not None and generator.pose_weight > 0:
+        pose_net = done[f"posenet/{contact}_real"].outputs["weights"]
+        settings |= {"pose_weight": generator.pose_weight, "pose_net": pose_net,
+                     "pose_variables": tuple(generator.pose_variables)}
+    key = {"paired": train_sets, "arch": arch, "settings": settings}
+    label = generator.name if generator else arch
 
-    stage = profile.posenet
-    models: dict[str, dict[str, str]] = {}
-    variables: dict[str, str] = {}
-    for contact, names in contacts_of(config).items():
-        variables[contact] = variables_for(config, names, adapted, runner.root)
-        train_sets = [paired[name]["train"] for name in names]
-        for source in ("real", "shpix2pix"):
-            settings = asdict(stage)
-            used = (translators[contact]["shpix2pix"],) if source == "shpix2pix" else ()
-            key = {"paired": train_sets, "source": source, "translators": used, "variables": variables[contact],
-                   "settings": settings}
+    def work(folder: Path) -> dict:
+        import torch
 
-            def work(folder: Path, source=source, train_sets=train_sets, used=used, contact=contact,
-                     settings=settings) -> dict:
-                import torch
+        from simshear_gym.train.pose_consistency import PoseConsistency
+        from simshear_gym.train.translator_config import TranslatorTrainConfig
+        from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
 
-                from simshear_gym.models.posenet_io import load_posenet, save_posenet
-                from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
+        train_config = TranslatorTrainConfig(arch=arch, paired_dirs=tuple(train_sets),
+                                             image_size_px=config.sensor.image_size_px, **settings)
+        torch.set_num_threads(train_config.threads)
+        pose = (PoseConsistency(runner.root / pose_net, train_config.pose_variables) if pose_net else None)
+        pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root), pose=pose)
+        trainer = TranslatorTrainer(train_config, folder / "run", pairs, pose=pose)
+        trainer.resume()
+        summary = trainer.fit(progress=False)
+        path = export_run(folder / "run", folder / f"{label}_{contact}.pt",
+                          card={"sensor": config.name, "contact": contact, "arch": arch, "name": label})
+        return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
-                train_config = PosenetTrainConfig(source=source, contact=contact, paired_dirs=tuple(train_sets),
-                                                  translators=used, variables=variables[contact], **settings)
-                torch.set_num_threads(stage.threads)
-                data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
-                                   stage.image_size_px, translators=[str(runner.root / t) for t in used],
-                                   variables=variables[contact])
-                trainer = PosenetTrainer(train_config, folder / "run", data)
-                trainer.resume()
-                summary = trainer.fit(progress=False)
-                model, card = load_posenet(folder / "run" / "best.pt")
-                path = folder / f"posenet_{contact}_{source}.pt"
-                train_record = json.loads((folder / "run" / "config.json").read_text())  # paths relative to the run
-                save_posenet(path, model, card={**card, "sensor": config.name, "train_config": train_record})
-                return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
-
-            models.setdefault(contact, {})[source] = runner.run(f"posenet/{contact}_{source}", key, work).outputs[
-                "weights"]
-    return {"models": models, "variables": variables}
+    return runner.run(f"translator/{contact}_{label}", key, work)
 
 
-def stage_evaluate(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, paired: dict,
-                   translators: dict, posenets: dict) -> dict:
+def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
+                 variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
+                 done: dict) -> StageResult:
+    """A GDNN of a contact type on the real images (``source`` "real") or on translations of the sim renders
+    (``translator_steps``: the translator steps it draws from, each with its number of draws)."""
+    used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
+    settings = {name: value for name, value in asdict(stage).items()
+                if name not in ("translator_draws", "random_contacts")}
+    key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
+           "settings": settings}
+
+    def work(folder: Path) -> dict:
+        import torch
+
+        from simshear_gym.models.posenet_io import load_posenet, save_posenet
+        from simshear_gym.train.posenet_config import PosenetTrainConfig
+        from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
+
+        train_config = PosenetTrainConfig(source=source, contact=contact, paired_dirs=tuple(train_sets),
+                                          translators=used, variables=variables, **settings)
+        torch.set_num_threads(train_config.threads)
+        data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
+                           stage.image_size_px, translators=[str(runner.root / t) for t in used],
+                           variables=variables)
+        trainer = PosenetTrainer(train_config, folder / "run", data)
+        trainer.resume()
+        summary = trainer.fit(progress=False)
+        model, card = load_posenet(folder / "run" / "best.pt")
+        path = folder / f"posenet_{contact}_{source}.pt"
+        train_record = json.loads((folder / "run" / "config.json").read_text())  # paths relative to the run
+        save_posenet(path, model, card={**card, "sensor": config.name, "train_config": train_record})
+        return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
+
+    return runner.run(f"posenet/{contact}_{source}", key, work)
+
+
+def evaluate_step(config: ExperimentConfig, profile, adapted: dict, paired: dict, variables: dict,
+                  runner: StageRunner, done: dict) -> StageResult:
     """Translation and GDNN figures on every dataset's real validation rows (see the module docstring)."""
+    translators = {contact: {arch: done[f"translator/{contact}_{arch}"].outputs["weights"]
+                             for arch in profile.translator.archs} for contact in contacts_of(config)}
+    posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
+                                     for source in ("real", "shpix2pix")} for contact in contacts_of(config)},
+                "variables": variables}
     key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
            "eval_rows": profile.eval_rows}
 
@@ -231,29 +243,112 @@ def stage_evaluate(runner: StageRunner, config: ExperimentConfig, profile, adapt
         write_json(folder / "evaluation.json", figures)
         return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
 
-    return runner.run("evaluate", key, work).record
+    return runner.run("evaluate", key, work)
+
+
+def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, workers: int) -> dict:
+    """{contact: path of its random-contact set} for the contacts the profile gives ``random_contacts``."""
+    from simshear_gym.sim.collect import CollectConfig, random_set  # pybullet: only when the stage runs
+
+    collect_config = CollectConfig(tactip=config.sensor, geometry=config.replay, workers=workers)
+    out = {}
+    for contact, names in contacts_of(config).items():
+        n = profile.posenet.random_contacts.get(contact, 0)
+        if not n:
+            continue
+        ranges = label_ranges(config, names, adapted, runner.root)
+        key = {"contact": contact, "n": n, "seed": profile.posenet.seed, "ranges": ranges, "tactip": config.sensor,
+               "geometry": config.replay, "shear": collect_config.shear}
+
+        def work(folder: Path, contact=contact, n=n, ranges=ranges) -> dict:
+            rows = random_set(contact, n, profile.posenet.seed, folder / "set", collect_config, ranges)
+            return {"outputs": {"set": runner.relative(folder / "set")}, "metrics": {"rows": rows}}
+
+        out[contact] = runner.run(f"collect/random_{contact}", key, work).outputs["set"]
+    return out
+
+
+def label_ranges(config: ExperimentConfig, names: list[str], adapted: dict, root: Path) -> dict:
+    """{label column: [low, high]} over a contact type's training rows: the pose columns of every dataset, the
+    move columns of its shear datasets; constant columns left out."""
+    ranges = {}
+    for variable, column in CANONICAL_COLUMNS.items():
+        sets = [name for name in names if variable.startswith("pose") or config.datasets[name].kind == "shear"]
+        if not sets:
+            continue
+        values = pd.concat([read_set(root / adapted[name]["train"]).targets[column] for name in sets])
+        low, high = float(values.min()), float(values.max())
+        if high - low > 1e-6:
+            ranges[column] = [low, high]
+    return ranges
+
+
+def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dict, random_sets: dict,
+                   variables: dict, stages: tuple[str, ...]) -> list[Step]:
+    """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`)."""
+    steps = []
+    for contact, names in contacts_of(config).items():
+        train_sets = [paired[name]["train"] for name in names]
+        if "translator" in stages:
+            for arch in profile.translator.archs:
+                steps.append(Step(f"translator/{contact}_{arch}", partial(
+                    translator_step, config, profile.translator, contact, arch, train_sets, None), cost=3.0))
+            for generator in profile.pool_for(contact):
+                needs = (f"posenet/{contact}_real",) if generator.pose_weight > 0 else ()
+                steps.append(Step(f"translator/{contact}_{generator.name}", partial(
+                    translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator),
+                    needs=needs, cost=3.0))
+        if "posenet" in stages:
+            steps.append(Step(f"posenet/{contact}_real", partial(
+                posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], ()),
+                cost=1.0))
+            drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
+                     *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
+            sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
+            steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
+                posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn),
+                needs=tuple(name for name, _ in drawn), cost=1.0))
+    if "evaluate" in stages:
+        steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
+                          needs=tuple(step.name for step in steps), cost=0.3))
+    return steps
 
 
 def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, stages: tuple[str, ...],
-                 rows_per_split: int | None = None, workers: int = 2) -> dict:
-    """Run the stages in order (each cached) and write ``out/manifest.json``; returns the manifest.
+                 rows_per_split: int | None = None, workers: int = 2, jobs: int | None = None) -> dict:
+    """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :mod:`.schedule`) and
+    write ``out/manifest.json``; returns the manifest.
 
-    ``rows_per_split`` overrides the profile's (None: the profile's)."""
+    ``rows_per_split`` and ``jobs`` override the profile's (None: the profile's)."""
     missing = [stage for stage in STAGES[:max(STAGES.index(s) for s in stages) + 1] if stage not in stages]
     if missing:
         raise ValueError(f"stages {list(stages)} need the stages before them too: add {missing}")
     profile_settings = config.profile(profile)
     rows_per_split = rows_per_split if rows_per_split is not None else profile_settings.rows_per_split
+    jobs = jobs or profile_settings.jobs
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out)
     start = time.perf_counter()
     adapted = stage_adapt(runner, config, root, rows_per_split)
     paired = stage_collect(runner, config, adapted, workers) if "collect" in stages else None
-    translators = stage_translator(runner, config, profile_settings, paired) if "translator" in stages else None
-    posenets = (stage_posenet(runner, config, profile_settings, adapted, paired, translators)
-                if "posenet" in stages else None)
-    evaluation = (stage_evaluate(runner, config, profile_settings, adapted, paired, translators, posenets)
-                  if "evaluate" in stages else None)
+    results = list(runner.results)
+    translators = posenets = evaluation = None
+    if "translator" in stages:
+        variables = {contact: variables_for(config, names, adapted, runner.root)
+                     for contact, names in contacts_of(config).items()}
+        random_sets = stage_random(runner, config, profile_settings, adapted, workers) if "posenet" in stages else {}
+        results = list(runner.results)
+        steps = training_steps(config, profile_settings, adapted, paired, random_sets, variables, stages)
+        done = run_steps(steps, out, jobs, log=runner.log)
+        results += [done[step.name] for step in steps]
+        translators = {contact: {name.split("_", 1)[1]: result.outputs["weights"]
+                                 for name, result in done.items() if name.startswith(f"translator/{contact}_")}
+                       for contact in contacts_of(config)}
+        if "posenet" in stages:
+            posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
+                                             for source in ("real", "shpix2pix")} for contact in contacts_of(config)},
+                        "variables": variables}
+        evaluation = done["evaluate"].record if "evaluate" in stages else None
     if translators and posenets:
         write_json(out / SENSOR_FILE, {
             "sensor": config.name, "config": str(config.path), "profile": profile,
@@ -266,8 +361,9 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         "package_version": _version(), "git_commit": git_commit(),
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
+        "jobs": jobs,
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
-                     "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in runner.results],
+                     "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in results],
         "models": {"translators": translators, "posenets": posenets},
         "evaluation": evaluation["outputs"]["evaluation"] if evaluation else None,
     }
@@ -296,6 +392,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="first N rows of each split only (default: all)")
     parser.add_argument("--workers", type=int, default=2, help="rendering processes of the collect stage")
+    parser.add_argument("--jobs", type=int, default=None, help="training steps side by side, each in its own "
+                        "process (default: the profile's jobs)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -304,7 +402,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     out = args.out or Path("runs") / "pipeline" / config.name
     manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
-                            args.workers)
+                            args.workers, args.jobs)
     ran = sum(result["ran"] for result in manifest["results"])
     print(f"{config.name}: {len(manifest['results'])} stage steps ({ran} ran, "
           f"{len(manifest['results']) - ran} cached) in {manifest['wall_s']:.1f} s; manifest {out / 'manifest.json'}")

@@ -93,13 +93,21 @@ def replay_set(real_dir: Path, out_dir: Path, config: CollectConfig, root: Path 
     return len(real)
 
 
-def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectConfig) -> int:
-    """Render ``n`` random contacts drawn uniformly over the real shear sets' ranges of a contact type."""
+def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectConfig,
+               ranges: dict[str, tuple[float, float]] | None = None) -> int:
+    """Render ``n`` random contacts drawn uniformly over label ranges: ``ranges`` ({``pose_1..6`` / ``move_1..6``
+    column: (low, high)}; the columns it leaves out stay 0), by default the tactip331 shear sets' ranges of the
+    contact type."""
     rng = np.random.default_rng(seed)
     labels = np.zeros((n, 12))
     columns = list(POSE_COLUMNS + MOVE_COLUMNS)
-    for label_range in task_ranges(contact, "shear"):
-        labels[:, columns.index(label_range.column)] = rng.uniform(label_range.low, label_range.high, n)
+    if ranges is None:
+        ranges = {r.column: (r.low, r.high) for r in task_ranges(contact, "shear")}
+    unknown = sorted(set(ranges) - set(columns))
+    if unknown:
+        raise ValueError(f"random contacts: unknown label column {unknown[0]!r}; expected some of {columns}")
+    for column, (low, high) in ranges.items():
+        labels[:, columns.index(column)] = rng.uniform(low, high, n)
     poses, moves = labels[:, :6], labels[:, 6:]
     targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)], REAL_IMAGE_COLUMN: [""] * n})
     for column, values in zip(columns, labels.T):

@@ -6,11 +6,13 @@ checkpoint holds besides the loop's counters (the hooks below). :meth:`EpochTrai
 ``config.epochs`` epochs are done, ``config.patience_epochs`` epochs in a row bring no better holdout metric, or
 the time budget ``config.max_minutes`` (training time, counted across resumes) runs out. Each step sets the
 learning rate of every optimiser to :func:`~simshear_gym.train.runs.scheduled_lr` of the share of the run done
-(of its time budget when it has one, else of its steps). After each epoch, and in the epoch where the time runs out
-(a partial epoch), it measures the holdout metric, appends a record to the history, saves ``best.pt`` when the
-metric improves and writes ``checkpoint.pt`` and ``history.json`` atomically, so ``resume`` continues from the
-last finished epoch with the same numbers a straight run would give (the random generators are in the
-checkpoint).
+(of its time budget when it has one, else of its steps). A config may also hold ``cap_minutes``: a wall-clock
+safety cap that stops the run (``stopped_by`` "wall-clock cap") without shaping the schedule, so that a recipe
+counted in epochs trains the same model on any machine that finishes within the cap. After each epoch, and in
+the epoch where the time runs out (a partial epoch), it measures the holdout metric, appends a record to the
+history, saves ``best.pt`` when the metric improves and writes ``checkpoint.pt`` and ``history.json`` atomically,
+so ``resume`` continues from the last finished epoch with the same numbers a straight run would give (the random
+generators are in the checkpoint).
 
 Run directory: ``config.json`` (written when ``fit`` starts), ``history.json`` (``{"config": ..., "epochs":
 [record, ...]}``; a record: ``epoch``, ``partial_epoch``, ``step``, ``elapsed_s``, ``train_<metric>`` (mean training
@@ -62,7 +64,7 @@ class EpochTrainer(ABC):
     metric: str = "loss"
     """Name of the holdout metric (lower is better): history keys ``train_<metric>`` / ``holdout_<metric>``, the
     checkpoint's and summary's ``best_holdout_<metric>``; ``train_batch`` reports the training loss under it."""
-    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs")
+    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes")
     """Settings a resumed run may change."""
 
     def __init__(self, config, run_dir: str | Path) -> None:
@@ -151,16 +153,18 @@ class EpochTrainer(ABC):
         write_json(self.run_dir / "config.json", asdict(config))
         writer = SummaryWriter(str(self.run_dir / "tb"))
         budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
+        cap_minutes = getattr(config, "cap_minutes", None)
+        cap_s = cap_minutes * 60.0 if cap_minutes else math.inf
         stop_reason = "epochs"
         self.train_mode()
         try:
             while self.epoch < config.epochs:
                 started = time.perf_counter() - self.elapsed_s
-                out_of_time, train_losses = self._train_epoch(writer, started, budget_s, progress)
+                out_of_time, train_losses = self._train_epoch(writer, started, min(budget_s, cap_s), progress)
                 self.epoch += 0 if out_of_time else 1
                 self._end_epoch(writer, started, out_of_time, train_losses)
                 if out_of_time:
-                    stop_reason = "time budget"
+                    stop_reason = "time budget" if budget_s <= cap_s else "wall-clock cap"
                     break
                 if self.epochs_since_best >= config.patience_epochs:
                     stop_reason = "early stopping"
@@ -170,10 +174,12 @@ class EpochTrainer(ABC):
         return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
                 f"best_holdout_{self.metric}": self.best_holdout, "stopped_by": stop_reason}
 
-    def _train_epoch(self, writer: SummaryWriter, started: float, budget_s: float,
+    def _train_epoch(self, writer: SummaryWriter, started: float, stop_s: float,
                      progress: bool) -> tuple[bool, list[float]]:
-        """One epoch's steps, or those that fit in the budget; returns (out of time, the steps' training losses)."""
+        """One epoch's steps, or those done before ``stop_s`` of training time (the time budget or the wall-clock
+        cap); returns (out of time, the steps' training losses). The schedule follows the time budget only."""
         config = self.config
+        budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
         batches = self.epoch_batches()
         losses_seen = []
         for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}", disable=not progress,
@@ -193,7 +199,7 @@ class EpochTrainer(ABC):
                     writer.add_scalar(f"train/{name}", value, self.step)
                 writer.add_scalar("train/lr", lr, self.step)
             self.elapsed_s = time.perf_counter() - started
-            if self.elapsed_s > budget_s:
+            if self.elapsed_s > stop_s:
                 return True, losses_seen
         return False, losses_seen
 

@@ -68,6 +68,8 @@ FLAG_HELP = {
     "erase": "augmentation: black out a disc of radius up to ERASE (a share of the image size) in each training "
              "image",
     "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
+    "cap_minutes": "wall-clock safety cap: stop after this much training time without changing the schedule "
+                   "(which runs over the epochs unless --max-minutes is given)",
     "seed": "seed of the holdout split, the initial weights, the batch order and the augmentations",
     "threads": "torch CPU threads",
     "translators": "generator weights (.pt) to translate with instead of the shipped one; several: each row "

@@ -42,6 +42,7 @@ class PosenetTrainConfig:
     holdout: float = 0.1
     patience_epochs: int = 8
     max_minutes: float | None = None
+    cap_minutes: float | None = None
     seed: int = 0
     threads: int = 2
     translators: tuple[str, ...] = ()

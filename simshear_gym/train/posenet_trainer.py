@@ -199,7 +199,7 @@ class PosenetTrainer(EpochTrainer):
     """Owns the model, optimiser and run directory of one posenet training run; :meth:`fit` trains it."""
 
     metric = "nll"  # history: train_nll (the beta-NLL training loss), holdout_nll (the plain Gaussian NLL)
-    resume_free = ("epochs", "max_minutes", "patience_epochs", "threads")
+    resume_free = ("epochs", "max_minutes", "patience_epochs", "threads", "cap_minutes")
 
     def __init__(self, config: PosenetTrainConfig, run_dir: Path, data: LabelledImages) -> None:
         super().__init__(config, run_dir)

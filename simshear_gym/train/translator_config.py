@@ -43,6 +43,7 @@ class TranslatorTrainConfig:
     holdout: float = 0.05
     patience_epochs: int = 8
     max_minutes: float | None = None
+    cap_minutes: float | None = None
     seed: int = 0
     threads: int = 2
     pose_weight: float = 0.0

@@ -1,0 +1,62 @@
+"""The pipeline's step graph (:mod:`simshear_gym.pipelines.schedule`): priority by the longest chain, every step
+after the ones it needs, in this process or in worker processes; a failing step stops the run with its name."""
+
+from __future__ import annotations
+
+import json
+from functools import partial
+from pathlib import Path
+
+import pytest
+
+from simshear_gym.pipelines.schedule import Step, order_steps, run_steps
+from simshear_gym.pipelines.stages import StageResult, StageRunner
+
+
+def _write(value: str, runner: StageRunner, done: dict) -> StageResult:
+    """A step that records the values of the steps it needs beside its own."""
+    seen = sorted(result.outputs["value"] for result in done.values())
+
+    def work(folder: Path) -> dict:
+        (folder / "seen.json").write_text(json.dumps(seen))
+        return {"outputs": {"value": value}, "metrics": {"seen": seen}}
+
+    return runner.run(f"step/{value}", {"value": value, "seen": seen}, work)
+
+
+def _fail(runner: StageRunner, done: dict) -> StageResult:
+    raise ValueError("bad settings in step c")
+
+
+def graph(fail: bool = False) -> list[Step]:
+    return [Step("a", partial(_write, "a"), cost=1.0),
+            Step("b", partial(_write, "b"), cost=3.0),
+            Step("c", _fail if fail else partial(_write, "c"), needs=("a",), cost=5.0),
+            Step("d", partial(_write, "d"), needs=("b", "c"), cost=1.0)]
+
+
+def test_the_longest_chain_starts_first():
+    assert order_steps(graph()) == ["a", "c", "b", "d"]  # a -> c -> d costs 7, b -> d 4
+
+
+def test_bad_graphs_are_refused():
+    with pytest.raises(ValueError, match=r"step 'a' needs \['x'\]"):
+        order_steps([Step("a", _fail, needs=("x",))])
+    with pytest.raises(ValueError, match="cycle"):
+        order_steps([Step("a", _fail, needs=("b",)), Step("b", _fail, needs=("a",))])
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_every_step_sees_the_steps_it_needs(tmp_path, jobs):
+    done = run_steps(graph(), tmp_path, jobs=jobs, log=lambda text: None)
+    assert {name: result.record["metrics"]["seen"] for name, result in done.items()} == {
+        "a": [], "b": [], "c": ["a"], "d": ["b", "c"]}
+    again = run_steps(graph(), tmp_path, jobs=jobs, log=lambda text: None)
+    assert not any(result.ran for result in again.values())  # each step cached under its key
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_failing_step_stops_the_run_and_says_which(tmp_path, jobs):
+    with pytest.raises((RuntimeError, ValueError), match="bad settings in step c"):
+        run_steps(graph(fail=True), tmp_path, jobs=jobs, log=lambda text: None)
+    assert not (tmp_path / "step" / "d").exists()
