@@ -146,7 +146,22 @@ def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, roo
             if extent > 1e-6:
                 reach = extent * (1.5 if label.endswith("_mm") else 1.0)  # x, y rotate into the sensor frame
                 specs.append(f"{label}:{column}:{-reach:.6g}:{reach:.6g}")
-    return ",".join(specs)
+    return named_set(config.datasets[names[0]].contact, ",".join(specs))
+
+
+def named_set(contact: str, spec: str) -> str:
+    """The package's named variable set of the contact type (``surface``, ``edge``:
+    :data:`~simshear_gym.models.gdnn.VARIABLE_SETS`, the shipped GDNNs' outputs) where the data's variables are
+    its variables (an edge's Rz as ``edge_angle_deg``), else the inline ``spec``."""
+    from simshear_gym.models.gdnn import VARIABLE_SETS
+
+    named = VARIABLE_SETS.get(contact)
+    if named is None:
+        return spec
+    found = [(item.split(":")[0], item.split(":")[1]) for item in spec.split(",")]
+    if contact == "edge":
+        found = [("edge_angle_deg" if name == "rz_deg" else name, column) for name, column in found]
+    return contact if found == [(v.name, v.column) for v in named.variables] else spec
 
 
 def _translator_settings(stage, generator=None) -> dict:
