@@ -4,7 +4,9 @@
   against the real images, and of nearest-label retrieval (for each val row, the real training image whose labels
   are closest, every varying label scaled by its range) as the baseline a translator has to beat.
 - Pose and shear, per dataset: each GDNN's MAE per variable on the real images against chance (always predicting
-  the range centre) and, for the GDNN trained on translated images, its ratio to the real-trained reference.
+  the range centre) and, for the GDNN trained on translated images, its ratio to the real-trained reference
+  (``read_by_real``: the variables the reference reads, MAE <= :data:`READ_SHARE` x chance). Variables constant in
+  a dataset's validation rows (shear on a tap set) are listed as ``constant``, not scored.
 """
 
 from __future__ import annotations
@@ -22,6 +24,10 @@ from simshear_gym.evaluate.translation import nearest_rows
 from simshear_gym.models.gdnn_input import label_matrix, predict
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import Translator
+
+READ_SHARE = 0.5
+"""A GDNN reads a variable where its MAE is at most this share of the chance MAE (the acceptance's ratio to the
+real-trained GDNN counts on the variables the real-trained one reads)."""
 
 
 def nearest_label_images(train_targets, train_images: np.ndarray, val_targets) -> np.ndarray:
@@ -67,16 +73,20 @@ def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators
         readings = {}
         for source, model in loaded_posenets[dataset.contact].items():
             truth = label_matrix(targets, model.variables)
+            varying = {spec.name for spec, column in zip(model.variables.variables, truth.T) if np.ptp(column) > 1e-9}
             figures = metrics(*predict(model, real), truth, model.variables)
             readings[source] = {variable: {"mae": per["mae"], "chance_mae": per["chance_mae"],
                                            "mae_over_chance": per["mae"] / max(per["chance_mae"], 1e-12)}
-                                for variable, per in figures["variables"].items()}
+                                for variable, per in figures["variables"].items() if variable in varying}
             readings[source]["mean_nll"] = figures["mean_nll"]
+            readings["constant"] = sorted(set(model.variables.names) - varying)  # e.g. shear on a tap set
         reference, candidate = readings.get("real"), readings.get("shpix2pix")
         if reference and candidate:
             readings["ratio_shpix2pix_to_real"] = {
                 variable: candidate[variable]["mae"] / max(reference[variable]["mae"], 1e-12)
                 for variable in candidate if variable != "mean_nll"}
+            readings["read_by_real"] = [variable for variable in reference if variable != "mean_nll"
+                                        and reference[variable]["mae_over_chance"] <= READ_SHARE]
         pose[name] = readings
         for variable, per in (candidate or {}).items():
             if variable != "mean_nll":
