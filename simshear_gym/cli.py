@@ -67,6 +67,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
+    (("pipeline", "ship"), "simshear_gym.pipelines.ship",
+     "make a finished pipeline run's translators and GDNNs the package's shipped weights, with cards"),
     (("pipeline", "make-example"), "simshear_gym.pipelines.example_sensor",
      "write the example second lab's data set (configs/example_lab.toml) from the real tactip331 images"),
 )
@@ -76,7 +78,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
 GROUPS: dict[str, str] = {
     "evaluate": "benchmarks and evaluations, each writing its record under results/",
     "train": "train the translator, the pose-and-shear GDNN and RL agents, and ship their weights",
-    "pipeline": "a sensor's experiment config: check it, run its cached pipeline",
+    "pipeline": "a sensor's experiment config: check it, run its cached pipeline, ship its models",
 }
 
 _LEAVES: dict[tuple[str, ...], str] = {words: module for words, module, _ in COMMANDS}

@@ -1,0 +1,204 @@
+"""``simshear pipeline ship RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
+
+For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2pix translators go to
+``DIR/<arch>_<contact>.pt`` and its GDNN trained on translated images to ``DIR/posenet/<contact>.pt`` (DIR:
+``simshear_gym/models/weights``). Each file keeps its training record and gains the run's (config, profile, stage
+folder, git commit) and a check figure that the tests reproduce (``tests/test_shipped_translator.py``,
+``tests/test_shipped_posenet.py``); beside it a card (``.md``): data, settings, the exact commands, the metrics of
+the run's evaluation on the real validation rows, date. Nothing is trained: shipping a run twice gives the same
+files, so the shipped weights are exactly what ``simshear pipeline run CONFIG --profile P`` produced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+
+WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "models" / "weights"
+"""The package's weights folder (:data:`simshear_gym.models.translator.WEIGHTS_DIR`, without importing torch)."""
+CHECK_ROWS = {"translator": 16, "posenet": 64}  # rows of the real <contact>_shear val set in the check figures
+
+
+def read_run(run: Path) -> tuple[dict, dict, dict]:
+    """(manifest, evaluation, {stage: record}) of a finished run; a clear error for anything else."""
+    path = run / "manifest.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} not found: ship a folder written by `simshear pipeline run`")
+    manifest = json.loads(path.read_text())
+    if not manifest.get("evaluation") or not (manifest.get("models") or {}).get("posenets"):
+        raise ValueError(f"{path}: the run stopped before its evaluate stage (stages {manifest.get('stages')}); "
+                         "ship a run of every stage")
+    evaluation = json.loads((run / manifest["evaluation"]).read_text())
+    records = {record["stage"]: record for record in manifest["results"]}
+    return manifest, evaluation, records
+
+
+def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str | None = None) -> list[Path]:
+    """Write the run's models and cards under ``to`` (see the module docstring); returns the files written."""
+    from simshear_gym.models.posenet_io import load_posenet, save_posenet
+    from simshear_gym.models.translator import load_generator, save_generator
+    from simshear_gym.pipelines import export_posenet, export_translator
+
+    manifest, evaluation, records = read_run(run)
+    date = date or datetime.date.today().isoformat()
+    commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']} --out {run}",
+                f"simshear pipeline ship {run}"]
+    written = []
+    for contact, archs in manifest["models"]["translators"].items():
+        for arch in ("shpix2pix", "pix2pix"):
+            stage = f"translator/{contact}_{arch}"
+            dest = to / f"{arch}_{contact}.pt"
+            generator, card = load_generator(run / archs[arch])
+            card = {**card, "pipeline": _provenance(manifest, records[stage]), "train_command": " && ".join(commands)}
+            save_generator(dest, generator, card=card)
+            card["check"] = export_translator.check_figure(dest, contact, CHECK_ROWS["translator"], data)
+            save_generator(dest, generator, card=card)
+            written += [dest, _write(dest, translator_card(dest, arch, contact, card, manifest, evaluation,
+                                                           records[stage], commands, date))]
+        stage = f"posenet/{contact}_shpix2pix"
+        dest = to / "posenet" / f"{contact}.pt"
+        model, card = load_posenet(run / manifest["models"]["posenets"]["models"][contact]["shpix2pix"])
+        card = {**card, "contact": contact, "train_command": " && ".join(commands),
+                "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters()),
+                "pipeline": _provenance(manifest, records[stage])}
+        save_posenet(dest, model, card)
+        card["check"] = export_posenet.check_figure(dest, contact, CHECK_ROWS["posenet"], data)
+        save_posenet(dest, model, card)
+        written += [dest, _write(dest, posenet_card(dest, contact, card, manifest, evaluation, records, commands,
+                                                    date))]
+    return written
+
+
+def _provenance(manifest: dict, record: dict) -> dict:
+    return {"config": manifest["config"], "profile": manifest["profile"], "stage": record["folder"],
+            "git_commit": manifest["git_commit"], "package_version": manifest["package_version"]}
+
+
+def _write(weights: Path, text: str) -> Path:
+    from simshear_gym.io import atomic_write
+
+    return atomic_write(weights.with_suffix(".md"), lambda tmp: Path(tmp).write_text(text))
+
+
+def _datasets(manifest: dict, contact: str) -> list[str]:
+    """The run's datasets of a contact type (from its config)."""
+    from simshear_gym.pipelines.config import load_config
+
+    return [name for name, dataset in load_config(manifest["config"]).datasets.items() if dataset.contact == contact]
+
+
+def _training_line(record: dict, metric: str) -> str:
+    metrics = record["metrics"]
+    return (f"- Training: {metrics['epochs']} epochs ({metrics['steps']} steps), stopped by {metrics['stopped_by']}; "
+            f"best holdout {metric} {metrics[f'best_holdout_{metric}']:.4f}; {record['wall_s'] / 60:.1f} min "
+            f"of the run (`{record['folder']}`).")
+
+
+def translator_card(weights: Path, arch: str, contact: str, card: dict, manifest: dict, evaluation: dict,
+                    record: dict, commands: list[str], date: str) -> str:
+    config = card["train_config"]
+    params = _parameters(weights)
+    losses = f"L1 x {config['l1_weight']}"
+    if config.get("density_weight"):
+        losses += f" + density x {config['density_weight']}"
+    if config.get("pose_weight"):
+        losses += f" + pose consistency x {config['pose_weight']} on {config.get('pose_variables') or 'all'}"
+    if config.get("gan_weight"):
+        losses += f" + LSGAN x {config['gan_weight']}"
+    lines = [
+        f"# {arch} translator, {contact} contacts", "",
+        f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp16, {params / 1e6:.2f} M parameters)",
+        f"- Date: {date}",
+        f"- Made by: `{manifest['config']}`, profile `{manifest['profile']}` (git {manifest['git_commit'][:10]}).",
+        f"- Architecture: U-Net generator, {config['image_size_px']} px, base {config['base_channels']} channels "
+        f"(max {config['max_channels']}), decoder at {config['decoder_scale']} x the encoder's width, learned at-rest "
+        f"template {'on' if config['template'] else 'off'}, shear at the bottleneck "
+        f"{'on' if arch == 'shpix2pix' else 'off (pix2pix baseline)'}.",
+        f"- Data: the paired sets {config['paired_dirs']} of the run (the config's `{contact}` training rows replayed "
+        f"in simulation, beside their real images); {config['holdout'] * 100:.0f} % held out for the best epoch. "
+        "The real validation rows were not used in training or selection.",
+        f"- Objective: {losses}; Adam lr {config['lr']} ({config['lr_schedule']} over the steps), batch "
+        f"{config['batch_size']}, seed {config['seed']}, {config['threads']} CPU thread(s).",
+        _training_line(record, "l1"),
+        f"- Exact commands: `{commands[0]}`, then `{commands[1]}`.", "",
+        "## Metrics on the real validation rows", "",
+        f"From the run's evaluation (`{manifest['evaluation']}`):", "",
+        "| set | rows | MAPE | SSIM | nearest-label retrieval MAPE / SSIM |", "|---|---|---|---|---|"]
+    for name in _datasets(manifest, contact):
+        entry = evaluation["translation"][name]
+        retrieval = entry["nearest-label retrieval"]
+        lines.append(f"| {name} | {entry['rows']} | {entry[arch]['mape']:.4f} | {entry[arch]['ssim']:.3f} | "
+                     f"{retrieval['mape']:.4f} / {retrieval['ssim']:.3f} |")
+    check = card["check"]
+    lines += ["", f"Check figure (tests): MAPE {check['mape']:.4f} on the first {check['rows']} rows of the real "
+                  f"`{contact}_{check['kind']}` validation set."]
+    return "\n".join(lines) + "\n"
+
+
+def posenet_card(weights: Path, contact: str, card: dict, manifest: dict, evaluation: dict, records: dict,
+                 commands: list[str], date: str) -> str:
+    from simshear_gym.pipelines.export_posenet import generator_list
+
+    config = card["train_config"]
+    record = records[f"posenet/{contact}_shpix2pix"]
+    lines = [
+        f"# Pose-and-shear GDNN, {contact} contacts", "",
+        f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp32, {card['parameters'] / 1e6:.2f} M "
+        "parameters)",
+        f"- Date: {date}",
+        f"- Made by: `{manifest['config']}`, profile `{manifest['profile']}` (git {manifest['git_commit'][:10]}).",
+        f"- Architecture: GDNN, {config['image_size_px']} px input, conv channels {config['conv_channels']} kernels "
+        f"{config['conv_kernels']}, dense {config['dense']}; mean and std per variable "
+        f"({', '.join(card['variables'])}).",
+        f"- Data: the sim renders of the paired sets {config['paired_dirs']} of the run, each row translated by a "
+        f"generator drawn at random from {generator_list(list(config['translators']))} (one listed k times drawn k "
+        f"times as often); {config['holdout'] * 100:.0f} % held out for the best epoch. The real images were not "
+        "used in training or selection.",
+        f"- Objective: beta-NLL (beta {config['beta']}); Adam lr {config['lr']} ({config['lr_schedule']} over the "
+        f"steps), batch {config['batch_size']}, shift augmentation {config['shift']}, seed {config['seed']}, "
+        f"{config['threads']} CPU thread(s).",
+        _training_line(record, "nll"),
+        f"- Exact commands: `{commands[0]}`, then `{commands[1]}`."]
+    for name in _datasets(manifest, contact):
+        readings = evaluation["posenet"][name]
+        if "shpix2pix" not in readings:
+            continue
+        lines += ["", f"## Metrics on the real `{name}` validation rows "
+                      f"({evaluation['translation'][name]['rows']})", "",
+                  "Against the same GDNN trained on the real training images (`real`, the reference): the ratio "
+                  "counts where the reference reads the variable (MAE <= 0.5 x chance).", "",
+                  "| variable | MAE | chance MAE | real-trained MAE | ratio |", "|---|---|---|---|---|"]
+        for variable, per in readings["shpix2pix"].items():
+            if variable == "mean_nll":
+                continue
+            ratio = readings["ratio_shpix2pix_to_real"][variable]
+            read = variable in readings.get("read_by_real", [])
+            lines.append(f"| {variable} | {per['mae']:.3f} | {per['chance_mae']:.3f} | "
+                         f"{readings['real'][variable]['mae']:.3f} | {ratio:.2f}{'' if read else ' (not read)'} |")
+    check = card["check"]
+    lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real `{contact}_shear` "
+                  "validation set: " + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())]
+    return "\n".join(lines) + "\n"
+
+
+def _parameters(weights: Path) -> int:
+    import torch
+
+    payload = torch.load(weights, map_location="cpu", weights_only=True)
+    return sum(value.numel() for value in payload["state_dict"].values())
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="a finished run folder of `simshear pipeline run` (its manifest.json)")
+    parser.add_argument("--to", type=Path, default=Path("simshear_gym/models/weights"),
+                        help="weights folder (default: the package's, simshear_gym/models/weights)")
+    parser.add_argument("--data", default=None,
+                        help="data root of the check figures (default: $SIMSHEAR_DATA, else ../shared/data)")
+
+
+def run(args: argparse.Namespace) -> int:
+    for path in ship(args.run, args.to, args.data):
+        print(f"wrote {path}")
+    return 0

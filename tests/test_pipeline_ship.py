@@ -1,0 +1,62 @@
+"""``simshear pipeline ship``: a finished run's translators and GDNNs become weights with cards and check figures
+(the shipped weights are what a pipeline run produced); an unfinished run is refused with a clear error."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from simshear_gym.models.posenet_io import load_posenet
+from simshear_gym.models.translator import Translator
+from simshear_gym.pipelines import export_posenet, export_translator
+from simshear_gym.pipelines.config import load_config
+from simshear_gym.pipelines.run import STAGES, run_pipeline
+from simshear_gym.pipelines.ship import read_run, ship
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_an_unfinished_run_is_refused(tmp_path):
+    with pytest.raises(FileNotFoundError, match="manifest.json not found"):
+        read_run(tmp_path)
+    (tmp_path / "manifest.json").write_text(json.dumps({"stages": ["adapt", "collect"], "evaluation": None,
+                                                        "models": {"translators": None, "posenets": None}}))
+    with pytest.raises(ValueError, match="stopped before its evaluate stage"):
+        read_run(tmp_path)
+
+
+@pytest.mark.data
+@pytest.mark.slow
+def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp_path):
+    config = load_config(ROOT / "configs" / "tactip331.toml")
+    run = tmp_path / "run"
+    manifest = run_pipeline(config, run, data_root, "smoke", STAGES, rows_per_split=24, workers=1)
+    to = tmp_path / "weights"
+    written = ship(run, to, str(data_root), date="2026-01-01")
+    assert sorted(p.relative_to(to).as_posix() for p in written) == sorted(
+        f"{stem}.{ext}" for stem in ("shpix2pix_surface", "pix2pix_surface", "posenet/surface", "shpix2pix_edge",
+                                     "pix2pix_edge", "posenet/edge") for ext in ("pt", "md"))
+    translator = Translator.load(to / "shpix2pix_edge.pt")
+    assert translator.card["pipeline"]["profile"] == "smoke"
+    assert translator.card["pipeline"]["stage"] == next(r["folder"] for r in manifest["results"]
+                                                        if r["stage"] == "translator/edge_shpix2pix")
+    check = translator.card["check"]
+    assert export_translator.check_figure(to / "shpix2pix_edge.pt", "edge", check["rows"],
+                                          str(data_root))["mape"] == pytest.approx(check["mape"], abs=1e-6)
+    model, card = load_posenet(to / "posenet" / "surface.pt")
+    assert model.variables.name == "surface" and card["train_config"]["source"] == "shpix2pix"
+    measured = export_posenet.check_figure(to / "posenet" / "surface.pt", "surface", card["check"]["rows"],
+                                           str(data_root))
+    assert measured["mae"] == pytest.approx(card["check"]["mae"], rel=1e-5)
+    text = (to / "posenet" / "surface.md").read_text()
+    assert f"simshear pipeline run {config.path} --profile smoke --out {run}" in text
+    assert "## Metrics on the real `surface_shear` validation rows (24)" in text
+
+
+def test_ship_writes_into_the_package_weights_folder_by_default():
+    from simshear_gym.models import translator
+    from simshear_gym.pipelines import ship as ship_module
+
+    assert ship_module.WEIGHTS_DIR == translator.WEIGHTS_DIR
