@@ -266,6 +266,30 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     assert figures["rows"] == 5 and set(figures["variables"]) == set(variable_set("surface").names)
 
 
+def test_evaluate_command_on_another_sensors_set(tmp_path):
+    """--set: any real tactile set whose meta names its contact (a pipeline run's adapted validation split)."""
+    n = 6
+    toy = toy_labelled(n, seed=4)
+    poses = np.zeros((n, 6))
+    poses[:, 2:5] = toy.labels[:, :3].numpy()
+    targets = pd.DataFrame({"sensor_image": [image_name(i) for i in range(n)], **dict(zip(POSE_COLUMNS, poses.T)),
+                            **dict(zip(MOVE_COLUMNS, np.zeros((n, 6)).T))})
+    val_dir = tmp_path / "adapt" / "tap" / "val"
+    _write_set(val_dir, toy.images.numpy(), targets, {"contact": "surface", "dataset": "tap", "split": "val"})
+    run_dir = tmp_path / "run"
+    PosenetTrainer(tiny_config(epochs=1), run_dir, toy_labelled()).fit(progress=False)
+    out = tmp_path / "results"
+    args = Namespace(model=[f"tiny={run_dir / 'best.pt'}"], contact=None, val_set=val_dir, data=tmp_path, rows=None,
+                     out=out, name="lab")
+    assert evaluate_posenet.run(args) == 0
+    result = json.loads((out / "lab.json").read_text())
+    assert result["command"].startswith(f"simshear evaluate posenet --set {val_dir} ")
+    assert result["contacts"]["surface"]["set"] == str(val_dir)
+    assert result["contacts"]["surface"]["models"]["tiny"]["rows"] == n
+    with pytest.raises(ValueError, match="give --contact .* or --set DIR"):
+        evaluate_posenet.run(Namespace(**{**vars(args), "contact": ["surface"]}))
+
+
 def test_acceptance_compares_only_variables_the_reference_reads():
     def model(maes, chances):
         return {"variables": {f"v{i}": {"mae": m, "chance_mae": c} for i, (m, c) in enumerate(zip(maes, chances))}}

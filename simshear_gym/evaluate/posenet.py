@@ -1,7 +1,10 @@
 """Pose-and-shear GDNNs measured on the **real** validation images of a contact type's shear set.
 
 ``simshear evaluate posenet --model NAME[:CONTACT]=PATH [--model ...] --contact surface|edge`` runs each GDNN
-(``best.pt`` of ``simshear train posenet``) on ``tactip331/real/<task>/shear/csv_val`` and reports per variable:
+(``best.pt`` of ``simshear train posenet``) on ``tactip331/real/<task>/shear/csv_val``, or with ``--set DIR`` on any
+real tactile set (another sensor's validation split as its pipeline's ``adapt`` stage wrote it:
+``runs/pipeline/<sensor>/adapt/<dataset>/<hash>/val``; its ``meta.json`` names the contact type), and reports per
+variable:
 
 - ``mae``: mean |predicted mean - truth| in mm / deg (a periodic angle's error wrapped to [-180, 180));
 - ``chance_mae``: the same for always predicting the range centre (for a periodic angle: predicting 0);
@@ -50,20 +53,23 @@ def latency_ms(model, repeats: int = 200) -> dict:
             "torch_threads": torch.get_num_threads()}
 
 
-def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None) -> tuple[dict, dict]:
-    """Figures per model; also (truth, predicted means, stds) per model for the figure."""
+def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None,
+             val_dir: Path | None = None) -> tuple[dict, dict]:
+    """Figures per model; also (truth, predicted means, stds) per model for the figure. ``val_dir``: the real set
+    to read (default: tactip331's ``<contact>`` shear validation set under ``root``)."""
     from simshear_gym.evaluate.metrics import metrics, truth_labels
+    from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
-    val = read_set(real_set_dir(root, contact, "shear", "val"))
+    val = read_set(val_dir or real_set_dir(root, contact, "shear", "val"))
     select = slice(0, rows)
     images = val.load_images()[select]
     results, arrays = {}, {}
     for name, path in models.items():
         model, card = load_posenet(path)
         variables = model.variables
-        if variables.name != contact:
+        if variables.name in VARIABLE_SETS and variables.name != contact:  # an inline set is a sensor's own
             raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")
         truth = truth_labels(val, variables)[select]
         mean_encoded, std_encoded = predict(model, images)
@@ -125,9 +131,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", required=True, metavar="NAME[:CONTACT]=PATH",
                         help="a posenet best.pt to evaluate; repeat for several; '{contact}' in PATH is replaced "
                              "by each --contact; NAME:CONTACT=PATH names the model of one contact type")
-    parser.add_argument("--contact", choices=CONTACTS, nargs="+", required=True,
-                        help="contact type(s) whose real shear val set the models read; one section and figure "
-                             "each")
+    parser.add_argument("--contact", choices=CONTACTS, nargs="+", default=None,
+                        help="contact type(s) whose real tactip331 shear val set the models read; one section and "
+                             "figure each")
+    parser.add_argument("--set", type=Path, default=None, dest="val_set",
+                        help="instead of --contact: a real tactile set to read (e.g. a pipeline run's "
+                             "adapt/<dataset>/<hash>/val); its meta.json names the contact type")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of the val set (default all)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
@@ -139,16 +148,28 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     torch.set_num_threads(getattr(args, "threads", 1))
-    contacts = [args.contact] if isinstance(args.contact, str) else list(args.contact)
+    val_set = getattr(args, "val_set", None)
+    if (val_set is None) == (args.contact is None):
+        raise ValueError("give --contact (tactip331's real shear val sets) or --set DIR (any real tactile set), "
+                         "one of the two")
+    if val_set is not None:
+        meta = read_set(val_set).meta
+        if meta.get("contact") not in CONTACTS:
+            raise ValueError(f"{val_set}/meta.json: contact {meta.get('contact')!r}; expected one of {list(CONTACTS)} "
+                             "(a set written by a pipeline's adapt stage names it)")
+        contacts = [meta["contact"]]
+    else:
+        contacts = [args.contact] if isinstance(args.contact, str) else list(args.contact)
     start = time.perf_counter()
     sections = {}
     for contact in contacts:
         models = {name: Path(str(paths[contact]).replace("{contact}", contact))
                   for name, paths in parse_models(args.model).items() if contact in paths}
-        results, arrays = evaluate(data_root(args.data), models, contact, args.rows)
+        results, arrays = evaluate(data_root(args.data), models, contact, args.rows, val_set)
         png = args.out / f"{args.name}_{contact}.png"
         figure(arrays, png)
-        sections[contact] = {"set": f"real {contact}_shear csv_val", "models": results, "figure": str(png),
+        set_name = str(val_set) if val_set is not None else f"real {contact}_shear csv_val"
+        sections[contact] = {"set": set_name, "models": results, "figure": str(png),
                              "acceptance": acceptance(results)}
         for name, result in results.items():
             print(f"{contact} {name}: mean NLL {result['mean_nll']:.3f} over {result['rows']} rows")
@@ -158,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
         if sections[contact]["acceptance"]:
             print(f"  shpix2pix MAE <= 1.2 x real MAE on every variable real reads: "
                   f"{sections[contact]['acceptance']['met']}")
-    command = ("simshear evaluate posenet --contact " + " ".join(contacts) + " "
+    command = ("simshear evaluate posenet " + (f"--set {val_set} " if val_set is not None else
+                                                "--contact " + " ".join(contacts) + " ")
                + " ".join(f"--model {s}" for s in args.model) + (f" --rows {args.rows}" if args.rows else "")
                + (f" --name {args.name}" if args.name != "posenet" else "")
                + (f" --out {args.out}" if args.out != Path("results") else ""))
