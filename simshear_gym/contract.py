@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
+from simshear_gym.models.translator_runtime import RUNTIMES as TRANSLATOR_RUNTIMES
 from simshear_gym.tables import read_toml
 from simshear_gym.transforms import pose_to_matrix
 
@@ -97,16 +98,82 @@ def check_image_size(image_size_px: int, owner: str = "image_size_px") -> None:
         raise ValueError(f"{owner} must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
 
 
-def observation_space(image_size_px: int, oracle: bool = False) -> spaces.Dict:
-    """``tactile``: uint8 (1, S, S) channel-first; ``tcp_pose``: float32 (4,) apex x, y, z mm and flange R deg in
-    the robot base frame; with ``oracle``, ``true_pose_shear``: float32 (4,) (sim only)."""
-    observations = {
-        "tactile": spaces.Box(0, 255, (1, image_size_px, image_size_px), dtype=np.uint8),
-        "tcp_pose": spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32),
-    }
+OBSERVATIONS: tuple[str, ...] = ("tactile", "estimate", "tactile+estimate")
+"""What a policy observes (the ``observation`` argument of the sim envs and ``RealTactileEnv``); which image the
+``tactile`` key holds is the separate ``obs_mode``."""
+TACTILE_OBSERVATIONS: tuple[str, ...] = ("tactile", "tactile+estimate")  # those with the ``tactile`` image
+ESTIMATE_OBSERVATIONS: tuple[str, ...] = ("estimate", "tactile+estimate")  # those with the ``estimate`` (an estimator)
+ESTIMATE_VARIABLES: tuple[str, ...] = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
+ESTIMATE_SCALE = np.array([2.0, 7.5, 7.5, 7.5])
+"""Per variable (depth mm, shear x, y mm, shear Rz deg): the unit of the normalised estimate (about the GDNN's
+half range: depth 2-5.5 mm, shear +-7.5)."""
+ESTIMATE_MEAN_LIMIT = 4.0  # normalised means are clipped to +-this (8 mm of depth error, 30 mm of shear)
+ESTIMATE_SIZE = 16  # per frame: reading mean, reading std, filter mean, filter std, 4 variables each
+MAX_HISTORY = 16
+
+
+def check_observation(observation: str, history: int, owner: str = "") -> None:
+    """Refuse an unknown observation or a history outside [1, MAX_HISTORY] (``owner`` prefixes the message)."""
+    prefix = f"{owner}: " if owner else ""
+    if observation not in OBSERVATIONS:
+        raise ValueError(f"{prefix}observation must be one of {OBSERVATIONS}, got {observation!r}")
+    if isinstance(history, bool) or not isinstance(history, int) or not 1 <= history <= MAX_HISTORY:
+        raise ValueError(f"{prefix}history must be an int in [1, {MAX_HISTORY}] (frames or estimates stacked), "
+                         f"got {history!r}")
+
+
+def observation_space(image_size_px: int, oracle: bool = False, observation: str = "tactile",
+                      history: int = 1) -> spaces.Dict:
+    """The observation of the sim envs and ``RealTactileEnv``, ``k = history`` (oldest first, newest last):
+
+    - ``observation="tactile"``: ``tactile`` uint8 (k, S, S) channel-first (k = 1: the one image, as ever) and
+      ``tcp_pose`` float32 (4,): apex x, y, z mm and flange R deg in the robot base frame;
+    - ``"estimate"``: ``estimate`` float32 (16 k,): per frame :func:`estimate_features` (the estimator's GDNN
+      reading and filter state, normalised); no image, no pose (an absolute pose in the robot's base frame
+      differs between the sim scene and a real cell: a policy must not lean on it);
+    - ``"tactile+estimate"``: ``tactile`` and ``estimate``;
+    - with ``oracle`` (sim only), ``true_pose_shear``: float32 (4,).
+    """
+    check_observation(observation, history)
+    observations: dict[str, spaces.Space] = {}
+    if observation in TACTILE_OBSERVATIONS:
+        observations["tactile"] = spaces.Box(0, 255, (history, image_size_px, image_size_px), dtype=np.uint8)
+    if observation == "tactile":
+        observations["tcp_pose"] = spaces.Box(TCP_POSE_LOW, -TCP_POSE_LOW, dtype=np.float32)
+    if observation in ESTIMATE_OBSERVATIONS:
+        observations["estimate"] = spaces.Box(-ESTIMATE_MEAN_LIMIT, ESTIMATE_MEAN_LIMIT, (ESTIMATE_SIZE * history,),
+                                              dtype=np.float32)
     if oracle:
         observations["true_pose_shear"] = spaces.Box(-TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT, dtype=np.float32)
     return spaces.Dict(observations)
+
+
+def estimate_features(reading: tuple[np.ndarray, np.ndarray], filtered: tuple[np.ndarray, np.ndarray],
+                      reference_depth_mm: float) -> np.ndarray:
+    """float32 (16,): one frame of the ``estimate`` observation from an estimator's (mean (4,), std (4,)) of
+    (depth mm, shear x, y mm, shear Rz deg): the GDNN's raw ``reading``, then the Bayesian filter's state
+    ``filtered``; each as ``(mean - (reference depth, 0, 0, 0)) / ESTIMATE_SCALE`` clipped to +-4, then
+    ``clip(std / ESTIMATE_SCALE, 0, 2) - 1`` (in [-1, 1]; 1 for a variable the GDNN cannot read)."""
+    offset = np.array([reference_depth_mm, 0.0, 0.0, 0.0])
+    parts = []
+    for mean, std in (reading, filtered):
+        mean, std = np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64)
+        if mean.shape != (4,) or std.shape != (4,):
+            raise ValueError(f"an estimate is (mean (4,), std (4,)) of {ESTIMATE_VARIABLES}, got shapes "
+                             f"{mean.shape}, {std.shape}")
+        parts.append(np.clip((mean - offset) / ESTIMATE_SCALE, -ESTIMATE_MEAN_LIMIT, ESTIMATE_MEAN_LIMIT))
+        parts.append(np.clip(std / ESTIMATE_SCALE, 0.0, 2.0) - 1.0)
+    return np.nan_to_num(np.concatenate(parts), nan=0.0).astype(np.float32)
+
+
+def filter_mean_from_estimate(estimate: np.ndarray, reference_depth_mm: float) -> np.ndarray:
+    """The filter's mean (depth, shear x, y mm, shear Rz deg) of the newest frame of an ``estimate`` observation
+    (16 k,): the inverse of :func:`estimate_features` (exact within the +-4 clip)."""
+    values = np.asarray(estimate, dtype=np.float64).reshape(-1)
+    if values.size == 0 or values.size % ESTIMATE_SIZE:
+        raise ValueError(f"an estimate observation holds 16 values per frame, got {values.size}")
+    newest = values[-ESTIMATE_SIZE:]
+    return newest[8:12] * ESTIMATE_SCALE + np.array([reference_depth_mm, 0.0, 0.0, 0.0])
 
 
 def action_space() -> spaces.Box:
@@ -114,11 +181,11 @@ def action_space() -> spaces.Box:
     return spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
 
 
-def policy_spaces(image_size_px: int) -> tuple[spaces.Dict, spaces.Box]:
+def policy_spaces(image_size_px: int, observation: str = "tactile", history: int = 1) -> tuple[spaces.Dict, spaces.Box]:
     """(observation space, action space) a controller or policy sees: the sim envs' in their non-oracle modes
-    and ``RealTactileEnv``'s."""
+    and ``RealTactileEnv``'s, for the same ``observation`` and ``history``."""
     check_image_size(image_size_px)
-    return observation_space(image_size_px), action_space()
+    return observation_space(image_size_px, observation=observation, history=history), action_space()
 
 
 def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
@@ -139,32 +206,62 @@ def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
     return resized.reshape(*lead, image_size_px, image_size_px)
 
 
+TRANSLATOR_RUNTIME_ENV = "SIMSHEAR_TRANSLATOR_RUNTIME"
+
+
+def choose_translator_runtime(runtime: str | None = None) -> str:
+    """The translator runtime to use: ``runtime`` if given, else ``$SIMSHEAR_TRANSLATOR_RUNTIME``, else
+    ``"auto"`` (ONNX Runtime where onnxruntime is installed and the ``.onnx`` beside the weights is current, else
+    torch; see :mod:`simshear_gym.models.translator_runtime`). The environment variable reaches every process of a
+    vector env, the envs' own argument-free default."""
+    chosen = runtime if runtime is not None else os.environ.get(TRANSLATOR_RUNTIME_ENV) or "auto"
+    if chosen not in TRANSLATOR_RUNTIMES:
+        source = "translator_runtime" if runtime is not None else f"${TRANSLATOR_RUNTIME_ENV}"
+        raise ValueError(f"{source} must be one of {TRANSLATOR_RUNTIMES}, got {chosen!r}")
+    return chosen
+
+
 @functools.cache
-def shipped_translator(contact: str, arch: str = "shpix2pix"):
-    """The shipped translator for a contact type, loaded once per process (torch is imported here, so that
-    importing the envs stays cheap)."""
-    from simshear_gym.models.translator import load_shipped
+def _cached_translator(weights: str, runtime: str):
+    from simshear_gym.models.translator_runtime import load_translator
 
-    return load_shipped(arch, contact)
+    return load_translator(weights, runtime)
+
+
+def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | None = None):
+    """The shipped translator for a contact type on ``runtime`` (:func:`choose_translator_runtime`), loaded once per
+    process (torch and onnxruntime are imported here, so that importing the envs stays cheap)."""
+    return _cached_translator(_shipped_weights(contact, arch), choose_translator_runtime(runtime))
 
 
 @functools.cache
-def translator_from(weights: str):
-    """A translator from a weights file (a sensor's own, from ``simshear pipeline run``), loaded once per process."""
-    from simshear_gym.models.translator import Translator
+def _shipped_weights(contact: str, arch: str) -> str:
+    from simshear_gym.models.translator import shipped_models
 
-    return Translator.load(weights)
+    models = shipped_models()
+    if (arch, contact) not in models:
+        raise FileNotFoundError(f"no shipped {arch} translator for {contact!r} contacts; shipped: {sorted(models)}")
+    return str(models[(arch, contact)])
+
+
+def translator_from(weights: str, runtime: str | None = None):
+    """A translator from a weights file (a sensor's own, from ``simshear pipeline run``) on ``runtime``
+    (:func:`choose_translator_runtime`), loaded once per process."""
+    return _cached_translator(str(weights), choose_translator_runtime(runtime))
 
 
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
-                   contact: str, translator_weights: str | None = None) -> np.ndarray:
+                   contact: str, translator_weights: str | None = None,
+                   translator_runtime: str | None = None) -> np.ndarray:
     """Raw sim images (B, R, R) -> observation images (B, S, S): translated in the translated modes (one
     batched call, the shear as the tracker gives it; by ``translator_weights`` if given, else the shipped
-    translator of ``contact``), then resized by :func:`resize_tactile`."""
+    translator of ``contact``; on ``translator_runtime``, see :func:`choose_translator_runtime`), then resized by
+    :func:`resize_tactile`."""
     images = np.asarray(sim_uint8)
     if obs_mode in TRANSLATED_MODES:
         shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6)
-        translator = translator_from(translator_weights) if translator_weights else shipped_translator(contact)
+        translator = (translator_from(translator_weights, translator_runtime) if translator_weights
+                      else shipped_translator(contact, runtime=translator_runtime))
         images = translator(resize_tactile(images, translator.image_size_px), shear)
     return resize_tactile(images, image_size_px)
 

@@ -3,12 +3,19 @@
 ``simshear evaluate env-speed`` steps the env with the oracle controller (driven from ``info``, so the env runs
 in ``obs_mode="real"``, translating every image) and writes ``results/env_speed.json``:
 
-- single process: ``gymnasium.make`` and a loop, torch on each of the ``--threads`` settings; the same loop in
-  ``"sim"`` mode and the translator alone at batch 1 show where the time goes;
-- vectorised: ``gymnasium.make_vec(num_envs=--num-envs)`` with ``--workers`` worker processes, translating in the
-  workers (one torch thread each) and, for comparison, in the main process (``--threads`` threads).
+- single process: ``gymnasium.make`` and a loop, per translator runtime of ``--runtimes``: torch on each of the
+  ``--threads`` settings, ONNX Runtime (:mod:`simshear_gym.models.translator_runtime`) on one intra-op thread;
+  the same loop in ``"sim"`` mode and the translator alone at batch 1 show where the time goes (each row's
+  ``translator_share_of_step``: the translator's batch-1 time over the step's; ``translation_ms_in_step``: the
+  step's time over the sim-mode step's);
+- vectorised: ``gymnasium.make_vec(num_envs=--num-envs)`` with ``--workers`` worker processes, per runtime of
+  ``--vector-runtimes`` (default the envs' own, ``auto``), translating in the workers (one thread each) and, for
+  comparison, in the main process (torch on ``--threads`` threads, ONNX Runtime on one).
 
-Goals: >= 100 steps/s in one process, >= 200 steps/s vectorised over both cores. The machine's load average
+The runtime is chosen for the env (and its workers) by ``$SIMSHEAR_TRANSLATOR_RUNTIME``
+(:func:`simshear_gym.contract.choose_translator_runtime`). Goals: >= 100 steps/s in one process, >= 200 steps/s
+vectorised over both cores, and (issue 22) translated steps in one process at least half as many per second as
+raw sim steps. The machine's load average
 before each run is recorded: on a shared machine other jobs take cores and the numbers with them; the
 single-process rows also give the process's CPU time per step (all its threads), which other jobs disturb less.
 """
@@ -16,6 +23,7 @@ single-process rows also give the process's CPU time per step (all its threads),
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import platform
 import time
@@ -27,6 +35,7 @@ from simshear_gym.io import write_json
 
 GOAL_SINGLE_STEPS_PER_S = 100.0
 GOAL_VECTOR_STEPS_PER_S = 200.0
+GOAL_TRANSLATED_SHARE_OF_SIM_RATE = 0.5
 
 
 def _load() -> float:
@@ -90,11 +99,29 @@ def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmu
             "load_average_before": load}
 
 
-def translator_batch1_ms(repeats: int = 50) -> float:
+@contextlib.contextmanager
+def translator_runtime(runtime: str):
+    """The envs built (and the vector env workers started) inside run their translator on ``runtime``."""
+    from simshear_gym.contract import TRANSLATOR_RUNTIME_ENV
+
+    previous = os.environ.get(TRANSLATOR_RUNTIME_ENV)
+    os.environ[TRANSLATOR_RUNTIME_ENV] = runtime
+    try:
+        yield
+    finally:
+        if previous is None:
+            os.environ.pop(TRANSLATOR_RUNTIME_ENV, None)
+        else:
+            os.environ[TRANSLATOR_RUNTIME_ENV] = previous
+
+
+def translator_batch1_ms(runtime: str = "torch", repeats: int = 200) -> float:
+    """Median batch-1 latency (ms) of the shipped surface translator on ``runtime``."""
     from simshear_gym.contract import shipped_translator
     from simshear_gym.evaluate.translator_speed import latency_ms
 
-    return round(latency_ms(shipped_translator("surface"), 1, repeats, np.random.default_rng(0)), 3)
+    translator = shipped_translator("surface", runtime=runtime)
+    return round(latency_ms(translator, 1, repeats, np.random.default_rng(0)), 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -103,12 +130,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-envs", type=int, nargs="+", default=[8, 16, 32], help="sub-envs of the vectorised runs")
     parser.add_argument("--workers", type=int, default=2, help="worker processes of the vectorised runs")
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2],
-                        help="torch threads of the main process: each setting is measured")
+                        help="torch threads of the main process: each setting is measured (torch runtime)")
+    parser.add_argument("--runtimes", nargs="+", choices=("torch", "onnx"), default=["torch", "onnx"],
+                        help="translator runtimes of the single-process runs (onnx: ONNX Runtime on one thread, "
+                             "needs onnxruntime and the shipped .onnx; default both)")
+    parser.add_argument("--vector-runtimes", nargs="+", choices=("auto", "torch", "onnx"), default=["auto"],
+                        help="translator runtimes of the vectorised runs (default auto: the envs' default, ONNX "
+                             "Runtime where it can)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
+
+    from simshear_gym.contract import shipped_translator
+    from simshear_gym.models.translator_runtime import runtime_of
 
     for name in ("steps", "vector_steps", "workers"):
         if getattr(args, name) < 1:
@@ -116,39 +152,66 @@ def run(args: argparse.Namespace) -> int:
     for name in ("num_envs", "threads"):
         if min(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
+    runtimes = list(dict.fromkeys(args.runtimes))
     single = {"sim": single_process("sim", args.steps), "real": []}
-    print(f"one process, sim 128 px: {single['sim']['steps_per_s']:.0f} steps/s "
-          f"({single['sim']['ms_per_step']:.2f} ms/step)")
-    for threads in args.threads:
+    sim_row = single["sim"]
+    print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")
+    # (runtime, torch threads of the main process): ONNX Runtime runs on its own single thread
+    settings = [(runtime, threads) for runtime in runtimes
+                for threads in (args.threads if runtime == "torch" else [1])]
+    for runtime, threads in settings:
         torch.set_num_threads(threads)
-        row = {"torch_threads": threads, **single_process("real", args.steps),
-               "translator_ms_batch1": translator_batch1_ms()}
+        with translator_runtime(runtime):
+            row = {"torch_threads": threads, "translator_runtime": runtime,
+                   **({"onnx_threads": 1} if runtime == "onnx" else {}), **single_process("real", args.steps),
+                   "translator_ms_batch1": translator_batch1_ms(runtime)}
+        row["translator_share_of_step"] = round(row["translator_ms_batch1"] / row["ms_per_step"], 3)
+        row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_row["ms_per_step"], 3)
+        row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_row["steps_per_s"], 3)
         single["real"].append(row)
-        print(f"one process, real 128 px, torch threads {threads}: {row['steps_per_s']:.0f} steps/s "
-              f"({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} CPU ms/step; translator at batch 1 "
-              f"{row['translator_ms_batch1']:.2f} ms)")
+        print(f"one process, real 128 px, {runtime}"
+              f"{f' (torch threads {threads})' if runtime == 'torch' else ' (1 thread)'}: "
+              f"{row['steps_per_s']:.0f} steps/s ({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} "
+              f"CPU ms/step, {row['steps_per_s_over_sim']:.2f} x sim's rate); translator at batch 1 "
+              f"{row['translator_ms_batch1']:.2f} ms = {100 * row['translator_share_of_step']:.0f} % of a step")
     vector = []
+    vector_runtimes = {runtime: runtime_of(shipped_translator("surface", runtime=runtime))  # auto -> its choice
+                       for runtime in dict.fromkeys(args.vector_runtimes)}
     for num_envs in args.num_envs:
-        for translate_in, threads in [("workers", 1)] + [("main", threads) for threads in args.threads]:
-            torch.set_num_threads(threads)  # the main process's (workers use one thread each)
-            row = {"torch_threads_main": threads, **vectorised(num_envs, args.workers, translate_in,
-                                                               args.vector_steps)}
-            vector.append(row)
-            print(f"make_vec {num_envs} envs, {args.workers} workers, translating in {translate_in}"
-                  f"{f' ({threads} threads)' if translate_in == 'main' else ''}: {row['steps_per_s']:.0f} steps/s")
+        for requested, runtime in vector_runtimes.items():
+            main_threads = args.threads if runtime == "torch" else [1]
+            for translate_in, threads in [("workers", 1)] + [("main", threads) for threads in main_threads]:
+                torch.set_num_threads(threads)  # the main process's (workers use one thread each)
+                with translator_runtime(requested):
+                    row = {"torch_threads_main": threads, "translator_runtime": runtime,
+                           **vectorised(num_envs, args.workers, translate_in, args.vector_steps)}
+                vector.append(row)
+                print(f"make_vec {num_envs} envs, {args.workers} workers, {runtime}, translating in {translate_in}"
+                      f"{f' ({threads} threads)' if translate_in == 'main' and runtime == 'torch' else ''}: "
+                      f"{row['steps_per_s']:.0f} steps/s")
     best_single = max(row["steps_per_s"] for row in single["real"])
     best_vector = max(row["steps_per_s"] for row in vector)
+    best_by_runtime = {runtime: max(row["steps_per_s"] for row in single["real"] if row["translator_runtime"] ==
+                                    runtime) for runtime in runtimes}
     payload = {
         "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
                     f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
-                    f"--threads {' '.join(map(str, args.threads))}"),
+                    f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
+                    f"--vector-runtimes {' '.join(vector_runtimes)}"),
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
-        "env": "SimShearTracking-v0, obs_mode='real' (shPix2pix surface translator), 128 px, oracle actions",
+        "env": ("SimShearTracking-v0, obs_mode='real' (shPix2pix surface translator; runtime per row: torch, or "
+                "ONNX Runtime on shpix2pix_surface.onnx), 128 px, oracle actions"),
         "single_process": single, "vectorised": vector,
         "goals": {"single_steps_per_s": GOAL_SINGLE_STEPS_PER_S, "vector_steps_per_s": GOAL_VECTOR_STEPS_PER_S,
                   "best_single_steps_per_s": best_single, "best_vector_steps_per_s": best_vector,
                   "single_met": best_single >= GOAL_SINGLE_STEPS_PER_S,
-                  "vector_met": best_vector >= GOAL_VECTOR_STEPS_PER_S},
+                  "vector_met": best_vector >= GOAL_VECTOR_STEPS_PER_S,
+                  "translated_over_sim_rate": GOAL_TRANSLATED_SHARE_OF_SIM_RATE,
+                  "best_single_steps_per_s_by_runtime": best_by_runtime,
+                  "translated_over_sim_rate_by_runtime": {
+                      runtime: round(rate / sim_row["steps_per_s"], 3) for runtime, rate in best_by_runtime.items()},
+                  "translated_over_sim_met": max(best_by_runtime.values()) >= (
+                      GOAL_TRANSLATED_SHARE_OF_SIM_RATE * sim_row["steps_per_s"])},
     }
     write_json(args.out / "env_speed.json", payload)
     print(f"wrote {args.out / 'env_speed.json'}")

@@ -10,7 +10,9 @@ translates them; the generated images are compared with the real images of the s
 Reference rows: ``nearest-label retrieval`` (the real training image whose labels are closest, labels scaled by
 their ranges, the edge angle as sin/cos), and each model fed the **published** Tactile Gym sim images of the same
 rows instead of ours. ``simshear evaluate translation --model shpix2pix=PATH --model pix2pix=PATH`` writes
-``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real).
+``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real). A ``.pt`` file
+runs on torch, a ``.onnx`` file (``simshear train export-onnx``) on ONNX Runtime, e.g.
+``--model shpix2pix:surface=W.pt --model shpix2pix_onnx:surface=W.onnx`` compares the two runtimes.
 
 Pose fidelity (``--reader CONTACT=PATH``, optional): a GDNN trained on the **real** training images of that contact
 (``simshear train posenet --source real``) reads every method's images of the val contacts; its per-variable MAE
@@ -22,6 +24,7 @@ themselves is the floor (``reader.real_images``).
 from __future__ import annotations
 
 import argparse
+import io
 import time
 from pathlib import Path
 
@@ -31,7 +34,7 @@ from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
-from simshear_gym.io import write_json
+from simshear_gym.io import atomic_write, write_json
 
 # torch (via evaluate.metrics and models) and pybullet (via sim) are imported inside the functions that use them,
 # so that `simshear evaluate translation --help` stays light.
@@ -89,12 +92,13 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
     and image stacks for the figure."""
     from simshear_gym.evaluate.metrics import mape, ssim, truth_labels
     from simshear_gym.models.posenet_io import load_posenet
-    from simshear_gym.models.translator import Translator
+    from simshear_gym.models.translator_runtime import ONNX_SUFFIX, load_translator
     from simshear_gym.sim.replay import render_poses
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
-    translators = {(name, contact): Translator.load(path) for name, per in models.items()
-                   for contact, path in per.items()}
+    # a .onnx file runs on ONNX Runtime, a .pt file on torch (never swapped for the .onnx beside it)
+    translators = {(name, contact): load_translator(path, "onnx" if path.suffix == ONNX_SUFFIX else "torch")
+                   for name, per in models.items() for contact, path in per.items()}
     reader_models = {contact: load_posenet(path)[0] for contact, path in (readers or {}).items()}
     results: dict = {}
     reader_floor: dict = {}
@@ -154,14 +158,29 @@ def figure(stacks: dict, path: Path, per_set: int = 3) -> None:
             if c == 0:
                 axes[r, c].set_ylabel(set_name.replace("_", " "), fontsize=7)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, dpi=110, format="png")
     plt.close(fig)
+    atomic_write(path, lambda tmp: Path(tmp).write_bytes(_palette_png(buffer.getvalue())))
+
+
+def _palette_png(png: bytes) -> bytes:
+    """The same picture as a palette PNG where it has at most 256 colours (grey images and black text: lossless,
+    about a third of the RGBA file), else unchanged."""
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(png)).convert("RGB")
+    if image.getcolors(256) is None:
+        return png
+    out = io.BytesIO()
+    image.convert("P", palette=Image.Palette.ADAPTIVE, colors=256).save(out, format="png", optimize=True)
+    return out.getvalue()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", default=[], metavar="NAME[:CONTACT]=PATH",
-                        help="a translator to evaluate; repeat for several (default: the shipped ones)")
+                        help="a translator to evaluate (.pt: torch, .onnx: ONNX Runtime); repeat for several "
+                             "(default: the shipped .pt ones)")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of each val set (default all)")
     parser.add_argument("--workers", type=int, default=2, help="processes rendering the sim images (default 2)")
