@@ -11,19 +11,37 @@ and the real rollout (``simshear_gym.real.rollout.run_rollout``) take any of the
 A controller that keeps a state estimate exposes it as ``last_estimate`` (:class:`EstimatingController`); the real
 rollout logs it. A controller may carry a ``name`` for logs (``"servo"``, ``"ppo:<path>"``).
 
+A policy of ``simshear train rl`` is its run folder: ``model.zip`` (or a checkpoint) beside ``config.json`` (the
+env settings it was trained with: :class:`PolicySettings`) and ``vecnormalize.pkl`` (SB3's ``VecNormalize``
+statistics; a checkpoint's own ``rl_model_vecnormalize_<steps>_steps.pkl``). :meth:`SB3Controller.load` loads the
+three together, so the benchmark and the robot normalise the observation as training did, and a residual policy
+adds its correction to the same servo law (:class:`ResidualServo`). A bare ``.zip`` (no ``config.json``) is the
+``tactile`` observation, not normalised, not residual.
+
 Stable-Baselines3 (and so torch) is imported only when a model is loaded, so importing this module stays cheap.
 """
 
 from __future__ import annotations
 
 import json
+import pickle
+import re
 import zipfile
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from simshear_gym.contract import ActionScale
+from simshear_gym.contract import (
+    ESTIMATE_OBSERVATIONS,
+    OBS_MODES,
+    ActionScale,
+    check_image_size,
+    check_observation,
+    filter_mean_from_estimate,
+)
+from simshear_gym.control.pi_law import PIGains, PILaw
 
 
 @runtime_checkable
@@ -58,10 +76,10 @@ def as_action_scale(action_scale: Any, owner: str) -> ActionScale:
 
 
 def sb3_algorithm(path: str | Path) -> str:
-    """``"ppo"`` or ``"sac"``: which SB3 algorithm saved a ``.zip`` (read from its ``data`` entry).
+    """``"ppo"``, ``"sac"`` or ``"tqc"`` (sb3-contrib): which algorithm saved a ``.zip`` (read from its ``data``).
 
     Raises:
-        ValueError: not a Stable-Baselines3 model, or neither PPO nor SAC.
+        ValueError: not a Stable-Baselines3 model, or none of PPO, SAC, TQC.
     """
     try:
         with zipfile.ZipFile(path) as archive:
@@ -71,53 +89,250 @@ def sb3_algorithm(path: str | Path) -> str:
     # The zip names the policy class, not the algorithm; the saved hyper-parameters tell PPO and SAC apart.
     if "clip_range" in data:
         return "ppo"
+    if "top_quantiles_to_drop_per_net" in data:
+        return "tqc"
     if "target_entropy" in data:
         return "sac"
-    raise ValueError(f"{path}: neither a PPO nor a SAC model of stable_baselines3 (saved keys: {sorted(data)[:12]}...)")
+    raise ValueError(f"{path}: not a PPO, SAC or TQC model of stable_baselines3 / sb3-contrib (saved keys: "
+                     f"{sorted(data)[:12]}...)")
+
+
+RUN_CONFIG = "config.json"
+VECNORMALIZE = "vecnormalize.pkl"
+
+
+@dataclass(frozen=True)
+class ResidualSettings:
+    """A residual policy: ``action = clip(servo law(filter mean) + bound * policy action, -1, 1)``.
+
+    Attributes:
+        bound: the largest correction, in full-scale actions (0 < bound <= 1).
+        kp, ki, integral_limit: the servo law's gains (:class:`~simshear_gym.control.pi_law.PIGains`; training
+            writes the servo controller's ``SERVO_GAINS``).
+    """
+
+    bound: float
+    kp: tuple[float, float, float, float]
+    ki: tuple[float, float, float, float]
+    integral_limit: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.bound <= 1.0:
+            raise ValueError(f"ResidualSettings.bound must be in (0, 1] full-scale actions, got {self.bound!r}")
+        object.__setattr__(self, "kp", tuple(float(v) for v in self.kp))
+        object.__setattr__(self, "ki", tuple(float(v) for v in self.ki))
+        self.gains()  # validates
+
+    def gains(self) -> PIGains:
+        return PIGains(kp=self.kp, ki=self.ki, integral_limit=self.integral_limit)
+
+
+@dataclass(frozen=True)
+class PolicySettings:
+    """The env settings a policy was trained with (from its run's ``config.json``); the env that runs it must
+    give the same observation.
+
+    Attributes:
+        observation, history: the observation (:func:`~simshear_gym.contract.observation_space`).
+        obs_mode: the image source it was trained on (``real``: translated, ``sim``).
+        image_size_px: the tactile image size.
+        task: ``tracking`` or ``colift`` (the env it was trained in).
+        residual: None, or the residual law it corrects.
+    """
+
+    observation: str = "tactile"
+    history: int = 1
+    obs_mode: str = "real"
+    image_size_px: int = 128
+    task: str = "tracking"
+    residual: ResidualSettings | None = field(default=None)
+
+    def __post_init__(self) -> None:
+        check_observation(self.observation, self.history, "PolicySettings")
+        check_image_size(self.image_size_px, "PolicySettings.image_size_px")
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"PolicySettings.obs_mode must be one of {OBS_MODES}, got {self.obs_mode!r}")
+        if self.residual is not None and self.observation not in ESTIMATE_OBSERVATIONS:
+            raise ValueError("a residual policy corrects the servo law on the filter's estimate: it needs an "
+                             f"observation with the estimate, got {self.observation!r}")
+
+    @classmethod
+    def from_run_config(cls, config: dict) -> PolicySettings:
+        """From a ``simshear train rl`` run's ``config.json`` (older runs: their ``obs_mode`` and image size)."""
+        bound = float(config.get("residual_bound", 0.0) or 0.0)
+        residual = None
+        if bound > 0:
+            gains = config.get("residual_gains") or {}
+            residual = ResidualSettings(bound=bound, **gains)
+        return cls(observation=config.get("observation", "tactile"), history=int(config.get("history", 1)),
+                   obs_mode=config.get("obs_mode", "real"), image_size_px=int(config.get("image_size_px", 128)),
+                   task=config.get("task", "tracking"), residual=residual)
+
+    @classmethod
+    def of_model(cls, path: str | Path) -> PolicySettings | None:
+        """The settings in the run folder of a model ``.zip`` (its ``config.json``), or None for a bare zip."""
+        folder = Path(path).parent
+        config = folder / RUN_CONFIG
+        if not config.is_file() and folder.name == "checkpoints":  # a checkpoint: the run folder's settings
+            config = folder.parent / RUN_CONFIG
+        if not config.is_file():
+            return None
+        return cls.from_run_config(json.loads(config.read_text()))
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``gym.make`` for a sim env giving this observation; an estimate observation also
+        needs ``estimator=`` (:func:`simshear_gym.control.env_estimator.env_kwargs` adds it)."""
+        return {"obs_mode": self.obs_mode, "image_size_px": self.image_size_px, "observation": self.observation,
+                "history": self.history}
+
+
+class ResidualServo:
+    """The servo law plus a policy's bounded correction: ``clip(law(filter mean) + bound * correction, -1, 1)``,
+    the filter mean read from the newest frame of the observation's ``estimate``
+    (:func:`~simshear_gym.contract.filter_mean_from_estimate`). One object per episode stream: :meth:`reset` at
+    each episode start (the law's integral). Training's residual wrapper and :class:`SB3Controller` share it.
+    """
+
+    def __init__(self, settings: ResidualSettings, reference_depth_mm: float, action_scale: ActionScale) -> None:
+        self.settings = settings
+        self.reference_depth_mm = float(reference_depth_mm)
+        self.law = PILaw(reference_depth_mm, as_action_scale(action_scale, "ResidualServo").as_array(),
+                         settings.gains())
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def __call__(self, observation: dict, correction: np.ndarray) -> np.ndarray:
+        if "estimate" not in observation:
+            raise ValueError(f"a residual policy needs the observation's 'estimate'; got {sorted(observation)}")
+        base = self.law(filter_mean_from_estimate(observation["estimate"], self.reference_depth_mm))
+        correction = np.clip(np.asarray(correction, dtype=np.float64).reshape(4), -1.0, 1.0)
+        return np.clip(base + self.settings.bound * correction, -1.0, 1.0).astype(np.float32)
+
+
+def vecnormalize_path(model_path: str | Path) -> Path | None:
+    """The ``VecNormalize`` statistics saved with a model, or None: a checkpoint ``rl_model_<N>_steps.zip``'s
+    ``rl_model_vecnormalize_<N>_steps.pkl``; ``best_model.zip``'s ``best_model_vecnormalize.pkl``; else (and for
+    ``model.zip``) the folder's ``vecnormalize.pkl``."""
+    path = Path(model_path)
+    match = re.fullmatch(r"(.*)_(\d+)_steps\.zip", path.name)
+    candidates = []
+    if match:
+        candidates.append(path.parent / f"{match.group(1)}_vecnormalize_{match.group(2)}_steps.pkl")
+    elif path.stem != "model":
+        candidates.append(path.parent / f"{path.stem}_{VECNORMALIZE}")
+    if not match:
+        candidates.append(path.parent / VECNORMALIZE)
+    return next((candidate for candidate in candidates if candidate.is_file()), None)
+
+
+def load_normalizer(path: str | Path):
+    """SB3 ``VecNormalize`` statistics (its pickle, without an env) in evaluation mode: ``normalize_obs`` is all a
+    controller calls. Only load the files of your own runs (a pickle runs code)."""
+    with open(path, "rb") as handle:
+        normalizer = pickle.load(handle)
+    normalizer.training = False
+    normalizer.norm_reward = False
+    return normalizer
+
+
+def sb3_class(algorithm: str):
+    """The SB3 class of ``"ppo"``, ``"sac"`` or ``"tqc"`` (from sb3-contrib: an optional dependency)."""
+    if algorithm == "tqc":
+        try:
+            from sb3_contrib import TQC
+        except ImportError:
+            raise ValueError("TQC is sb3-contrib's: pip install sb3-contrib") from None
+        return TQC
+    import stable_baselines3
+
+    if algorithm not in ("ppo", "sac"):
+        raise ValueError(f"algorithm must be one of ('ppo', 'sac', 'tqc'), got {algorithm!r}")
+    return getattr(stable_baselines3, algorithm.upper())
 
 
 class SB3Controller:
-    """A Stable-Baselines3 model as a :class:`Controller`: deterministic ``predict``, no state between episodes
-    (a recurrent policy is not supported).
+    """A Stable-Baselines3 model as a :class:`Controller`: deterministic ``predict`` on the observation normalised
+    as in training, plus the servo law for a residual policy; no state between episodes but the residual law's
+    integral (a recurrent policy is not supported).
 
     Args:
         model: anything with SB3's ``predict(observation, deterministic=True) -> (action, state)``.
         name: for logs; :meth:`load` gives ``"<algorithm>:<path>"``.
+        normalizer: anything with ``normalize_obs(observation) -> observation`` (SB3's ``VecNormalize``), or None.
+        residual: a :class:`ResidualServo` the policy's action corrects, or None (the action is the policy's).
+        settings: the env settings it was trained with, for logs (None: unknown).
     """
 
-    def __init__(self, model, name: str = "sb3") -> None:
+    def __init__(self, model, name: str = "sb3", normalizer=None, residual: ResidualServo | None = None,
+                 settings: PolicySettings | None = None) -> None:
         self.model = model
         self.name = name
+        self.normalizer = normalizer
+        self.residual = residual
+        self.settings = settings
+        # an asymmetric actor-critic's critic-only keys (control.asymmetric): zeros, which its actor reads anyway
+        keys = getattr(getattr(model, "policy", None), "privileged_keys", ())
+        self.privileged = {key: np.zeros(model.observation_space[key].shape, model.observation_space[key].dtype)
+                           for key in keys}
 
     @classmethod
-    def load(cls, path: str | Path, observation_space, action_space) -> SB3Controller:
-        """Load a PPO/SAC ``.zip`` on the CPU and check that it was trained on these spaces (the env's).
+    def load(cls, path: str | Path, observation_space, action_space, reference_depth_mm: float = 4.0,
+             action_scale: ActionScale = ActionScale()) -> SB3Controller:
+        """Load a PPO/SAC/TQC ``.zip`` on the CPU with its run's ``VecNormalize`` statistics and settings, and check
+        that it was trained on these spaces (the env's). ``reference_depth_mm`` and ``action_scale`` (the env's) are
+        the residual law's, for a residual policy.
 
         Raises:
             FileNotFoundError: no such file.
-            ValueError: not an SB3 PPO/SAC model, or trained for other observation/action spaces.
+            ValueError: not an SB3 PPO/SAC/TQC model, or trained for other observation/action spaces.
         """
         path = Path(path)
         if not path.is_file():
             raise FileNotFoundError(f"no Stable-Baselines3 model file at {str(path)!r}")
-        if sb3_algorithm(path) == "ppo":
-            from stable_baselines3 import PPO as Algorithm
-        else:
-            from stable_baselines3 import SAC as Algorithm
-        model = Algorithm.load(path, device="cpu")
-        if model.observation_space != observation_space:
-            raise ValueError(f"{path} was trained on observations {model.observation_space}, but the env gives "
-                             f"{observation_space} (another tactile image size?)")
+        model = sb3_class(sb3_algorithm(path)).load(path, device="cpu")
+        settings = PolicySettings.of_model(path)
+        trained = (f" ({settings.observation} observation, history {settings.history}, {settings.image_size_px} px)"
+                   if settings else "")
+        privileged = getattr(model.policy, "privileged_keys", ())  # the critic's alone: not the env's to give
+        seen = model.observation_space
+        if privileged:
+            from gymnasium import spaces
+
+            seen = spaces.Dict({key: space for key, space in seen.spaces.items() if key not in privileged})
+        if seen != observation_space:
+            raise ValueError(f"{path} was trained on observations {seen}{trained}, but the env "
+                             f"gives {observation_space} (another observation or tactile image size?)")
         if model.action_space != action_space:
             raise ValueError(f"{path} was trained with actions {model.action_space}, the env takes {action_space}")
-        return cls(model, f"{type(model).__name__.lower()}:{path}")
+        stats = vecnormalize_path(path) if settings is not None else None
+        normalizer = load_normalizer(stats) if stats is not None else None
+        residual = None
+        if settings is not None and settings.residual is not None:
+            residual = ResidualServo(settings.residual, reference_depth_mm, action_scale)
+        return cls(model, f"{type(model).__name__.lower()}:{path}", normalizer, residual, settings)
+
+    @classmethod
+    def for_env(cls, path: str | Path, env) -> SB3Controller:
+        """:meth:`load` for an env (a sim env or ``RealTactileEnv``; wrappers are looked through): its spaces,
+        reference depth and action scale."""
+        base = getattr(env, "unwrapped", env)
+        return cls.load(path, env.observation_space, env.action_space, base.reference_depth_mm, base.action_scale)
 
     def reset(self) -> None:
-        """Nothing to forget: the policy is feed-forward."""
+        """Start an episode: the residual law forgets its integral; the policy itself is feed-forward."""
+        if self.residual is not None:
+            self.residual.reset()
 
     def __call__(self, observation: dict) -> np.ndarray:
-        action, _ = self.model.predict(observation, deterministic=True)
-        return np.asarray(action, dtype=np.float32).reshape(4)
+        seen = {**observation, **self.privileged} if self.privileged else observation
+        seen = self.normalizer.normalize_obs(seen) if self.normalizer is not None else seen
+        action, _ = self.model.predict(seen, deterministic=True)
+        action = np.asarray(action, dtype=np.float32).reshape(4)
+        if self.residual is not None:
+            action = self.residual(observation, action)
+        return action
 
 
-__all__ = ["Controller", "EstimatingController", "SB3Controller", "as_action_scale", "sb3_algorithm"]
+__all__ = ["Controller", "EstimatingController", "PolicySettings", "ResidualServo", "ResidualSettings", "SB3Controller",
+           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "vecnormalize_path"]

@@ -33,6 +33,8 @@ data never moved along z during a shear (indentation shows in the sim image itse
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,21 +43,23 @@ import numpy as np
 from gymnasium.utils import EzPickle
 
 from simshear_gym.contract import (
+    ESTIMATE_OBSERVATIONS,
     OBS_MODES,
     ORACLE_MODES,
     RENDER_SIZE_PX,
-    TCP_POSE_LOW,
     TRUE_POSE_SHEAR_LIMIT,
     ActionScale,
     TacTipMount,
     action_space,
     action_to_move,
     check_image_size,
+    check_observation,
     finish_tactile,
     load_sensor,
     observation_space,
 )
 from simshear_gym.data.labels import wrap_deg
+from simshear_gym.envs.observation import Estimator, PolicyObservation
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose
 from simshear_gym.robots.mg400.kinematics import KinematicsError
 from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
@@ -75,17 +79,33 @@ from simshear_gym.transforms import matrix_to_pybullet_fast as pybullet_pose_fas
 
 @dataclass(frozen=True)
 class RewardConfig:
-    """``reward = alive_bonus - min(contact_error_mm / error_scale_mm, max_error_term)
-    - contact_loss_penalty * (not in contact)``. The alive bonus keeps ending an episode early unattractive."""
+    """Per step, with ``e`` the contact error (mm)::
+
+        reward = alive_bonus - min(e / error_scale_mm, max_error_term)
+                 + precision_bonus * exp(-(e / precision_scale_mm) ** 2)
+                 - contact_loss_penalty * (not in contact) - termination_penalty * (the step ends the episode)
+
+    Why this shape: while in contact the reward never drops below ``alive_bonus - max_error_term`` = 0, so ending
+    an episode early never pays (with the earlier ``max_error_term`` of 2 the reward went negative beyond 5 mm of
+    contact error, where ending the episode paid; the PPO runs of ``results/servo_ppo.json`` all ended early, too
+    deep or 15 mm off); the linear term pulls from far
+    (up to 5 mm), the precision term (a 1 mm Gaussian) rewards the last fraction of a millimetre, where the
+    linear term's slope alone is too weak a signal; an early end costs ``termination_penalty`` on top of the
+    reward forfeited. Truncation at the time limit is not an end: no penalty. Per step in [0, 2] in contact."""
 
     alive_bonus: float = 1.0
     error_scale_mm: float = 5.0
-    max_error_term: float = 2.0
+    max_error_term: float = 1.0
+    precision_bonus: float = 1.0
+    precision_scale_mm: float = 1.0
     contact_loss_penalty: float = 1.0
+    termination_penalty: float = 10.0
 
     def __post_init__(self) -> None:
-        if not self.error_scale_mm > 0 or self.max_error_term < 0 or self.contact_loss_penalty < 0:
-            raise ValueError(f"RewardConfig: need error_scale_mm > 0 and non-negative terms, got {self}")
+        if not (self.error_scale_mm > 0 and self.precision_scale_mm > 0) or min(
+                self.max_error_term, self.contact_loss_penalty, self.precision_bonus, self.termination_penalty) < 0:
+            raise ValueError(f"RewardConfig: need error_scale_mm, precision_scale_mm > 0 and non-negative terms, "
+                             f"got {self}")
 
 
 @dataclass(frozen=True)
@@ -143,7 +163,18 @@ class SimShearEnv(gym.Env, EzPickle):
             the TacTip renders with its dome and camera settings, its translator makes the images, and an
             image-based controller reads them with its GDNN (``estimator_posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
-            caller (the batched vector env); the observation space's image is then 1x128x128.
+            caller (the batched vector env); the observation space's image is then 1x128x128 (``observation``
+            ``"tactile"`` with ``history`` 1 only).
+        observation: what the policy sees (:func:`~simshear_gym.contract.observation_space`, the same in
+            ``RealTactileEnv``): ``"tactile"`` (the image of ``obs_mode`` and ``tcp_pose``: the default, as
+            before), ``"estimate"`` (the estimator's GDNN reading and Bayesian filter state of that image,
+            normalised) or ``"tactile+estimate"``.
+        history: k: the observation stacks the last k images (``tactile`` (k, S, S)) and estimates (``estimate``
+            (16 k,)), oldest first; at reset all k are the first frame.
+        estimator: for the estimate observations: the servo controller's estimator, or a callable that builds
+            it from this env (``simshear_gym.control.env_estimator.env_estimator``: the GDNN the env names in
+            ``estimator_posenet`` and its process noise, as ``ServoController.for_env``). Envs do not import the
+            controllers (same floor), so it is passed in; it is called once, at construction.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -156,9 +187,15 @@ class SimShearEnv(gym.Env, EzPickle):
                  termination: TerminationConfig = TerminationConfig(), mount: TacTipMount = TacTipMount(),
                  arm_config: MG400ArmConfig = MG400ArmConfig(),
                  shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False,
-                 sensor: str | None = None) -> None:
+                 sensor: str | None = None, observation: str = "tactile", history: int = 1,
+                 estimator: Estimator | Callable[[Any], Estimator] | None = None) -> None:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
+        check_observation(observation, history)
+        if raw_tactile and (observation != "tactile" or history != 1):
+            raise ValueError(f"raw_tactile (the batched vector env) gives the image alone: it needs observation="
+                             f"'tactile' and history=1, got {observation!r}, {history}; use SB3's or gymnasium's "
+                             "vector envs for the other observations")
         check_image_size(image_size_px)
         if not (isinstance(control_rate_hz, (int, float)) and 1.0 <= control_rate_hz <= 250.0):
             raise ValueError(f"control_rate_hz must be in [1, 250] Hz, got {control_rate_hz!r}")
@@ -202,9 +239,20 @@ class SimShearEnv(gym.Env, EzPickle):
         if self.follower is None:
             raise TypeError(f"{type(self).__name__}._build_scene must create the follower with _add_follower()")
 
+        self.observation = observation
+        self.history = history
         self.observation_space = observation_space(RENDER_SIZE_PX if raw_tactile else image_size_px,
-                                                   oracle=obs_mode in ORACLE_MODES)
+                                                   oracle=obs_mode in ORACLE_MODES, observation=observation,
+                                                   history=history)
         self.action_space = action_space()
+        if observation in ESTIMATE_OBSERVATIONS:
+            if estimator is None:
+                raise ValueError(f"observation={observation!r} needs estimator=: pass simshear_gym.control."
+                                 "env_estimator.env_estimator (the servo controller's GDNN + filter)")
+            if not isinstance(estimator, Estimator):
+                estimator = estimator(self)
+        self._policy_observation = PolicyObservation(observation, history, self.reference_depth_mm,
+                                                     estimator if observation in ESTIMATE_OBSERVATIONS else None)
 
         self._time_s = 0.0
         self._steps_out_of_contact = 0
@@ -291,7 +339,7 @@ class SimShearEnv(gym.Env, EzPickle):
             raise RuntimeError(f"{type(self).__name__}._reset_scene left the sensor out of contact "
                                f"(penetration {state.penetration_mm:.3f} mm)")
         self._state = state
-        return self._observation(state), self._info(state, "")
+        return self._observation(state, None), self._info(state, "")
 
     def step(self, action):
         if self._state is None:
@@ -320,7 +368,7 @@ class SimShearEnv(gym.Env, EzPickle):
         info = self._info(state, reason)
         if arm_error:
             info["arm_error"] = arm_error
-        return self._observation(state), float(self._reward(state)), bool(reason), False, info
+        return self._observation(state, move), float(self._reward(state, reason)), bool(reason), False, info
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -360,7 +408,8 @@ class SimShearEnv(gym.Env, EzPickle):
         return ContactState(pose_work, penetration, bool(on_face), bool(in_contact), shear, error,
                             float(wrap_deg(pose_work[5] - self._target_rz_deg)), T_world_sensor)
 
-    def _observation(self, state: ContactState) -> dict[str, np.ndarray]:
+    def _observation(self, state: ContactState, move: np.ndarray | None) -> dict[str, np.ndarray]:
+        """The observation after reset (``move`` None) or after a step that commanded ``move``."""
         sim = self.tactip.render(state.T_world_sensor)
         if self.raw_tactile:
             image = sim
@@ -368,8 +417,11 @@ class SimShearEnv(gym.Env, EzPickle):
             image = finish_tactile(sim[None], state.shear_sensor[None], self.obs_mode, self.image_size_px,
                                    self.translator_contact, self.translator_weights)[0]
         self._last_tactile = image
-        tcp = np.clip(self.follower.tool_pose_mm_deg(), TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)
-        obs = {"tactile": image[None], "tcp_pose": tcp}
+        tcp = self.follower.tool_pose_mm_deg()
+        if move is None:
+            obs = self._policy_observation.reset(image, tcp)
+        else:
+            obs = self._policy_observation.step(image, tcp, move)
         if self.obs_mode in ORACLE_MODES:
             obs["true_pose_shear"] = self._oracle_variables(state)
         return obs
@@ -396,10 +448,14 @@ class SimShearEnv(gym.Env, EzPickle):
         face = self._T_world_face()
         return face[:3, :3] @ self._target_face_mm + face[:3, 3]
 
-    def _reward(self, state: ContactState) -> float:
+    def _reward(self, state: ContactState, termination: str = "") -> float:
+        """:class:`RewardConfig`'s formula; ``termination``: the reason this step ends the episode, or ``""``."""
         config = self.reward_config
-        error_term = min(state.contact_error_mm / config.error_scale_mm, config.max_error_term)
-        return config.alive_bonus - error_term - config.contact_loss_penalty * (not state.in_contact)
+        error = state.contact_error_mm
+        error_term = min(error / config.error_scale_mm, config.max_error_term)
+        precision = config.precision_bonus * math.exp(-(error / config.precision_scale_mm) ** 2)
+        return (config.alive_bonus - error_term + precision - config.contact_loss_penalty * (not state.in_contact)
+                - config.termination_penalty * bool(termination))
 
     def _termination(self, state: ContactState, arm_error: str) -> str:
         """The reason the episode ends now, or ``""``."""

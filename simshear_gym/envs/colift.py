@@ -133,16 +133,22 @@ class SimShearCoLiftEnv(SimShearEnv):
     vertical (a yaw of the grip axis); index 3 is that, not a roll about the sensor axis. NaN, wrong shape or
     values outside [-1, 1] raise ``ValueError``.
 
-    **Observation** ``Dict``:
+    **Observation** ``Dict``, by ``observation`` as in ``SimShearTracking-v0`` (k = ``history``):
 
     ===================  ==========================  ============================================================
     key                  space                       meaning
     ===================  ==========================  ============================================================
-    ``tactile``          Box uint8 (1, S, S)         TacTip image, S = ``image_size_px`` (128 or 64); shPix2pix
+    ``tactile``          Box uint8 (k, S, S)         "tactile" (default), "tactile+estimate": the last k TacTip
+                                                     images, S = ``image_size_px`` (128 or 64); shPix2pix
                                                      translated ("real", "oracle_real"; the shipped "surface"
                                                      translator) or raw depth ("sim", "oracle"; 255 = 14.5 mm)
-    ``tcp_pose``         Box float32 (4,)            follower TCP (dome apex) x, y, z mm and flange R deg, in the
-                                                     follower's base frame (as ``GetPose`` with the tool set)
+    ``tcp_pose``         Box float32 (4,)            "tactile" only: follower TCP (dome apex) x, y, z mm and
+                                                     flange R deg, in the follower's base frame (as ``GetPose``
+                                                     with the tool set)
+    ``estimate``         Box float32 (16 k,)         "estimate", "tactile+estimate": per image, the servo
+                                                     controller's estimator on it (the shipped ``colift`` GDNN,
+                                                     process noise 1.5 mm; ``estimator=``), normalised relative
+                                                     to the reference depth as in ``SimShearTracking-v0``
     ``true_pose_shear``  Box float32 (4,)            oracle modes only: depth (label convention: the object's
                                                      face, where it sat on the plate at reset and carried with
                                                      the plate, at 2.2 mm), shear x, y (mm, sensor frame: the
@@ -156,8 +162,9 @@ class SimShearCoLiftEnv(SimShearEnv):
     so the oracle holds the grip where the plate says. The skin shears instead of moving the object (see the
     physics above), so the two agree to within the object's creep on the plate (< 0.5 mm in the scene's tests).
 
-    **Reward** ``1 - min(e / 5 mm, 2) - 1[tip not touching the object]`` with ``e`` the contact error
-    (``RewardConfig``); a drop ends the episode, forfeiting the rest of the alive bonus.
+    **Reward** (``RewardConfig``) ``1 - min(e / 5 mm, 1) + exp(-(e / 1 mm)^2) - 1[tip not touching the object]
+    - 10 * 1[the step ends the episode]`` with ``e`` the contact error: in [0, 2] while the tip touches the
+    object; a drop ends the episode, costing 10 and the rest of the reward.
 
     **Contact error** ``info["contact_error_mm"]`` every step: the distance between the follower's TCP and its
     target point, where the TCP was at reset relative to the plate, carried along with the (commanded) plate.
@@ -180,8 +187,8 @@ class SimShearCoLiftEnv(SimShearEnv):
         trajectory: ``circular_wave``, ``star`` or ``random`` (one drawn per reset).
         object_name: one of :data:`OBJECT_NAMES`.
         mass_kg: the object's mass (None: 30 g); heavier objects slip out of the default squeeze (above ~0.3 kg).
-        obs_mode, image_size_px, control_rate_hz, render_mode: see :class:`~simshear_gym.envs.base.SimShearEnv`
-            (defaults ``"real"``, 128, 10 Hz, None).
+        obs_mode, image_size_px, control_rate_hz, render_mode, observation, history, estimator: see
+            :class:`~simshear_gym.envs.base.SimShearEnv` (defaults ``"real"``, 128, 10 Hz, None, ``"tactile"``, 1).
         reference_depth_mm: the depth to keep (label convention): 5.2 mm = a 3 mm squeeze.
         speed_mm_s: the leader's speed along its path.
         rotation_deg: amplitude of the plate's turn about the vertical along the path (``rotation_deg *
@@ -198,7 +205,8 @@ class SimShearCoLiftEnv(SimShearEnv):
         to the base; ``mount`` must be a :class:`HorizontalTacTipMount`.
 
     Version history: v0 (initial; before the first release: the skin's shear compliance and friction anchors,
-    so a lag shears the skin instead of moving the object, and no turn of the plate unless ``rotation_deg``).
+    so a lag shears the skin instead of moving the object, and no turn of the plate unless ``rotation_deg``; the
+    ``observation`` / ``history`` arguments and the reward of ``SimShearTracking-v0``'s version history).
     """
 
     estimator_posenet = "colift"  # the shipped GDNN trained on this env's own images (simshear collect-env)

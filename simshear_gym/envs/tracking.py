@@ -51,21 +51,34 @@ class SimShearTrackingEnv(SimShearEnv):
 
     NaN, wrong shape or values outside [-1, 1] raise ``ValueError``.
 
-    **Observation** ``Dict``:
+    **Observation** ``Dict``, by ``observation`` (:func:`~simshear_gym.contract.observation_space`, the same in
+    ``RealTactileEnv``), k = ``history`` (default 1), oldest first:
 
     ===================  ==========================  ============================================================
     key                  space                       meaning
     ===================  ==========================  ============================================================
-    ``tactile``          Box uint8 (1, S, S)         TacTip image, S = ``image_size_px`` (128 or 64); shPix2pix
-                                                     translated ("real", "oracle_real") or raw depth ("sim",
-                                                     "oracle"; 255 = 14.5 mm penetration)
-    ``tcp_pose``         Box float32 (4,)            follower TCP (dome apex) x, y, z mm and flange R deg, in the
-                                                     follower's base frame (as ``GetPose`` with the tool set)
+    ``tactile``          Box uint8 (k, S, S)         ``observation`` "tactile" (default) or "tactile+estimate":
+                                                     the last k TacTip images, S = ``image_size_px`` (128 or 64);
+                                                     shPix2pix translated (``obs_mode`` "real", "oracle_real")
+                                                     or raw depth ("sim", "oracle"; 255 = 14.5 mm penetration)
+    ``tcp_pose``         Box float32 (4,)            "tactile" only: follower TCP (dome apex) x, y, z mm and
+                                                     flange R deg, in the follower's base frame (as ``GetPose``
+                                                     with the tool set)
+    ``estimate``         Box float32 (16 k,) in      "estimate" or "tactile+estimate": per image, the servo
+                         [-4, 4]                     controller's estimator (the shipped ``surface`` GDNN +
+                                                     Bayesian filter, fed the commanded moves; ``estimator=``)
+                                                     of (depth, shear x, shear y, shear Rz): GDNN reading mean,
+                                                     its std, filter mean, filter std; means as (value -
+                                                     (reference depth, 0, 0, 0)) / (2 mm, 7.5 mm, 7.5 mm,
+                                                     7.5 deg) clipped to +-4, stds as clip(std / that, 0, 2) - 1
+                                                     (:func:`~simshear_gym.contract.estimate_features`)
     ``true_pose_shear``  Box float32 (4,)            oracle modes only: depth (label convention: the plate's face
                                                      at 2.2 mm), shear x, y (mm), shear Rz (deg), sensor frame
     ===================  ==========================  ============================================================
 
-    **Reward** ``1 - min(e / 5 mm, 2) - 1[not in contact]`` with ``e`` the contact error (``RewardConfig``).
+    **Reward** (``RewardConfig``), ``e`` the contact error: ``1 - min(e / 5 mm, 1) + exp(-(e / 1 mm)^2)
+    - 1[not in contact] - 10 * 1[the step ends the episode]``: in [0, 2] while in contact (2 on target), so
+    holding on always beats ending early; the Gaussian term rewards the last fraction of a millimetre.
 
     **Contact error** ``info["contact_error_mm"]`` every step: the distance between the follower's TCP and its
     target point: where the TCP was at reset (on the plate at the reference depth), carried along with the
@@ -82,14 +95,18 @@ class SimShearTrackingEnv(SimShearEnv):
 
     Args:
         trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, or ``random`` (one drawn per reset).
-        obs_mode, image_size_px, control_rate_hz, render_mode, reference_depth_mm, ...: see
-            :class:`~simshear_gym.envs.base.SimShearEnv` (defaults: ``"real"``, 128, 10 Hz, None, 4.0 mm).
+        obs_mode, image_size_px, control_rate_hz, render_mode, reference_depth_mm, observation, history,
+            estimator, ...: see :class:`~simshear_gym.envs.base.SimShearEnv` (defaults: ``"real"``, 128, 10 Hz,
+            None, 4.0 mm, ``"tactile"``, 1; ``observation="estimate"`` needs ``estimator=
+            simshear_gym.control.env_estimator.env_estimator``).
         speed_mm_s: the plate's speed along its path.
         randomise: per reset, draw the trajectory's scale (x0.7-1.3), speed (x0.7-1.3), rotation (-1..1 x 15 deg)
             and the follower's start place on the plate (+-10 mm in x and y) from the reset's seed.
         options of ``reset``: ``{"start_offset_mm": (x, y)}`` sets the start place (work frame of the plate).
 
-    Version history: v0 (initial).
+    Version history: v0 (initial; before the first release: the ``observation`` / ``history`` arguments, and the
+    reward's error term capped at 1 with the precision and early-end terms added, where it was ``1 - min(e / 5 mm,
+    2) - 1[not in contact]``).
     """
 
     def __init__(self, trajectory: str = "circle", obs_mode: str = "real", image_size_px: int = 128,

@@ -10,7 +10,12 @@ trajectory's scale, speed, turn and the start place; co-lift turns the plate onl
 - ``pix2pix``: the same images, a GDNN trained on pix2pix-generated images (``--posenet-pix2pix``);
 - ``sim``: raw sim images (``obs_mode="sim"``), a GDNN trained on raw sim images (``--posenet-sim``);
 - ``oracle``: the true depth and shear into the oracle law (the task's floor, not a tactile controller);
-- ``policy``: an SB3 agent of ``simshear train rl`` (``--policy``) on the env's translated images.
+- ``policy``, ``ppo``, ``sac``, ``tqc``: an SB3 agent of ``simshear train rl`` (``--policy``, ``--policy-ppo``,
+  ``--policy-sac``, ``--policy-tqc``: its ``model.zip``, ``best_model.zip`` or a checkpoint), in the env settings
+  it was trained with (its run's ``config.json``: observation, history, image source and size), its observations
+  normalised by the run's ``VecNormalize`` statistics and, for a residual policy, its correction added to the
+  servo law (:meth:`~simshear_gym.control.policy.SB3Controller.load`); ``ppo``, ``sac``, ``tqc`` check the zip's
+  algorithm, so agents compare side by side.
 
 Per run: contact error mean, std and max (mm; the env's ``info["contact_error_mm"]`` every step), steps out of
 contact, whether it ended early (``termination``) and, for co-lift, whether the object dropped. Also the control
@@ -29,34 +34,34 @@ import numpy as np
 
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
-from simshear_gym.control.policy import Controller, SB3Controller
+from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
 from simshear_gym.control.servo import ServoController
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
-VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy")
+VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy", "ppo", "sac", "tqc")
+POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
 
 def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None) -> Controller:
-    """The controller of a variant, matched to ``env`` (its reference depth, action scale and spaces)."""
+    """The controller of a variant, matched to ``env`` (its reference depth, action scale and spaces); ``policy``:
+    the SB3 model of a policy variant."""
     if variant == "oracle":
         return OracleController.for_env(env)
-    if variant == "policy":
-        return SB3Controller.load(policy, env.observation_space, env.action_space)
+    if variant in POLICY_VARIANTS:
+        return SB3Controller.for_env(policy, env)
     return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)))
 
 
 def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    """Observation settings of a variant (a policy runs at the image size it was trained on)."""
-    kwargs = {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
-    if variant == "policy":
-        config = Path(policy).parent / "config.json"
-        if config.is_file():
-            import json
+    """Observation settings of a variant: a policy runs in the settings of its run's ``config.json`` (a bare zip:
+    translated images at 128 px and the TCP pose)."""
+    if variant in POLICY_VARIANTS:
+        from simshear_gym.control.env_estimator import env_kwargs
 
-            settings = json.loads(config.read_text())
-            kwargs = {"obs_mode": settings.get("obs_mode", "real"), "image_size_px": settings.get("image_size_px", 128)}
-    return kwargs
+        settings = PolicySettings.of_model(policy)
+        return env_kwargs(settings) if settings is not None else {"obs_mode": "real"}
+    return {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
 
 
 def run_episode(env, controller: Controller, seed: int, max_steps: int | None = None) -> dict:
@@ -157,15 +162,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "translations; see SimShearCoLiftEnv's rotation_deg)")
     parser.add_argument("--variants", nargs="+", default=["shpix2pix"], choices=VARIANTS,
                         help="controllers to compare: shpix2pix (translated images, shipped GDNN), pix2pix and sim "
-                             "(need --posenet-pix2pix / --posenet-sim), oracle (true depth and shear), policy "
-                             "(needs --policy); default shpix2pix")
+                             "(need --posenet-pix2pix / --posenet-sim), oracle (true depth and shear), policy, ppo, "
+                             "sac, tqc (agents of simshear train rl: need --policy / --policy-ppo / --policy-sac / "
+                             "--policy-tqc); "
+                             "default shpix2pix")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2],
                         help="seeds of the randomised runs (trajectory scale, speed, rotation, start place), each "
                              "besides the nominal run")
     parser.add_argument("--posenet-shpix2pix", default=None, help="GDNN for the shpix2pix variant (default shipped)")
     parser.add_argument("--posenet-pix2pix", default=None, help="GDNN trained on pix2pix images")
     parser.add_argument("--posenet-sim", default=None, help="GDNN trained on raw sim images")
-    parser.add_argument("--policy", default=None, help="SB3 model .zip for the policy variant")
+    parser.add_argument("--policy", default=None,
+                        help="SB3 model .zip for the policy variant (its run folder's config.json and "
+                             "vecnormalize.pkl are loaded with it)")
+    parser.add_argument("--policy-ppo", default=None, help="PPO model .zip of simshear train rl for the ppo variant")
+    parser.add_argument("--policy-sac", default=None, help="SAC model .zip of simshear train rl for the sac variant")
+    parser.add_argument("--policy-tqc", default=None, help="TQC model .zip of simshear train rl for the tqc variant")
     parser.add_argument("--max-steps", type=int, default=None, help="cap per episode (default: the env's limit)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--out", type=Path, default=Path("results"),
@@ -182,11 +194,19 @@ def run(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(args.threads)
     posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
+    policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     for variant in args.variants:
         if variant in ("pix2pix", "sim") and not posenets[variant]:
             raise ValueError(f"--variants {variant} needs --posenet-{variant} (a GDNN trained on {variant} images)")
-        if variant == "policy" and not args.policy:
-            raise ValueError("--variants policy needs --policy MODEL.zip (from simshear train rl)")
+        if variant in POLICY_VARIANTS:
+            flag = "--policy" if variant == "policy" else f"--policy-{variant}"
+            if not policies[variant]:
+                raise ValueError(f"--variants {variant} needs {flag} MODEL.zip (from simshear train rl)")
+            if not Path(policies[variant]).is_file():
+                raise FileNotFoundError(f"{flag} {policies[variant]!r}: no such model file")
+            algorithm = sb3_algorithm(policies[variant])
+            if variant != "policy" and algorithm != variant:
+                raise ValueError(f"{flag} {policies[variant]} is a {algorithm.upper()} model, not {variant.upper()}")
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
@@ -206,8 +226,9 @@ def run(args: argparse.Namespace) -> int:
         for task, label, kwargs in settings:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, args.policy), **kwargs)
-                controller = make_controller(variant, env, posenets, args.policy)
+                env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, policies.get(variant)),
+                               **kwargs)
+                controller = make_controller(variant, env, posenets, policies.get(variant))
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
                     target, sensor = r.pop("_paths")
@@ -239,7 +260,9 @@ def run(args: argparse.Namespace) -> int:
                + " --variants " + " ".join(args.variants)
                + " --seeds " + " ".join(str(s) for s in args.seeds)
                + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)
-               + (f" --policy {args.policy}" if args.policy else "")
+               + "".join(f" --{flag} {path}" for flag, path in (
+                   ("policy", args.policy), ("policy-ppo", args.policy_ppo), ("policy-sac", args.policy_sac),
+                   ("policy-tqc", args.policy_tqc)) if path)
                + (f" --max-steps {args.max_steps}" if args.max_steps else "")
                + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {

@@ -14,11 +14,17 @@ limits through the kinematics, the workspace box, the step and the speed per com
 sent and ends the episode (``info["termination"] == "safety_refused"``, the reason in ``info["safety_event"]``). An
 action that is not finite (a NaN estimate) is refused the same way.
 
-**Observation** ``Dict``: ``tactile`` uint8 (1, S, S), the camera frame preprocessed
-(:func:`~simshear_gym.real.camera.preprocess`, 128 px binary) and resized to S = ``image_size_px`` as the sim env
-halves its 128 px image; ``tcp_pose`` float32 (4,): dome apex x, y, z mm and flange R deg in the robot's base
-frame, from the 30004 feedback's flange pose and the mount (the controller's tool frame must be the flange,
-``Tool(0)``).
+**Observation** ``Dict``, the sim envs' for the same ``RealEnvConfig.observation`` and ``history`` (one definition,
+:func:`~simshear_gym.contract.observation_space`, built by the sim envs' own
+:class:`~simshear_gym.envs.observation.PolicyObservation`): ``observation="tactile"`` (default): ``tactile``
+uint8 (k, S, S), the camera frame preprocessed (:func:`~simshear_gym.real.camera.preprocess`, 128 px binary) and
+resized to S = ``image_size_px`` as the sim env halves its 128 px image (the last k = ``history`` frames, k = 1
+by default), and ``tcp_pose`` float32 (4,): dome apex x, y, z mm and flange R deg in the robot's base frame, from
+the 30004 feedback's flange pose and the mount (the controller's tool frame must be the flange, ``Tool(0)``);
+``"estimate"``: ``estimate`` float32 (16 k,), the servo controller's estimator (GDNN ``RealEnvConfig.posenet``
++ Bayesian filter, fed with the moves commanded) on those images, normalised relative to
+``RealEnvConfig.reference_depth_mm`` (:func:`~simshear_gym.contract.estimate_features`); ``"tactile+estimate"``:
+both.
 
 **Reward** 0 every step: the real robot has no ground truth to score against.
 
@@ -56,15 +62,18 @@ import gymnasium as gym
 import numpy as np
 
 from simshear_gym.contract import (
+    ESTIMATE_OBSERVATIONS,
     IMAGE_SIZES_PX,
     TCP_POSE_LOW,
     ActionScale,
     TacTipMount,
     action_to_move,
+    check_observation,
     policy_spaces,
     resize_tactile,
 )
 from simshear_gym.data.labels import wrap_deg
+from simshear_gym.envs.observation import Estimator, PolicyObservation
 from simshear_gym.real.camera import (
     CameraError,
     CameraSource,
@@ -182,6 +191,9 @@ class RealEnvConfig:
         preprocess: camera frame -> 128 px binary tactile image; None when the source already gives tactile
             images (a simulated camera, a folder of processed images).
         image_size_px: S of the ``tactile`` observation, 128 or 64 (as the sim env).
+        observation, history: what the policy sees (see the module docstring; the sim envs' arguments).
+        reference_depth_mm: the depth the task holds (labels' convention): the estimate's depth is relative to it.
+        posenet: the GDNN of the estimate observation (None: the shipped ``surface`` one, as the servo controller).
         start_pose_mm_deg: flange pose ``(x, y, z mm, R deg)`` in the base frame that ``reset`` moves to (with
             one MovJ, so the robot must be within ``safety.max_move_mm`` of it), checked against the arm's limits
             and the safety workspace on construction.
@@ -207,6 +219,10 @@ class RealEnvConfig:
     frozen_frame_limit: int | None = 20
     preprocess: PreprocessConfig | None = field(default_factory=default_config)
     image_size_px: int = 128
+    observation: str = "tactile"
+    history: int = 1
+    reference_depth_mm: float = 4.0
+    posenet: str | None = None
     start_pose_mm_deg: tuple[float, float, float, float] = (300.0, 0.0, 0.0, 0.0)
     action_scale: ActionScale = ActionScale()
     mount: TacTipMount = TacTipMount()
@@ -222,6 +238,10 @@ class RealEnvConfig:
             raise ValueError("RealEnvConfig.robot_ip must be a host name or IP address, got ''")
         if self.image_size_px not in IMAGE_SIZES_PX:
             raise ValueError(f"RealEnvConfig.image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px!r}")
+        check_observation(self.observation, self.history, "RealEnvConfig")
+        if not (isinstance(self.reference_depth_mm, (int, float)) and math.isfinite(self.reference_depth_mm)):
+            raise ValueError(f"RealEnvConfig.reference_depth_mm must be a finite depth, mm, got "
+                             f"{self.reference_depth_mm!r}")
         if not (math.isfinite(self.control_period_s) and 0.004 <= self.control_period_s <= 1.0):
             raise ValueError(f"RealEnvConfig.control_period_s must be in [0.004, 1] s, got {self.control_period_s!r}")
         for name in ("servo_margin_s",):
@@ -275,7 +295,9 @@ class RealEnvConfig:
             "control_period_s": self.control_period_s, "servo_time_s": self.servo_time_s,
             "camera_source": self.camera_source, "frozen_frame_limit": self.frozen_frame_limit,
             "preprocess": None if self.preprocess is None else self.preprocess.to_dict(),
-            "image_size_px": self.image_size_px, "start_pose_mm_deg": list(self.start_pose_mm_deg),
+            "image_size_px": self.image_size_px, "observation": self.observation, "history": self.history,
+            "reference_depth_mm": self.reference_depth_mm, "posenet": self.posenet,
+            "start_pose_mm_deg": list(self.start_pose_mm_deg),
             "action_scale": {"step_mm": self.action_scale.step_mm, "step_deg": self.action_scale.step_deg},
             "mount": {"tcp_offset_mm": self.mount.tcp_offset_mm, "mount_rz_deg": self.mount.mount_rz_deg},
             "safety": {key: (list(value) if isinstance(value, tuple) else value)
@@ -296,12 +318,16 @@ class RealTactileEnv(gym.Env):
         config: robot, camera, timing and safety settings.
         camera: a frame source to read instead of opening ``config.camera_source`` (a simulated camera, a
             recording); the env closes it on :meth:`close`.
-        contact_check: called with each observation; returning False means contact is lost (ends the episode
-            when ``config.safety.stop_on_lost_contact``).
+        contact_check: called with each step's image and pose (``{"tactile": (1, S, S), "tcp_pose": (4,)}``,
+            whatever the observation); returning False means contact is lost (ends the episode when
+            ``config.safety.stop_on_lost_contact``).
+        estimator: the estimate observation's estimator (None: built like the servo controller's, from
+            ``config.posenet``; :func:`~simshear_gym.control.env_estimator.env_estimator`).
 
     The robot is connected on the first :meth:`reset`, so building the env needs no robot.
 
-    ``info`` of every step: ``time_s`` (since reset), ``flange_pose_mm_deg`` (measured), ``flange_target_mm_deg``
+    ``info`` of every step: ``time_s`` (since reset), ``flange_pose_mm_deg`` (measured), ``tcp_pose`` (measured,
+    as the ``tactile`` observation's ``tcp_pose``, whatever the observation), ``flange_target_mm_deg``
     and ``tcp_target`` (the last target sent, or that would have been sent in a dry run), ``action``,
     ``robot_mode``, ``feedback_age_s``, ``camera_frame_age_s``, ``in_contact`` (None without a contact check),
     ``overrun_s``, ``commands_sent``, ``termination`` and, when something stopped the episode, ``safety_event``.
@@ -310,10 +336,19 @@ class RealTactileEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, config: RealEnvConfig = RealEnvConfig(), camera: FrameSource | None = None,
-                 contact_check: ContactCheck | None = None) -> None:
+                 contact_check: ContactCheck | None = None, estimator: Estimator | None = None) -> None:
         self.config = config
-        self.observation_space, self.action_space = policy_spaces(config.image_size_px)
+        self.observation_space, self.action_space = policy_spaces(config.image_size_px, config.observation,
+                                                                  config.history)
         self.action_scale = config.action_scale
+        self.reference_depth_mm = config.reference_depth_mm
+        self.estimator_posenet = config.posenet or "surface"  # what ServoController.for_env reads
+        if config.observation in ESTIMATE_OBSERVATIONS and estimator is None:
+            from simshear_gym.control.env_estimator import env_estimator
+
+            estimator = env_estimator(self)
+        self._policy_observation = PolicyObservation(config.observation, config.history, config.reference_depth_mm,
+                                                     estimator if config.observation in ESTIMATE_OBSERVATIONS else None)
         self.safety = SafetyLayer(replace(config.safety, dry_run=config.dry_run))
         self.client = MG400Client(config.client_config(), self.safety)
         self._camera = camera
@@ -325,6 +360,8 @@ class RealTactileEnv(gym.Env):
         self._t0 = 0.0
         self._last_frame_time: float | None = None
         self._last_obs: dict[str, np.ndarray] | None = None
+        self._last_image: np.ndarray | None = None  # the last tactile image (S, S) and tcp pose (4,) read
+        self._last_tcp: np.ndarray | None = None
         self._termination: str | None = None  # None: no episode; "": running
         self.commands_sent = 0
         self.safety_events: list[str] = []
@@ -412,7 +449,8 @@ class RealTactileEnv(gym.Env):
         self._repeated_frames = 0
         self._t0 = time.monotonic()
         self._termination = ""
-        obs, stop = self._observe()
+        self._last_obs = self._last_image = self._last_tcp = None
+        obs, stop = self._observe(None)
         self._next_tick = time.monotonic() + self.config.control_period_s
         info = self._info(stop_reason="", action=np.zeros(4), overrun_s=0.0)
         if stop:
@@ -442,7 +480,7 @@ class RealTactileEnv(gym.Env):
             else:
                 overrun_s = -delay_s
             self._next_tick = max(self._next_tick + self.config.control_period_s, time.monotonic())
-            obs, stop = self._observe()
+            obs, stop = self._observe(move)
         else:
             obs = self._last_obs
         reason = ""
@@ -502,8 +540,9 @@ class RealTactileEnv(gym.Env):
             self.commands_sent += 1
         return None
 
-    def _observe(self) -> tuple[dict[str, np.ndarray], tuple[str, str] | None]:
-        """Read the camera and the feedback; the observation and (termination, reason) if something must stop."""
+    def _observe(self, move: np.ndarray | None) -> tuple[dict[str, np.ndarray], tuple[str, str] | None]:
+        """Read the camera and the feedback; the observation and (termination, reason) if something must stop.
+        ``move``: the sensor move (dx, dy, dz mm, dRz deg) commanded since the last observation (None at reset)."""
         stop: tuple[str, str] | None = None
         try:
             frame = self._camera.read()
@@ -519,7 +558,7 @@ class RealTactileEnv(gym.Env):
             stop = stop or self._frozen(frame)
             tactile = tactile_from_frame(frame, self.config.preprocess, self.config.image_size_px)
         else:
-            tactile = (self._last_obs["tactile"][0] if self._last_obs is not None
+            tactile = (self._last_image if self._last_image is not None
                        else np.zeros((self.config.image_size_px,) * 2, np.uint8))
         self._camera_frame_age_s = frame_age_s
         try:
@@ -534,14 +573,19 @@ class RealTactileEnv(gym.Env):
             tcp = tcp_pose_from_flange(flange, self.config.mount)
             self._flange = flange
         else:
-            tcp = (self._last_obs["tcp_pose"].astype(np.float64) if self._last_obs is not None else np.zeros(4))
+            tcp = self._last_tcp if self._last_tcp is not None else np.zeros(4)
             self._flange = None
-        obs = {"tactile": tactile[None].copy(),
-               "tcp_pose": np.clip(tcp, TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)}
+        self._last_image, self._last_tcp = tactile, tcp
+        if move is None or self._last_obs is None:
+            obs = self._policy_observation.reset(tactile, tcp)
+        else:
+            obs = self._policy_observation.step(tactile, tcp, move)
         self._last_obs = obs
         in_contact = None
         if self.contact_check is not None and frame is not None:
-            in_contact = bool(self.contact_check(obs))
+            seen = {"tactile": tactile[None].copy(),
+                    "tcp_pose": np.clip(tcp, TCP_POSE_LOW, -TCP_POSE_LOW).astype(np.float32)}
+            in_contact = bool(self.contact_check(seen))
         self._in_contact = in_contact
         snapshot = self.client.status_snapshot(camera_frame_age_s=frame_age_s, in_contact=in_contact)
         self._snapshot = snapshot
@@ -575,6 +619,7 @@ class RealTactileEnv(gym.Env):
         return {
             "time_s": time.monotonic() - self._t0,
             "flange_pose_mm_deg": None if self._flange is None else self._flange.copy(),
+            "tcp_pose": None if self._last_tcp is None else np.asarray(self._last_tcp, dtype=np.float64).copy(),
             "flange_target_mm_deg": commanded.copy(),
             "tcp_target": tcp_pose_from_flange(commanded, self.config.mount),
             "action": np.asarray(action, dtype=np.float64).copy(),

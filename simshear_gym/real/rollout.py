@@ -3,11 +3,16 @@
 ::
 
     simshear rollout --robot 192.168.1.6 --camera 0 --controller servo --steps 300 --out runs/rollout/surface
-    simshear rollout --robot 127.0.0.1 --camera sim-surface --controller runs/rl/ppo/final.zip --dry-run
+    simshear rollout --robot 127.0.0.1 --camera sim-surface --policy runs/rl/ppo/model.zip --dry-run
 
-Controllers: ``servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter + PI law,
-``--posenet`` weights, default the shipped ``surface`` GDNN) or the path of a Stable-Baselines3 PPO / SAC ``.zip``
-trained on ``SimShearTracking-v0`` (its observation space must equal the env's: same ``--image-size``).
+Controllers: ``--controller servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter +
+PI law, ``--posenet`` weights, default the shipped ``surface`` GDNN) or ``--policy MODEL.zip`` (or ``--controller
+MODEL.zip``): a Stable-Baselines3 PPO / SAC agent of ``simshear train rl``, loaded with its run folder's
+``config.json`` and ``VecNormalize`` statistics (:meth:`~simshear_gym.control.policy.SB3Controller.load`): the
+env gives it the observation it was trained on (observation, history, image size; an estimate observation reads
+the images with ``--posenet`` / ``--sensor``'s GDNN, default the shipped ``surface`` one, relative to
+``--reference-depth-mm``), its observations are normalised as in training and a residual policy's correction is
+added to the servo law. A bare ``.zip`` (no ``config.json``) gets the ``tactile`` observation at ``--image-size``.
 
 Camera (``--camera``): a device index, a video file or an image folder (:class:`~simshear_gym.real.camera.
 CameraSource`, preprocessed with ``--preprocess``), or ``sim-surface``: the hardware-in-the-loop camera
@@ -36,6 +41,7 @@ from simshear_gym.contract import load_sensor
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
     EstimatingController,
+    PolicySettings,
     SB3Controller,
     sb3_algorithm,
 )
@@ -74,7 +80,8 @@ def _columns(with_estimate: bool, with_truth: bool) -> list[str]:
 
 def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: float, truth) -> dict[str, Any]:
     row: dict[str, Any] = {"step": step, "time_s": round(float(info["time_s"]), 4)}
-    for prefix, value in (("tcp", observation["tcp_pose"]), ("tcp_target", info["tcp_target"]),
+    tcp = observation["tcp_pose"] if "tcp_pose" in observation else info.get("tcp_pose")  # estimate observations
+    for prefix, value in (("tcp", tcp), ("tcp_target", info["tcp_target"]),
                           ("flange", info["flange_pose_mm_deg"]), ("flange_target", info["flange_target_mm_deg"])):
         for name, number in zip(POSE_NAMES, _vector(value)):
             row[f"{prefix}_{name}"] = round(number, 6)  # the precision of the commands sent
@@ -234,14 +241,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera", required=True, metavar="SRC",
                         help=f"camera device index, video file, image folder, or '{SIM_SURFACE_CAMERA}' (simulated "
                              "TacTip on a moving surface at the robot's reported pose)")
-    parser.add_argument("--controller", required=True, metavar="servo|MODEL.zip",
-                        help="'servo' (GDNN + filter + PI law) or a Stable-Baselines3 PPO/SAC .zip")
+    parser.add_argument("--controller", default=None, metavar="servo|MODEL.zip",
+                        help="'servo' (GDNN + filter + PI law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
+    parser.add_argument("--policy", default=None, metavar="MODEL.zip",
+                        help="a PPO/SAC/TQC agent of simshear train rl (model.zip, best_model.zip or a checkpoint), "
+                             "with its run's settings and VecNormalize statistics; instead of --controller")
     parser.add_argument("--steps", type=int, default=200, help="control steps to run (default 200)")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default runs/rollout/<date-time>)")
     parser.add_argument("--dry-run", action="store_true", help="check and log motion commands, send none")
     parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1)")
-    parser.add_argument("--image-size", type=int, default=128, choices=(64, 128), help="tactile observation size")
+    parser.add_argument("--image-size", type=int, default=None, choices=(64, 128),
+                        help="tactile observation size (default: the policy's, from its run's config.json, else 128)")
     parser.add_argument("--start-pose", type=float, nargs=4, default=(300.0, 0.0, 0.0, 0.0),
                         metavar=("X", "Y", "Z", "R"), help="flange start pose, mm and deg (default 300 0 0 0)")
     parser.add_argument("--max-step-mm", type=float, default=5.0,
@@ -275,9 +286,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def command_line(args: argparse.Namespace) -> str:
     """The ``simshear rollout`` command that reproduces ``args``."""
-    words = ["simshear", "rollout", "--robot", args.robot, "--camera", str(args.camera), "--controller",
-             str(args.controller), "--steps", str(args.steps), "--period-s", f"{args.period_s:g}", "--image-size",
-             str(args.image_size), "--start-pose", *(f"{v:g}" for v in args.start_pose),
+    words = ["simshear", "rollout", "--robot", args.robot, "--camera", str(args.camera)]
+    words += ["--policy", str(args.policy)] if args.policy else ["--controller", str(args.controller)]
+    words += ["--steps", str(args.steps), "--period-s", f"{args.period_s:g}"]
+    if args.image_size is not None:
+        words += ["--image-size", str(args.image_size)]
+    words += ["--start-pose", *(f"{v:g}" for v in args.start_pose),
              "--max-step-mm", f"{args.max_step_mm:g}", "--max-step-deg", f"{args.max_step_deg:g}",
              "--reference-depth-mm", f"{args.reference_depth_mm:g}", "--preprocess", str(args.preprocess),
              "--dashboard-port", str(args.dashboard_port), "--motion-port", str(args.motion_port),
@@ -310,15 +324,28 @@ def _preprocess_config(value: str):
     return PreprocessConfig.load(value)
 
 
-def _load_sb3(path: str, env) -> SB3Controller:
-    """``--controller MODEL.zip`` as a controller, with errors that name the flags."""
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"--controller {path!r} is neither 'servo' nor an existing SB3 .zip file")
+def _policy_path(args: argparse.Namespace) -> str | None:
+    """The SB3 model of ``--policy`` or ``--controller MODEL.zip`` (None for ``--controller servo``), checked."""
+    if (args.policy is None) == (args.controller is None):
+        raise ValueError("give --controller servo|MODEL.zip or --policy MODEL.zip (one of them)")
+    if args.policy is not None:
+        if not Path(args.policy).is_file():
+            raise FileNotFoundError(f"--policy {args.policy!r}: no such SB3 .zip file")
+        return args.policy
+    if args.controller == "servo":
+        return None
+    if not Path(args.controller).is_file():
+        raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
+    return args.controller
+
+
+def _load_sb3(path: str, env, flag: str = "--controller") -> SB3Controller:
+    """An SB3 model as the env's controller, with errors that name the flags."""
     sb3_algorithm(path)  # not an SB3 model: that error as it is
     try:
-        return SB3Controller.load(path, env.observation_space, env.action_space)
+        return SB3Controller.for_env(path, env)
     except ValueError as error:  # trained on other spaces
-        raise ValueError(f"--controller {error}; check --image-size") from None
+        raise ValueError(f"{flag} {error}; check --image-size") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -334,6 +361,12 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
+    policy = _policy_path(args)
+    settings = PolicySettings.of_model(policy) if policy else None
+    image_size_px = args.image_size or (settings.image_size_px if settings else 128)
+    if args.sensor and args.posenet:
+        raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
+    posenet = load_sensor(args.sensor).posenet("surface") if args.sensor else args.posenet
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
     preprocess_config = _preprocess_config(args.preprocess)
     safety_type = UnsafeSafetyConfig if args.unsafe_limits else SafetyConfig
@@ -345,8 +378,9 @@ def run(args: argparse.Namespace) -> int:
     config = RealEnvConfig(
         robot_ip=args.robot, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
         feedback_port=args.feedback_port, control_period_s=args.period_s, camera_source=str(args.camera),
-        preprocess=preprocess_config, image_size_px=args.image_size, start_pose_mm_deg=tuple(args.start_pose),
-        safety=safety, dry_run=args.dry_run,
+        preprocess=preprocess_config, image_size_px=image_size_px, start_pose_mm_deg=tuple(args.start_pose),
+        observation=settings.observation if settings else "tactile", history=settings.history if settings else 1,
+        reference_depth_mm=args.reference_depth_mm, posenet=posenet, safety=safety, dry_run=args.dry_run,
         # a simulated camera has no noise: equal frames in a row are no sign of a frozen driver
         frozen_frame_limit=None if args.camera == SIM_SURFACE_CAMERA else RealEnvConfig.frozen_frame_limit)
     if args.camera != SIM_SURFACE_CAMERA:
@@ -361,17 +395,14 @@ def run(args: argparse.Namespace) -> int:
                                   config.mount, raw_frame_layout=preprocess_config)
         env = RealTactileEnv(config, camera=camera)
         holder.append(env)
-    if args.sensor and args.posenet:
-        raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
-    posenet = load_sensor(args.sensor).posenet("surface") if args.sensor else args.posenet
     estimator_config = EstimatorConfig(posenet=posenet)
     try:
         controller: Controller
-        if args.controller == "servo":
+        if policy is None:
             servo = ServoController(args.reference_depth_mm, config.action_scale, estimator=estimator_config)
             controller, estimator = servo, servo.estimator
         else:
-            controller, estimator = _load_sb3(args.controller, env), None
+            controller, estimator = _load_sb3(policy, env, "--policy" if args.policy else "--controller"), None
         if args.min_depth_mm is not None:
             if estimator is None:
                 from simshear_gym.control.estimator import TactileEstimator

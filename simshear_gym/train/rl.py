@@ -1,153 +1,113 @@
-"""Train a Stable-Baselines3 agent (PPO or SAC) on SimShearTracking-v0.
+"""Train a Stable-Baselines3 agent (PPO, SAC, or sb3-contrib's TQC) on ``SimShearTracking-v0`` or ``SimShearCoLift-v0``.
 
-``simshear train rl --algo ppo --out runs/rl/ppo --timesteps N`` trains on the env's translated images
-(``obs_mode="real"`` by default, so the policy sees what it would see on the real robot) with randomised
-trajectories (``trajectory="random"``, ``randomise=True``: scale, speed, rotation and start place drawn per reset).
-Policy: SB3's ``MultiInputPolicy`` (a CNN on ``tactile``, an MLP on ``tcp_pose``; the CNN needs images of at
-least 36 px, and 64 px is the default here because it halves the policy's cost at the same translation cost).
+``simshear train rl --algo ppo --out runs/rl/ppo --timesteps N`` trains on randomised episodes (``trajectory=
+"random"``, ``randomise=True``: the trajectory's scale, speed, turn and the start place drawn per reset; co-lift:
+sub-env i carries object i mod 4) in what a robot can give a policy:
 
-Run directory: ``config.json``, tensorboard logs ``tb/`` (episode reward and length, losses), checkpoints
-``checkpoints/rl_model_<steps>_steps.zip`` every ``--checkpoint-steps`` (SB3's ``CheckpointCallback``; each file
-written whole) and the final ``model.zip``. ``--resume`` continues from the newest checkpoint (or ``model.zip``)
-with the step count carried on. Evaluate the result with the servo benchmark's policy variant:
-``simshear evaluate servo --variants policy --policy OUT/model.zip``.
+- ``--observation tactile`` (default): the env's image (``--obs-mode real``: translated by the shipped
+  shPix2pix, as on the robot; ``sim``: raw renders) and the TCP pose; SB3's ``MultiInputPolicy`` puts a CNN on the
+  image (at least 36 px: 64 px by default, half the policy's cost at the same translation cost);
+- ``--observation estimate``: the servo controller's estimator (the env's shipped GDNN + Bayesian filter) on that
+  image, its reading and filter state normalised (16 numbers a frame): an MLP;
+- ``--observation tactile+estimate``: both; ``--history k`` stacks the last k frames and estimates.
+
+Set-up: ``--n-envs`` sub-envs, stepped in worker processes (``--vec subproc``, one torch thread each) or in this
+one (``--vec dummy``); ``VecNormalize`` (observations but the image; rewards for PPO) unless
+``--no-normalize``. Options: ``--residual-bound B``: residual RL, the policy's action a correction of at most B
+full-scale actions added to the servo law on the filter's estimate
+(:class:`~simshear_gym.control.policy.ResidualServo`; needs an estimate observation); ``--asymmetric-critic``
+(PPO): the critic also sees the true contact state (the env's ``true_pose_shear``,
+:mod:`simshear_gym.control.asymmetric`), the actor only the observation above; the deployed policy needs no true
+state (the controller fills those inputs with zeros, which the actor never reads).
+
+Training stops at ``--timesteps`` env steps or after ``--minutes`` of wall-clock time in this invocation, whichever
+comes first. Every ``--eval-steps`` env steps (and at the end) the deterministic policy runs the nominal episodes
+(tracking: circle, tilted square, spiral, loop; co-lift: the four objects on the circular wave), capped at
+``--eval-max-steps`` steps; the mean contact error per episode and over them, the steps run and the early ends go
+to tensorboard (``eval/*`` against env steps: the learning curve) and ``evaluations.json``.
+
+Run directory: ``config.json`` (these settings and the residual law's gains: what
+:meth:`~simshear_gym.control.policy.SB3Controller.load` reads to rebuild the env's observation), tensorboard logs
+``tb/``, ``checkpoints/rl_model_<steps>_steps.zip`` with ``rl_model_vecnormalize_<steps>_steps.pkl`` every
+``--checkpoint-steps``, ``evaluations.json`` and ``learning_curve.png``, ``best_model.zip`` with
+``best_model_vecnormalize.pkl`` (the evaluation with the lowest mean contact error among those without an early
+end, else the lowest), and the final ``model.zip`` with ``vecnormalize.pkl``, ``summary.json``. ``--resume``
+continues from the newest checkpoint (or ``model.zip``) and its normalisation statistics, the step count carried
+on (SAC's replay buffer starts empty). Evaluate: ``simshear evaluate servo --variants ppo --policy-ppo
+OUT/model.zip``; on the robot: ``simshear rollout --policy OUT/model.zip``.
+
+This module is the command, its flags and its settings; it imports no torch (``--help`` stays fast). The trainer
+is :mod:`simshear_gym.train.rl_trainer`, the settings :mod:`simshear_gym.train.rl_config`.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import re
-import time
-from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from simshear_gym.contract import OBSERVATIONS
 from simshear_gym.train.flags import config_flags, config_from_args
-from simshear_gym.train.runs import check_same_settings
+from simshear_gym.train.rl_config import (
+    ALGORITHMS,
+    OBS_MODES,
+    TASKS,
+    VEC_ENVS,
+    RLTrainConfig,
+    latest_checkpoint,
+)
 
-ALGORITHMS = ("ppo", "sac")
-OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
-_RESUME_FREE = ("timesteps", "threads")  # settings a resumed run may change
-
-
-@dataclass(frozen=True)
-class RLTrainConfig:
-    """Everything an RL run depends on (saved as ``config.json``)."""
-
-    algo: str = "ppo"
-    timesteps: int = 20_000
-    obs_mode: str = "real"
-    image_size_px: int = 64
-    n_envs: int = 1
-    n_steps: int = 256
-    batch_size: int = 64
-    learning_rate: float = 3e-4
-    checkpoint_steps: int = 2_000
-    seed: int = 0
-    threads: int = 1
-
-    def __post_init__(self) -> None:
-        if self.algo not in ALGORITHMS:
-            raise ValueError(f"algo must be one of {ALGORITHMS}, got {self.algo!r}")
-        if self.obs_mode not in OBS_MODES:
-            raise ValueError(f"obs_mode must be 'real' or 'sim' (a policy never sees ground truth), "
-                             f"got {self.obs_mode!r}")
-        if self.image_size_px not in (64, 128):
-            raise ValueError(f"image_size_px must be 64 or 128, got {self.image_size_px}")
-        if min(self.timesteps, self.n_envs, self.n_steps, self.batch_size, self.checkpoint_steps) < 1:
-            raise ValueError("timesteps, n_envs, n_steps, batch_size and checkpoint_steps must be >= 1")
-        if self.learning_rate <= 0:
-            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
-
-
-def make_env(config: RLTrainConfig):
-    import gymnasium as gym
-
-    import simshear_gym.envs  # noqa: F401  (registers the envs)
-
-    return gym.make("SimShearTracking-v0", trajectory="random", randomise=True, obs_mode=config.obs_mode,
-                    image_size_px=config.image_size_px)
-
-
-def latest_checkpoint(run_dir: Path) -> Path | None:
-    """The newest ``checkpoints/rl_model_<steps>_steps.zip``, else ``model.zip``, else None."""
-    found = []
-    for path in (run_dir / "checkpoints").glob("rl_model_*_steps.zip"):
-        match = re.fullmatch(r"rl_model_(\d+)_steps\.zip", path.name)
-        if match:
-            found.append((int(match.group(1)), path))
-    if found:
-        return max(found)[1]
-    return run_dir / "model.zip" if (run_dir / "model.zip").is_file() else None
-
+__all__ = ["RLTrainConfig", "add_arguments", "latest_checkpoint", "run", "train"]
 
 def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: bool = True) -> dict:
-    """Train (or continue) a run; returns a summary. The final model is ``run_dir/model.zip``."""
-    import torch
-    from stable_baselines3 import PPO, SAC
-    from stable_baselines3.common.callbacks import CheckpointCallback
-    from stable_baselines3.common.env_util import make_vec_env
+    """Train (or continue) a run; returns its summary (:func:`simshear_gym.train.rl_trainer.train`)."""
+    from simshear_gym.train.rl_trainer import train as run_training
 
-    from simshear_gym.io import write_json
-
-    torch.set_num_threads(config.threads)
-    run_dir = Path(run_dir)
-    saved_config = run_dir / "config.json"
-    if saved_config.is_file() and resume:
-        check_same_settings(saved_config, json.loads(saved_config.read_text()), config, _RESUME_FREE)
-    if not resume and latest_checkpoint(run_dir) is not None:
-        raise ValueError(f"{run_dir} already holds a model: pass --resume to continue it or use a new --out")
-    run_dir.mkdir(parents=True, exist_ok=True)
-    write_json(saved_config, asdict(config))
-    env = make_vec_env(lambda: make_env(config), n_envs=config.n_envs, seed=config.seed)
-    Algorithm = PPO if config.algo == "ppo" else SAC
-    start_from = latest_checkpoint(run_dir) if resume else None
-    if start_from is not None:
-        model = Algorithm.load(start_from, env=env, tensorboard_log=str(run_dir / "tb"))
-    elif config.algo == "ppo":
-        model = PPO("MultiInputPolicy", env, n_steps=config.n_steps, batch_size=config.batch_size,
-                    learning_rate=config.learning_rate, seed=config.seed, tensorboard_log=str(run_dir / "tb"),
-                    verbose=int(progress))
-    else:
-        model = SAC("MultiInputPolicy", env, batch_size=config.batch_size, learning_rate=config.learning_rate,
-                    buffer_size=min(50_000, config.timesteps), learning_starts=min(1_000, config.timesteps // 4),
-                    seed=config.seed, tensorboard_log=str(run_dir / "tb"), verbose=int(progress))
-    remaining = config.timesteps - model.num_timesteps
-    started = time.perf_counter()
-    if remaining > 0:
-        checkpoints = CheckpointCallback(save_freq=max(1, config.checkpoint_steps // config.n_envs),
-                                         save_path=str(run_dir / "checkpoints"), name_prefix="rl_model")
-        model.learn(total_timesteps=remaining, callback=checkpoints, reset_num_timesteps=start_from is None,
-                    tb_log_name=config.algo)
-    model.save(run_dir / "model.tmp.zip")
-    (run_dir / "model.tmp.zip").replace(run_dir / "model.zip")
-    env.close()
-    summary = {"algo": config.algo, "timesteps": int(model.num_timesteps),
-               "resumed_from": str(start_from) if start_from else None,
-               "seconds": round(time.perf_counter() - started, 1), "model": str(run_dir / "model.zip")}
-    write_json(run_dir / "summary.json", summary)
-    return summary
+    return run_training(config, Path(run_dir), resume=resume, progress=progress)
 
 
 FLAG_HELP = {
-    "algo": "SB3 algorithm",
+    "algo": "SB3 algorithm (tqc: sb3-contrib's TQC, SAC with a distributional critic; needs sb3-contrib)",
+    "task": "env: tracking (SimShearTracking-v0) or colift (SimShearCoLift-v0; sub-env i carries object i mod 4)",
     "timesteps": "env steps to train in all (a resumed run trains until its step count reaches this)",
-    "obs_mode": "tactile images the policy sees: real (sim renders through the shipped translator, as on the "
-                "robot) or sim (the raw sim renders)",
+    "minutes": "wall-clock budget of this invocation: stop (and save) after this many minutes",
+    "observation": "what the policy sees: tactile (image + TCP pose), estimate (the servo controller's GDNN + filter "
+                   "estimate of the image, normalised), tactile+estimate",
+    "history": "the observation stacks the last HISTORY images / estimates",
+    "obs_mode": "tactile images the policy (or its estimator) sees: real (sim renders through the shipped "
+                "translator, as on the robot) or sim (the raw sim renders)",
     "image_size_px": "tactile image size in px: 64 or 128 (the policy's CNN needs at least 36)",
-    "n_envs": "envs stepped side by side (SB3 make_vec_env)",
-    "n_steps": "PPO: env steps per env between updates",
+    "randomise": "domain randomisation per reset: trajectory scale, speed, turn and start place (--no-randomise: "
+                 "nominal episodes of random trajectories)",
+    "n_envs": "sub-envs stepped side by side",
+    "vec": "subproc: sub-envs in worker processes (one torch thread each; use the cores), dummy: in this process",
+    "n_steps": "PPO: env steps per sub-env between updates",
     "batch_size": "minibatch size of the updates",
+    "n_epochs": "PPO: passes over each rollout",
+    "gamma": "discount factor",
     "learning_rate": "Adam learning rate",
-    "checkpoint_steps": "write checkpoints/rl_model_<steps>_steps.zip every this many env steps",
+    "net_arch": "hidden layer widths of the policy and value networks (default: the algorithm's, PPO 64 64, "
+                "SAC 256 256)",
+    "normalize": "VecNormalize: running mean/std normalisation of the observations but the image (and of PPO's "
+                 "rewards), saved with the model (--no-normalize: off)",
+    "residual_bound": "residual RL: the policy adds at most this many full-scale actions to the servo law's action "
+                      "(needs an estimate observation; 0: the policy acts alone)",
+    "asymmetric_critic": "PPO: the critic also sees the true contact state (depth, shear), the actor only the "
+                         "observation (asymmetric actor-critic; the deployed policy needs no true state)",
+    "eval_steps": "evaluate the deterministic policy on the nominal episodes every this many env steps (0: never)",
+    "eval_max_steps": "cap on each evaluation episode's steps",
+    "checkpoint_steps": "write checkpoints/rl_model_<steps>_steps.zip (+ its VecNormalize statistics) every this "
+                        "many env steps",
     "seed": "seed of the envs and the agent",
-    "threads": "torch CPU threads",
+    "threads": "torch CPU threads of this process",
 }
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
-    config_flags(parser, RLTrainConfig, FLAG_HELP, choices={"algo": ALGORITHMS, "obs_mode": OBS_MODES})
+    config_flags(parser, RLTrainConfig, FLAG_HELP,
+                 choices={"algo": ALGORITHMS, "task": TASKS, "observation": OBSERVATIONS, "obs_mode": OBS_MODES,
+                          "vec": VEC_ENVS})
     parser.add_argument("--resume", action="store_true", help="continue from the run's newest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no SB3 training log on stdout")
 

@@ -1,0 +1,48 @@
+"""The estimator an env's estimate observation runs: the servo controller's, built for that env.
+
+Envs (and ``RealTactileEnv``) take it as their ``estimator`` argument; envs cannot import the controllers (same
+floor), so it is passed in::
+
+    from simshear_gym.control.env_estimator import env_estimator
+    env = gymnasium.make("SimShearTracking-v0", observation="estimate", estimator=env_estimator)
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from simshear_gym.contract import ESTIMATE_OBSERVATIONS
+from simshear_gym.control.estimator import TactileEstimator
+from simshear_gym.control.policy import PolicySettings
+from simshear_gym.control.servo import ServoController
+
+
+class ReadingEstimator(TactileEstimator):
+    """A :class:`~simshear_gym.control.estimator.TactileEstimator` that keeps the GDNN's raw reading of the last
+    image (``last_reading``: (mean (4,), std (4,))) besides returning the filter's state, so the estimate
+    observation holds both at one GDNN pass per image."""
+
+    last_reading: tuple[np.ndarray, np.ndarray] | None = None
+
+    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.last_reading = super().read(tactile)
+        return self.last_reading
+
+
+def env_estimator(env) -> ReadingEstimator:
+    """The estimator :meth:`ServoController.for_env <simshear_gym.control.servo.ServoController.for_env>` builds
+    for ``env`` (the GDNN the env names, its process noise), keeping its readings."""
+    return ReadingEstimator(ServoController.for_env(env).estimator.config)
+
+
+def env_kwargs(settings: PolicySettings) -> dict[str, Any]:
+    """``gym.make`` keyword arguments of a sim env that gives a policy the observation it was trained on."""
+    kwargs = settings.env_kwargs()
+    if settings.observation in ESTIMATE_OBSERVATIONS:
+        kwargs["estimator"] = env_estimator
+    return kwargs
+
+
+__all__ = ["ReadingEstimator", "env_estimator", "env_kwargs"]

@@ -1,0 +1,101 @@
+"""The settings of ``simshear train rl`` (:mod:`simshear_gym.train.rl`: what each means) and the run folder's
+checkpoints; torch-free, so the command's ``--help`` stays fast."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from simshear_gym.contract import ESTIMATE_OBSERVATIONS, IMAGE_SIZES_PX, check_observation
+
+ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional dependency)
+TASKS = ("tracking", "colift")
+ENV_IDS = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
+OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
+VEC_ENVS = ("dummy", "subproc")
+# settings a resumed run may change (they change neither the agent nor its envs)
+RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps")
+
+
+@dataclass(frozen=True)
+class RLTrainConfig:
+    """Everything an RL run depends on (saved as ``config.json``); what each setting means: ``FLAG_HELP`` of
+    :mod:`simshear_gym.train.rl`."""
+
+    algo: str = "ppo"
+    task: str = "tracking"
+    timesteps: int = 20_000
+    minutes: float | None = None
+    observation: str = "tactile"
+    history: int = 1
+    obs_mode: str = "real"
+    image_size_px: int = 64
+    randomise: bool = True
+    n_envs: int = 1
+    vec: str = "dummy"
+    n_steps: int = 256
+    batch_size: int = 64
+    n_epochs: int = 10
+    gamma: float = 0.99
+    learning_rate: float = 3e-4
+    net_arch: tuple[int, ...] = ()
+    normalize: bool = True
+    residual_bound: float = 0.0
+    asymmetric_critic: bool = False
+    eval_steps: int = 0
+    eval_max_steps: int = 500
+    checkpoint_steps: int = 2_000
+    seed: int = 0
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        if self.algo not in ALGORITHMS:
+            raise ValueError(f"algo must be one of {ALGORITHMS}, got {self.algo!r}")
+        if self.task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        if self.obs_mode not in OBS_MODES:
+            raise ValueError(f"obs_mode must be 'real' or 'sim' (a policy never sees ground truth), "
+                             f"got {self.obs_mode!r}")
+        check_observation(self.observation, self.history)
+        if self.image_size_px not in IMAGE_SIZES_PX:
+            raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px}")
+        if self.vec not in VEC_ENVS:
+            raise ValueError(f"vec must be one of {VEC_ENVS}, got {self.vec!r}")
+        if min(self.timesteps, self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.checkpoint_steps,
+               self.eval_max_steps) < 1:
+            raise ValueError("timesteps, n_envs, n_steps, batch_size, n_epochs, checkpoint_steps and "
+                             f"eval_max_steps must be >= 1, got {self}")
+        if self.eval_steps < 0:
+            raise ValueError(f"eval_steps must be >= 0 (0: no evaluation), got {self.eval_steps}")
+        if self.minutes is not None and not self.minutes > 0:
+            raise ValueError(f"minutes must be > 0 (or left out: no time budget), got {self.minutes}")
+        if self.learning_rate <= 0 or not 0.0 < self.gamma <= 1.0:
+            raise ValueError(f"need learning_rate > 0 and gamma in (0, 1], got {self.learning_rate}, {self.gamma}")
+        if any(width < 1 for width in self.net_arch):
+            raise ValueError(f"net_arch widths must be >= 1, got {self.net_arch}")
+        if not 0.0 <= self.residual_bound <= 1.0:
+            raise ValueError(f"residual_bound must be in [0, 1] full-scale actions (0: not residual), "
+                             f"got {self.residual_bound}")
+        if self.asymmetric_critic and self.algo != "ppo":
+            raise ValueError(f"--asymmetric-critic is PPO's (an actor-critic policy with two extractors), got "
+                             f"--algo {self.algo}")
+        if self.residual_bound > 0 and self.observation not in ESTIMATE_OBSERVATIONS:
+            raise ValueError("a residual policy corrects the servo law on the filter's estimate: --residual-bound "
+                             f"needs --observation estimate or tactile+estimate, got {self.observation!r}")
+
+    @property
+    def env_id(self) -> str:
+        return ENV_IDS[self.task]
+
+
+def latest_checkpoint(run_dir: Path) -> Path | None:
+    """The newest ``checkpoints/rl_model_<steps>_steps.zip``, else ``model.zip``, else None."""
+    found = []
+    for path in (Path(run_dir) / "checkpoints").glob("rl_model_*_steps.zip"):
+        match = re.fullmatch(r"rl_model_(\d+)_steps\.zip", path.name)
+        if match:
+            found.append((int(match.group(1)), path))
+    if found:
+        return max(found)[1]
+    return Path(run_dir) / "model.zip" if (Path(run_dir) / "model.zip").is_file() else None
