@@ -3,12 +3,15 @@
 
 ``simshear collect --replay DIR [DIR ...] --out OUT`` and ``simshear collect --replay-all --out OUT`` (the eight
 tactip331 sets) replay real sets; ``simshear collect --task surface|edge --n N --seed S --out OUT`` draws
-random contacts over the real sets' ranges.
+random contacts over the real sets' ranges. ``--ray ADDRESS`` renders on Ray (``local``: a Ray on this machine;
+``auto`` or ``HOST:PORT``: a running cluster, see docs/scaling_ray.md) instead of plain processes; the rows are
+the same either way.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 from pathlib import Path
 
@@ -33,14 +36,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--image-size", type=int, default=128, choices=(64, 128, 256),
                         help="side of the rendered sim images in px (default 128)")
-    parser.add_argument("--workers", type=int, default=2, help="rendering processes")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="rendering processes (with --ray: Ray tasks, and a local Ray's CPUs)")
+    parser.add_argument("--ray", metavar="ADDRESS", default=None,
+                        help="render as Ray tasks: 'local' (a Ray on this machine), 'auto' (the cluster `ray start` "
+                        "joined here) or a head's HOST:PORT; needs the ray extra (default: plain processes)")
 
 
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
+    from simshear_gym.sim.parallel import ray_session
     from simshear_gym.sim.tactip import TacTipConfig
 
-    config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers)
+    config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers,
+                           ray_address=args.ray)
     start = time.perf_counter()
     if args.task:
         jobs = [(f"random {args.task}", lambda: random_set(args.task, args.n, args.seed, args.out, config))]
@@ -55,10 +64,12 @@ def run(args: argparse.Namespace) -> int:
             pairs = [(d, args.out / "_".join(Path(d).resolve().parts[-3:])) for d in args.replay]
         jobs = [(str(real), lambda r=real, o=out: replay_set(r, o, config, root, args.contact)) for real, out in pairs]
     total = 0
-    for name, job in jobs:
-        rows = job()
-        total += rows
-        print(f"{name}: {rows} rows")
+    # one Ray session for all the sets (a local Ray starts once)
+    with ray_session(args.ray, num_cpus=args.workers) if args.ray else contextlib.nullcontext():
+        for name, job in jobs:
+            rows = job()
+            total += rows
+            print(f"{name}: {rows} rows")
     elapsed = time.perf_counter() - start
     print(f"wrote {total} paired rows to {args.out} in {elapsed:.1f} s ({total / max(elapsed, 1e-9):.0f} rows/s)")
     return 0

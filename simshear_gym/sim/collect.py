@@ -1,7 +1,11 @@
 """Render paired sets: replay each row of a real set (or random contacts over its ranges) in simulation and
 write our sim image, the shear vector and the labels beside the real image (format: :mod:`simshear_gym.data.paired`).
 
-Rendering is split over worker processes (:func:`~simshear_gym.sim.replay.map_chunks`), each with its own scene.
+Rendering is split into ``workers`` chunks (:func:`~simshear_gym.sim.parallel.map_chunks`), each rendered with
+its own scene: in as many processes that also write their images, or, with ``ray_address``, as Ray tasks that
+return their images to this process, which writes them (a cluster's nodes need not see the output disk). The
+labels (random contacts included) are drawn here before the split, and an image depends only on its row's pose,
+so a set is the same, byte for byte, whatever the number of workers and whichever executor renders it.
 """
 
 from __future__ import annotations
@@ -30,23 +34,33 @@ from simshear_gym.data.tactile_set import (
     write_image,
     write_targets,
 )
-from simshear_gym.sim.replay import ReplayGeometry, ReplayScene, map_chunks
+from simshear_gym.sim.parallel import check_ray_address, map_chunks
+from simshear_gym.sim.replay import ReplayGeometry, ReplayScene, render_poses
 from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 from simshear_gym.sim.tactip import TacTipConfig
 
 
 @dataclass(frozen=True)
 class CollectConfig:
-    """Settings of one collection run (saved in each paired set's meta.json)."""
+    """Settings of one collection run (the sensor, geometry and shear settings are saved in each paired set's
+    meta.json; ``workers`` and ``ray_address`` only say where it runs).
+
+    Attributes:
+        workers: chunks the rows are split into, rendered in as many processes (or Ray tasks).
+        ray_address: None (plain processes), ``"local"`` (a Ray on this machine), ``"auto"`` or ``HOST:PORT``
+            (a running Ray cluster); see :mod:`simshear_gym.sim.parallel`.
+    """
 
     tactip: TacTipConfig = TacTipConfig()
     geometry: ReplayGeometry = ReplayGeometry()
     shear: ShearTrackerConfig = ShearTrackerConfig()
     workers: int = 2
+    ray_address: str | None = None
 
     def __post_init__(self) -> None:
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
+        check_ray_address(self.ray_address)
 
 
 def _render_and_write_chunk(args: tuple[str, np.ndarray, list[str], Path, CollectConfig]) -> int:
@@ -61,15 +75,21 @@ def write_paired_set(out_dir: Path, contact: str, poses: np.ndarray, targets: pd
                      config: CollectConfig) -> None:
     """Render ``poses`` into ``out_dir/images`` (named by ``targets.sensor_image``), then write the targets.
 
-    Each worker renders and writes its own share of the images; ``targets.csv`` comes last, so a set without
-    it is an interrupted one.
+    Each worker process renders and writes its own share of the images (Ray tasks render theirs, and this
+    process writes them); ``targets.csv`` comes last, so a set without it is an interrupted one.
     """
     images_dir = out_dir / "images"
     images_dir.mkdir(parents=True, exist_ok=True)
     names = targets[IMAGE_COLUMN].to_list()
-    shares = np.array_split(np.arange(len(names)), config.workers)
-    chunks = [(contact, poses[share], [names[i] for i in share], images_dir, config) for share in shares if len(share)]
-    map_chunks(_render_and_write_chunk, chunks, config.workers)
+    if config.ray_address is None:
+        shares = np.array_split(np.arange(len(names)), config.workers)
+        chunks = [(contact, poses[share], [names[i] for i in share], images_dir, config)
+                  for share in shares if len(share)]
+        map_chunks(_render_and_write_chunk, chunks, config.workers)
+    else:
+        images = render_poses(contact, poses, config.tactip, config.geometry, config.workers, config.ray_address)
+        for name, image in zip(names, images):
+            write_image(images_dir, name, image)
     write_targets(out_dir, targets, meta)
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simshear_gym.sim.parallel import map_chunks
 from simshear_gym.sim.stimuli import make_stimulus, spawn
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
 from simshear_gym.sim.world import World
@@ -89,21 +90,6 @@ class ReplayScene:
         self.close()
 
 
-def map_chunks(function, chunks: list, workers: int) -> list:
-    """``[function(c) for c in chunks]``, in ``workers`` processes when there is more than one chunk.
-
-    Workers are forked where the platform allows it (start-up in milliseconds); each builds its own scene,
-    so no PyBullet client crosses a process boundary.
-    """
-    if workers <= 1 or len(chunks) <= 1:
-        return [function(chunk) for chunk in chunks]
-    import multiprocessing
-
-    method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with multiprocessing.get_context(method).Pool(min(workers, len(chunks))) as pool:
-        return pool.map(function, chunks)
-
-
 def _render_chunk(args: tuple[str, np.ndarray, TacTipConfig, ReplayGeometry]) -> np.ndarray:
     contact, poses, tactip_config, geometry = args
     size = tactip_config.image_size_px
@@ -120,11 +106,13 @@ def render_poses(
     tactip_config: TacTipConfig = TacTipConfig(),
     geometry: ReplayGeometry = ReplayGeometry(),
     workers: int = 1,
+    ray_address: str | None = None,
 ) -> np.ndarray:
-    """Render many label poses: uint8 (N, H, W), in order, split over ``workers`` processes."""
+    """Render many label poses: uint8 (N, H, W), in order, split into ``workers`` chunks that run in as many
+    processes, or as Ray tasks at ``ray_address`` (:func:`~simshear_gym.sim.parallel.map_chunks`)."""
     poses = np.asarray(poses_work, dtype=np.float64).reshape(-1, 6)
     size = tactip_config.image_size_px
     if not len(poses):
         return np.empty((0, size, size), dtype=np.uint8)
     chunks = [(contact, part, tactip_config, geometry) for part in np.array_split(poses, max(workers, 1)) if len(part)]
-    return np.concatenate(map_chunks(_render_chunk, chunks, workers))
+    return np.concatenate(map_chunks(_render_chunk, chunks, workers, ray_address))
