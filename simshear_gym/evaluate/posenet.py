@@ -13,6 +13,8 @@ variable:
 
 and ``mean_nll``: the Gaussian NLL per row over the encoded components (nats), as in training. Writes
 ``results/posenet.json`` (with the command) and ``results/posenet.png`` (predicted against true per variable).
+``--device`` runs the GDNNs on a GPU (``auto``: CUDA where there is one); the batch-1 latency is always measured on
+the CPU, where the estimator runs.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
+from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) is imported inside the functions that use it, so that
 # `simshear evaluate posenet --help` stays light.
@@ -54,14 +57,17 @@ def latency_ms(model, repeats: int = 200) -> dict:
 
 
 def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None = None,
-             val_dir: Path | None = None) -> tuple[dict, dict]:
+             val_dir: Path | None = None, device: str = "cpu") -> tuple[dict, dict]:
     """Figures per model; also (truth, predicted means, stds) per model for the figure. ``val_dir``: the real set
-    to read (default: tactip331's ``<contact>`` shear validation set under ``root``)."""
+    to read (default: tactip331's ``<contact>`` shear validation set under ``root``); ``device``: where the GDNNs
+    read the images (:data:`~simshear_gym.models.device.DEVICES`)."""
     from simshear_gym.evaluate.metrics import metrics, truth_labels
+    from simshear_gym.models.device import OnDevice, resolve_device
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
+    where = resolve_device(device)
     val = read_set(val_dir or real_set_dir(root, contact, "shear", "val"))
     select = slice(0, rows)
     images = val.load_images()[select]
@@ -72,9 +78,10 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
         if variables.name in VARIABLE_SETS and variables.name != contact:  # an inline set is a sensor's own
             raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")
         truth = truth_labels(val, variables)[select]
-        mean_encoded, std_encoded = predict(model, images)
+        latency = latency_ms(model)  # on the CPU, before the model moves
+        mean_encoded, std_encoded = predict(model if where.type == "cpu" else OnDevice(model, where), images)
         results[name] = {"path": str(path), "card": card, **metrics(mean_encoded, std_encoded, truth, variables),
-                         "latency_batch1": latency_ms(model)}
+                         "latency_batch1": latency}
         mean, std = (t.numpy() for t in variables.decode(mean_encoded, std_encoded))
         arrays[name] = (variables, truth, mean, std)
     return results, arrays
@@ -142,6 +149,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory (default results)")
     parser.add_argument("--name", default="posenet", help="base name of the json and png written")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (latency is measured with them)")
+    parser.add_argument("--device", choices=DEVICES, default="auto",
+                        help="where the GDNNs read the images: auto (CUDA where torch finds it, else the CPU), cpu or "
+                             "cuda (an error without CUDA); latency is measured on the CPU (default: auto)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -165,7 +175,8 @@ def run(args: argparse.Namespace) -> int:
     for contact in contacts:
         models = {name: Path(str(paths[contact]).replace("{contact}", contact))
                   for name, paths in parse_models(args.model).items() if contact in paths}
-        results, arrays = evaluate(data_root(args.data), models, contact, args.rows, val_set)
+        results, arrays = evaluate(data_root(args.data), models, contact, args.rows, val_set,
+                                   getattr(args, "device", "auto"))
         png = args.out / f"{args.name}_{contact}.png"
         figure(arrays, png)
         set_name = str(val_set) if val_set is not None else f"real {contact}_shear csv_val"

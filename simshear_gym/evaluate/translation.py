@@ -19,6 +19,9 @@ Pose fidelity (``--reader CONTACT=PATH``, optional): a GDNN trained on the **rea
 against the val rows' labels (``reader_mae``, mm / deg) says whether a generated image shows *its* contact the way
 a real one would, which pixel MAPE cannot tell apart from marker noise. The reader's MAE on the real val images
 themselves is the floor (``reader.real_images``).
+
+``--device`` runs the torch translators and the readers on a GPU (``auto``: CUDA where there is one; ONNX files
+stay on ONNX Runtime's CPU provider).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_d
 from simshear_gym.data.tactile_set import TactileSet, read_set
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
 from simshear_gym.io import atomic_write, write_json
+from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) and pybullet (via sim) are imported inside the functions that use them,
 # so that `simshear evaluate translation --help` stays light.
@@ -81,25 +85,43 @@ def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -
     return np.concatenate([translator(sim[i:i + batch], shear[i:i + batch]) for i in range(0, len(sim), batch)])
 
 
+def on_device(translator, device):
+    """``translator`` run on ``device`` (a torch.device): a torch translator's generator there behind the same
+    call (uint8 in and out); the translator itself on the CPU or for ONNX Runtime."""
+    from simshear_gym.models.device import OnDevice
+    from simshear_gym.models.translator import Translator
+
+    if device.type == "cpu" or not isinstance(translator, Translator):
+        return translator
+    return Translator(OnDevice(translator.generator, device), translator.card, fast=False)
+
+
 def parse_readers(specs: list[str]) -> dict[str, Path]:
     """``--reader CONTACT=PATH`` -> {contact: path}."""
     return parse_contact_paths(specs, "--reader")
 
 
 def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = None, workers: int = 2,
-             published_input: bool = True, readers: dict[str, Path] | None = None) -> tuple[dict, dict, dict]:
+             published_input: bool = True, readers: dict[str, Path] | None = None,
+             device: str = "cpu") -> tuple[dict, dict, dict]:
     """Figures per set and method, the readers' MAE on the real val images per set (empty without readers),
-    and image stacks for the figure."""
+    and image stacks for the figure; ``device``: where the torch translators and the readers run
+    (:data:`~simshear_gym.models.device.DEVICES`)."""
     from simshear_gym.evaluate.metrics import mape, ssim, truth_labels
+    from simshear_gym.models.device import OnDevice, resolve_device
     from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator_runtime import ONNX_SUFFIX, load_translator
     from simshear_gym.sim.replay import render_poses
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
     # a .onnx file runs on ONNX Runtime, a .pt file on torch (never swapped for the .onnx beside it)
-    translators = {(name, contact): load_translator(path, "onnx" if path.suffix == ONNX_SUFFIX else "torch")
+    where = resolve_device(device)
+    translators = {(name, contact): on_device(load_translator(path, "onnx" if path.suffix == ONNX_SUFFIX
+                                                              else "torch"), where)
                    for name, per in models.items() for contact, path in per.items()}
     reader_models = {contact: load_posenet(path)[0] for contact, path in (readers or {}).items()}
+    if where.type != "cpu":
+        reader_models = {contact: OnDevice(model, where) for contact, model in reader_models.items()}
     results: dict = {}
     reader_floor: dict = {}
     stacks: dict = {}
@@ -189,6 +211,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reader", action="append", default=[], metavar="CONTACT=PATH",
                         help="a GDNN trained on that contact's real images, to read every method's images "
                              "(pose fidelity); repeat per contact type")
+    parser.add_argument("--device", choices=DEVICES, default="auto",
+                        help="where the torch translators and the readers run: auto (CUDA where torch finds it, else "
+                             "the CPU), cpu or cuda (an error without CUDA) (default: auto)")
 
 
 def _maes_text(maes: dict[str, float]) -> str:
@@ -203,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     readers = parse_readers(args.reader)
     start = time.perf_counter()
     results, reader_floor, stacks = evaluate(data_root(args.data), models, args.rows, args.workers,
-                                             readers=readers)
+                                             readers=readers, device=getattr(args, "device", "auto"))
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
     command = " ".join(["simshear evaluate translation", *(f"--model {s}" for s in args.model),

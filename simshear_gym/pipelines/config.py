@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from simshear_gym.data.adapter import CONTACTS, DatasetConfig, FrameConfig
+from simshear_gym.models.device import check_device_name
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.tables import ConfigError, from_table, read_toml
@@ -160,12 +161,15 @@ class PoolGenerator:
 class Profile:
     """A profile: how many rows of each split the pipeline uses (None: all), how many validation rows per
     dataset the evaluation reads (None: all), how many training steps run side by side (``jobs`` worker
-    processes; give the stages ``threads`` = cores / jobs), the training stages' settings and the pool of extra
-    generators for the translated-image GDNN (``[[profiles.<name>.pool]]``, :class:`PoolGenerator`)."""
+    processes; give the stages ``threads`` = cores / jobs), where they train (``device``: ``auto``, ``cpu`` or
+    ``cuda``, as ``--device`` of the trainers; not part of a step's cache key, so a step trained on one device is
+    reused on another), the training stages' settings and the pool of extra generators for the translated-image
+    GDNN (``[[profiles.<name>.pool]]``, :class:`PoolGenerator`)."""
 
     rows_per_split: int | None = None
     eval_rows: int | None = None
     jobs: int = 1
+    device: str = "auto"
     translator: TranslatorStage = TranslatorStage()
     posenet: PosenetStage = PosenetStage()
     pool: tuple[PoolGenerator, ...] = ()
@@ -173,6 +177,7 @@ class Profile:
     def __post_init__(self) -> None:
         if self.jobs < 1:
             raise ValueError(f"jobs must be >= 1, got {self.jobs!r}")
+        check_device_name(self.device)
         names = [generator.name for generator in self.pool]
         if len(set(names)) != len(names):
             raise ValueError(f"pool: generator names must differ, got {names}")

@@ -19,7 +19,9 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
    the translated-trained / real-trained ratio; written to ``evaluation.json``.
 
 Stages 3-5 are steps of a graph (:mod:`simshear_gym.pipelines.schedule`), run ``jobs`` at a time in worker
-processes: a pose-consistency generator starts once its contact's real-image GDNN is done.
+processes: a pose-consistency generator starts once its contact's real-image GDNN is done. The training steps
+train on the profile's ``device`` (``--device`` overrides it; ``auto``: CUDA where there is one), which is not
+part of their cache keys.
 
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
@@ -46,6 +48,7 @@ from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, resolve,
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
+from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
 
@@ -170,9 +173,10 @@ def _translator_settings(stage, generator=None) -> dict:
 
 
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
-                    generator, runner: StageRunner, done: dict) -> StageResult:
+                    generator, runner: StageRunner, done: dict, *, device: str = "auto") -> StageResult:
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
-    (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``)."""
+    (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``), trained
+    on ``device``."""
     settings = _translator_settings(stage, generator)
     pose_net = ""
     if generator is not None and generator.pose_weight > 0:
@@ -190,7 +194,7 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
         from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
 
         train_config = TranslatorTrainConfig(arch=arch, paired_dirs=tuple(train_sets),
-                                             image_size_px=config.sensor.image_size_px, **settings)
+                                             image_size_px=config.sensor.image_size_px, device=device, **settings)
         torch.set_num_threads(train_config.threads)
         pose = (PoseConsistency(runner.root / pose_net, train_config.pose_variables) if pose_net else None)
         pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root), pose=pose)
@@ -206,9 +210,10 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
 
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
-                 done: dict) -> StageResult:
+                 done: dict, *, device: str = "auto") -> StageResult:
     """A GDNN of a contact type on the real images (``source`` "real") or on translations of the sim renders
-    (``translator_steps``: the translator steps it draws from, each with its number of draws)."""
+    (``translator_steps``: the translator steps it draws from, each with its number of draws), trained on
+    ``device``."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
     settings = {name: value for name, value in asdict(stage).items()
                 if name not in ("translator_draws", "random_contacts")}
@@ -223,7 +228,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
         from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
 
         train_config = PosenetTrainConfig(source=source, contact=contact, paired_dirs=tuple(train_sets),
-                                          translators=used, variables=variables, **settings)
+                                          translators=used, variables=variables, device=device, **settings)
         torch.set_num_threads(train_config.threads)
         data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
                            stage.image_size_px, translators=[str(runner.root / t) for t in used],
@@ -299,30 +304,33 @@ def label_ranges(config: ExperimentConfig, names: list[str], adapted: dict, root
 
 
 def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dict, random_sets: dict,
-                   variables: dict, stages: tuple[str, ...]) -> list[Step]:
-    """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`)."""
+                   variables: dict, stages: tuple[str, ...], device: str | None = None) -> list[Step]:
+    """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`); the
+    training steps train on ``device`` (None: the profile's)."""
+    device = device or profile.device
     steps = []
     for contact, names in contacts_of(config).items():
         train_sets = [paired[name]["train"] for name in names]
         if "translator" in stages:
             for arch in profile.translator.archs:
                 steps.append(Step(f"translator/{contact}_{arch}", partial(
-                    translator_step, config, profile.translator, contact, arch, train_sets, None), cost=3.0))
+                    translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
+                    cost=3.0))
             for generator in profile.pool_for(contact):
                 needs = (f"posenet/{contact}_real",) if generator.pose_weight > 0 else ()
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
-                    translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator),
-                    needs=needs, cost=3.0))
+                    translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
+                    device=device), needs=needs, cost=3.0))
         if "posenet" in stages:
             steps.append(Step(f"posenet/{contact}_real", partial(
-                posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], ()),
-                cost=1.0))
+                posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
+                device=device), cost=1.0))
             drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
             steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
-                posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn),
-                needs=tuple(name for name, _ in drawn), cost=1.0))
+                posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
+                device=device), needs=tuple(name for name, _ in drawn), cost=1.0))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
@@ -330,17 +338,19 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
 
 
 def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, stages: tuple[str, ...],
-                 rows_per_split: int | None = None, workers: int = 2, jobs: int | None = None) -> dict:
+                 rows_per_split: int | None = None, workers: int = 2, jobs: int | None = None,
+                 device: str | None = None) -> dict:
     """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :mod:`.schedule`) and
     write ``out/manifest.json``; returns the manifest.
 
-    ``rows_per_split`` and ``jobs`` override the profile's (None: the profile's)."""
+    ``rows_per_split``, ``jobs`` and ``device`` override the profile's (None: the profile's)."""
     missing = [stage for stage in STAGES[:max(STAGES.index(s) for s in stages) + 1] if stage not in stages]
     if missing:
         raise ValueError(f"stages {list(stages)} need the stages before them too: add {missing}")
     profile_settings = config.profile(profile)
     rows_per_split = rows_per_split if rows_per_split is not None else profile_settings.rows_per_split
     jobs = jobs or profile_settings.jobs
+    device = check_device_name(device or profile_settings.device)
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out)
     start = time.perf_counter()
@@ -353,7 +363,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
                      for contact, names in contacts_of(config).items()}
         random_sets = stage_random(runner, config, profile_settings, adapted, workers) if "posenet" in stages else {}
         results = list(runner.results)
-        steps = training_steps(config, profile_settings, adapted, paired, random_sets, variables, stages)
+        steps = training_steps(config, profile_settings, adapted, paired, random_sets, variables, stages, device)
         done = run_steps(steps, out, jobs, log=runner.log)
         results += [done[step.name] for step in steps]
         translators = {contact: {name.split("_", 1)[1]: result.outputs["weights"]
@@ -376,7 +386,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         "package_version": _version(), "git_commit": git_commit(),
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
-        "jobs": jobs,
+        "jobs": jobs, "device": device,
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
                      "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in results],
         "models": {"translators": translators, "posenets": posenets},
@@ -409,6 +419,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="rendering processes of the collect stage")
     parser.add_argument("--jobs", type=int, default=None, help="training steps side by side, each in its own "
                         "process (default: the profile's jobs)")
+    parser.add_argument("--device", choices=DEVICES, default=None,
+                        help="where the training steps train: auto (CUDA where torch finds it, else the CPU), cpu or "
+                             "cuda (default: the profile's device, auto unless the config says otherwise)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -417,7 +430,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     out = args.out or Path("runs") / "pipeline" / config.name
     manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
-                            args.workers, args.jobs)
+                            args.workers, args.jobs, getattr(args, "device", None))
     ran = sum(result["ran"] for result in manifest["results"])
     print(f"{config.name}: {len(manifest['results'])} stage steps ({ran} ran, "
           f"{len(manifest['results']) - ran} cached) in {manifest['wall_s']:.1f} s; manifest {out / 'manifest.json'}")

@@ -19,6 +19,12 @@ Run directory: ``config.json`` (written when ``fit`` starts), ``history.json`` (
 loss of the epoch's steps), ``holdout_<metric>``), ``checkpoint.pt``, ``best.pt``, tensorboard logs under ``tb/``
 (every 20 steps ``train/<loss>`` and ``train/lr``; every epoch ``holdout/<metric>``, against steps and against
 whole minutes as ``holdout/<metric>_vs_minutes``, plus what the trainer's ``log_epoch`` adds).
+
+Under torchrun (a :class:`~simshear_gym.train.distributed.Distributed` given) every process runs this loop on its
+share of each batch (:meth:`EpochTrainer.local_rows`); rank 0 alone measures the holdout and writes the run
+directory, the others take its holdout metric and its clock, so the run stops at the same step everywhere and its
+files are those one process writes. A batch needs :meth:`EpochTrainer.min_batch_rows` rows (two per process:
+batch norm needs two).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from torch.utils.tensorboard import SummaryWriter
 from tqdm import tqdm
 
 from simshear_gym.io import atomic_write, write_json
+from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.runs import check_same_settings, run_progress, scheduled_lr
 
 LOG_EVERY_STEPS = 20  # training scalars to tensorboard
@@ -52,7 +59,8 @@ class EpochTrainer(ABC):
     """Base of a trainer run in epochs; see the module docstring.
 
     ``config`` is a frozen dataclass with at least ``epochs``, ``max_minutes`` (None: no budget),
-    ``patience_epochs``, ``lr``, ``lr_schedule`` and ``threads``. The loop's counters are attributes: ``epoch``
+    ``patience_epochs``, ``lr``, ``lr_schedule`` and ``threads``; ``distributed``: this process's place under
+    torchrun (None: the only process). The loop's counters are attributes: ``epoch``
     (finished epochs), ``step`` (optimiser steps), ``elapsed_s`` (training time), ``best_holdout``,
     ``epochs_since_best`` and ``history`` (one record per epoch).
 
@@ -64,12 +72,13 @@ class EpochTrainer(ABC):
     metric: str = "loss"
     """Name of the holdout metric (lower is better): history keys ``train_<metric>`` / ``holdout_<metric>``, the
     checkpoint's and summary's ``best_holdout_<metric>``; ``train_batch`` reports the training loss under it."""
-    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes")
+    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes", "device", "amp")
     """Settings a resumed run may change."""
 
-    def __init__(self, config, run_dir: str | Path) -> None:
+    def __init__(self, config, run_dir: str | Path, distributed: Distributed | None = None) -> None:
         self.config = config
         self.run_dir = Path(run_dir)
+        self.distributed = distributed
         self.epoch = 0
         self.step = 0
         self.best_holdout = math.inf
@@ -116,6 +125,25 @@ class EpochTrainer(ABC):
     def log_epoch(self, writer: SummaryWriter) -> None:
         """Write more to tensorboard after each epoch's holdout (nothing by default)."""
 
+    # ------------------------------------------------------------------------------------ data parallelism
+    @property
+    def is_main(self) -> bool:
+        """Whether this process writes the run directory (the only process, or rank 0 under torchrun)."""
+        return self.distributed is None or self.distributed.is_main
+
+    def local_rows(self, batch_rows: int) -> slice | list[int]:
+        """This process's positions in a batch of ``batch_rows`` rows: all of them (``slice(None)``) in one
+        process, its share under torchrun (:meth:`~simshear_gym.train.distributed.Distributed.rows`)."""
+        return slice(None) if self.distributed is None else self.distributed.rows(batch_rows)
+
+    def min_batch_rows(self) -> int:
+        """The fewest rows a batch needs to be trained on (two per process); smaller ones are skipped."""
+        return 2 if self.distributed is None else self.distributed.min_batch_rows()
+
+    def _shared(self, value: float) -> float:
+        """Rank 0's ``value`` on every process (``value`` itself in one process)."""
+        return value if self.distributed is None else self.distributed.share(value)
+
     # ----------------------------------------------------------------------------------------- persistence
     def state(self) -> dict:
         """Everything ``checkpoint.pt`` holds: the config, the loop's counters, then :meth:`trainer_state`."""
@@ -127,7 +155,9 @@ class EpochTrainer(ABC):
         }
 
     def save_checkpoint(self) -> None:
-        save_checkpoint(self.run_dir, self.state(), self.config, self.history)
+        """Write ``checkpoint.pt`` and ``history.json`` (rank 0 only under torchrun)."""
+        if self.is_main:
+            save_checkpoint(self.run_dir, self.state(), self.config, self.history)
 
     def resume(self) -> bool:
         """Continue from ``checkpoint.pt`` if there is one; returns whether it did. Refuses a checkpoint trained
@@ -149,9 +179,10 @@ class EpochTrainer(ABC):
         returns a summary: ``epochs``, ``steps``, ``elapsed_s``, ``best_holdout_<metric>``, ``stopped_by``."""
         config = self.config
         torch.set_num_threads(config.threads)
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(self.run_dir / "config.json", asdict(config))
-        writer = SummaryWriter(str(self.run_dir / "tb"))
+        if self.is_main:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
+            write_json(self.run_dir / "config.json", asdict(config))
+        writer = SummaryWriter(str(self.run_dir / "tb")) if self.is_main else _NoWriter()
         budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
         cap_minutes = getattr(config, "cap_minutes", None)
         cap_s = cap_minutes * 60.0 if cap_minutes else math.inf
@@ -171,6 +202,8 @@ class EpochTrainer(ABC):
                     break
         finally:
             writer.close()
+        if self.distributed is not None:
+            self.distributed.barrier()  # the others wait for rank 0's last files
         return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
                 f"best_holdout_{self.metric}": self.best_holdout, "stopped_by": stop_reason}
 
@@ -182,9 +215,9 @@ class EpochTrainer(ABC):
         budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
         batches = self.epoch_batches()
         losses_seen = []
-        for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}", disable=not progress,
-                          leave=False):
-            if len(index) < 2:  # batch norm needs two rows
+        for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}",
+                          disable=not progress or not self.is_main, leave=False):
+            if len(index) < self.min_batch_rows():  # batch norm needs two rows (per process)
                 continue
             done = run_progress(self.elapsed_s, budget_s, self.step, config.epochs * len(batches))
             lr = scheduled_lr(config.lr, config.lr_schedule, done)
@@ -192,13 +225,15 @@ class EpochTrainer(ABC):
                 for group in optimiser.param_groups:
                     group["lr"] = lr
             losses = self.train_batch(index)
+            if self.distributed is not None:
+                losses = self.distributed.mean(losses)
             losses_seen.append(losses[self.metric])
             self.step += 1
             if self.step % LOG_EVERY_STEPS == 0:
                 for name, value in losses.items():
                     writer.add_scalar(f"train/{name}", value, self.step)
                 writer.add_scalar("train/lr", lr, self.step)
-            self.elapsed_s = time.perf_counter() - started
+            self.elapsed_s = self._shared(time.perf_counter() - started)  # every process stops at one step
             if self.elapsed_s > stop_s:
                 return True, losses_seen
         return False, losses_seen
@@ -206,19 +241,34 @@ class EpochTrainer(ABC):
     def _end_epoch(self, writer: SummaryWriter, started: float, partial: bool, train_losses: list[float]) -> None:
         """Holdout, history record, best model and checkpoint after an epoch (or the partial one at the budget)."""
         metric = self.metric
-        holdout = self.holdout_metric()
-        self.elapsed_s = time.perf_counter() - started
+        holdout = self._shared(self.holdout_metric() if self.is_main else 0.0)
+        self.elapsed_s = self._shared(time.perf_counter() - started)
         self.history.append({"epoch": self.epoch, "partial_epoch": partial, "step": self.step,
                              "elapsed_s": round(self.elapsed_s, 1),
                              f"train_{metric}": float(np.mean(train_losses)) if train_losses else None,
                              f"holdout_{metric}": holdout})
         writer.add_scalar(f"holdout/{metric}", holdout, self.step)
         writer.add_scalar(f"holdout/{metric}_vs_minutes", holdout, int(self.elapsed_s / 60))
-        self.log_epoch(writer)
+        if self.is_main:
+            self.log_epoch(writer)
         if holdout < self.best_holdout:
             self.best_holdout, self.epochs_since_best = holdout, 0
-            self.save_best(self.run_dir / "best.pt",
-                           {f"holdout_{metric}": holdout, "epoch": self.epoch, "elapsed_s": self.elapsed_s})
+            if self.is_main:
+                self.save_best(self.run_dir / "best.pt",
+                               {f"holdout_{metric}": holdout, "epoch": self.epoch, "elapsed_s": self.elapsed_s})
         else:
             self.epochs_since_best += 1
         self.save_checkpoint()
+
+
+class _NoWriter:
+    """The tensorboard writer of a process that writes nothing (not rank 0)."""
+
+    def add_scalar(self, *args, **kwargs) -> None:
+        pass
+
+    def add_image(self, *args, **kwargs) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

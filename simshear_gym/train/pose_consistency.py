@@ -50,6 +50,12 @@ class PoseConsistency:
             start += spec.encoded_dim
         self.columns = torch.tensor(columns)  # the encoded components the loss compares
 
+    def to(self, device: torch.device) -> PoseConsistency:
+        """Run the GDNN on ``device`` (the generated images' device); returns self."""
+        self.gdnn.to(device)
+        self.columns = self.columns.to(device)
+        return self
+
     @property
     def variables(self) -> VariableSet:
         return self.gdnn.variables

@@ -42,6 +42,7 @@ import argparse
 import json
 from pathlib import Path
 
+from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.posenet_config import CONTACTS, SOURCES, PosenetTrainConfig
 from simshear_gym.train.runs import LR_SCHEDULES
@@ -76,6 +77,10 @@ FLAG_HELP = {
                    "through a randomly drawn one each time",
     "variables": "the variables to estimate, inline (NAME:COLUMN:LOW:HIGH[:periodic],...; a sensor's own, as the "
                  "pipeline writes them) instead of the contact type's set",
+    "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
+              "CUDA); under torchrun each process takes GPU LOCAL_RANK",
+    "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
+           "CPU always trains in float32",
 }
 
 
@@ -83,26 +88,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, PosenetTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired", "blur_px": "--blur"},
-                 choices={"source": SOURCES, "contact": CONTACTS, "lr_schedule": LR_SCHEDULES},
+                 choices={"source": SOURCES, "contact": CONTACTS, "lr_schedule": LR_SCHEDULES, "device": DEVICES},
                  required=("source", "contact", "paired_dirs"), metavars={"paired_dirs": "DIR",
                                                                           "translators": "WEIGHTS"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
 
 
 def run(args: argparse.Namespace) -> int:
+    """Train (under torchrun: data-parallel, rank 0 writing and printing; see
+    :mod:`simshear_gym.train.distributed`)."""
     import torch
 
+    from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
 
     config = config_from_args(PosenetTrainConfig, args)
     if (args.out / "checkpoint.pt").exists() and not args.resume:
         raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
     torch.set_num_threads(config.threads)
-    data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
-                       translators=config.translators, variables=config.variables)
-    trainer = PosenetTrainer(config, args.out, data)
-    if args.resume and trainer.resume():
-        print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-    summary = trainer.fit()
-    print(json.dumps(summary))
+    with distributed_session(config.device) as distributed:
+        data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
+                           translators=config.translators, variables=config.variables)
+        trainer = PosenetTrainer(config, args.out, data, distributed)
+        resumed = args.resume and trainer.resume()
+        if resumed and trainer.is_main:
+            print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
+        summary = trainer.fit(progress=trainer.is_main)
+    if trainer.is_main:
+        print(json.dumps(summary))
     return 0

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from simshear_gym.models.device import check_device_name
 from simshear_gym.train.runs import scheduled_lr
 
 if TYPE_CHECKING:
@@ -47,6 +48,8 @@ class PosenetTrainConfig:
     threads: int = 2
     translators: tuple[str, ...] = ()
     variables: str = ""
+    device: str = "auto"
+    amp: bool = True
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -73,6 +76,7 @@ class PosenetTrainConfig:
         if self.lr <= 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
         scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
+        check_device_name(self.device)
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:

@@ -19,12 +19,15 @@ from simshear_gym.data.paired import load_paired
 from simshear_gym.data.paths import cache_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import atomic_write
+from simshear_gym.models.device import cpu_state, resolve_device
 from simshear_gym.models.gdnn import GDNN, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
 from simshear_gym.models.posenet_io import save_posenet
 from simshear_gym.models.translator import ARCHS, Translator, load_shipped
+from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.posenet_config import SOURCES, PosenetTrainConfig
+from simshear_gym.train.precision import MixedPrecision, autocast_dtype, memory_format
 from simshear_gym.train.runs import split_holdout
 
 
@@ -196,20 +199,29 @@ def random_erase(images: torch.Tensor, max_radius_share: float, generator: torch
 
 # -------------------------------------------------------------------------------------------------- training
 class PosenetTrainer(EpochTrainer):
-    """Owns the model, optimiser and run directory of one posenet training run; :meth:`fit` trains it."""
+    """Owns the model, optimiser and run directory of one posenet training run; :meth:`fit` trains it.
+
+    The rows stay on the CPU, where each batch is drawn and augmented (from the CPU generators the checkpoint
+    holds); the batch then moves to ``config.device`` (under torchrun: the process's device, and its share of the
+    batch). On CUDA the model runs in ``channels_last`` and, with ``config.amp``, in mixed precision."""
 
     metric = "nll"  # history: train_nll (the beta-NLL training loss), holdout_nll (the plain Gaussian NLL)
-    resume_free = ("epochs", "max_minutes", "patience_epochs", "threads", "cap_minutes")
+    resume_free = ("epochs", "max_minutes", "patience_epochs", "threads", "cap_minutes", "device", "amp")
 
-    def __init__(self, config: PosenetTrainConfig, run_dir: Path, data: LabelledImages) -> None:
-        super().__init__(config, run_dir)
+    def __init__(self, config: PosenetTrainConfig, run_dir: Path, data: LabelledImages,
+                 distributed: Distributed | None = None) -> None:
+        super().__init__(config, run_dir, distributed)
+        self.device = distributed.device if distributed is not None else resolve_device(config.device)
+        self.memory_format = memory_format(self.device)
+        self.precision = MixedPrecision(self.device, autocast_dtype(self.device, config.amp))
         torch.manual_seed(config.seed)
         data = LabelledImages(torch.as_tensor(resize_images(data.images.numpy(), config.image_size_px)),
                               data.labels)
         train_rows, holdout_rows = split_holdout(len(data), config.holdout, config.seed)
         self.train_data, self.holdout_data = data.subset(train_rows), data.subset(holdout_rows)
-        self.model = GDNN(config.gdnn_config())
+        self.model = GDNN(config.gdnn_config()).to(self.device, memory_format=self.memory_format)
         self.variables = self.model.variables
+        self.net = distributed.wrap(self.model) if distributed is not None else self.model  # what trains
         self.optimiser = torch.optim.Adam(self.model.parameters(), lr=config.lr)
         self.batch_rng = np.random.default_rng(config.seed + 1)
         self.shift_rng = torch.Generator().manual_seed(config.seed + 2)
@@ -217,7 +229,7 @@ class PosenetTrainer(EpochTrainer):
     # ------------------------------------------------------------------------------------------- persistence
     def trainer_state(self) -> dict:
         return {
-            "model": {"config": asdict(self.model.config), "state_dict": self.model.state_dict()},
+            "model": {"config": asdict(self.model.config), "state_dict": cpu_state(self.model)},
             "optimiser": self.optimiser.state_dict(),
             "batch_rng": self.batch_rng.bit_generator.state, "shift_rng": self.shift_rng.get_state(),
             "torch_rng": torch.get_rng_state(),
@@ -238,17 +250,25 @@ class PosenetTrainer(EpochTrainer):
         with torch.inference_mode():
             for start in range(0, len(self.holdout_data), 64):
                 part = self.holdout_data.subset(np.arange(start, min(start + 64, len(self.holdout_data))))
-                mean, std = self.model(to_input(part.first))
-                total += gaussian_nll(mean, std, self.variables.encode(part.labels), reduction="none").sum().item()
+                mean, std = self.model(self._on_device(to_input(part.first)))
+                total += gaussian_nll(mean.cpu(), std.cpu(), self.variables.encode(part.labels),
+                                      reduction="none").sum().item()
         self.model.train()
         return total / len(self.holdout_data)
 
+    def _on_device(self, images: torch.Tensor) -> torch.Tensor:
+        """A CPU batch of images (B, 1, H, W) on the model's device and memory format (itself on the CPU)."""
+        return images.to(self.device, memory_format=self.memory_format, non_blocking=True)
+
     def train_step(self, images: torch.Tensor, target: torch.Tensor) -> float:
-        mean, std = self.model(images)
-        loss = beta_nll(mean, std, target, self.config.beta)
+        """One optimiser step on CPU ``images`` (B, 1, H, W) and encoded ``target`` (B, D); returns the loss."""
+        with self.precision.autocast():
+            mean, std = self.net(self._on_device(images))
+        loss = beta_nll(mean.float(), std.float(), target.to(self.device), self.config.beta)
         self.optimiser.zero_grad(set_to_none=True)
-        loss.backward()
-        self.optimiser.step()
+        self.precision.backward(loss)
+        self.precision.step(self.optimiser)
+        self.precision.update()
         return loss.item()
 
     # -------------------------------------------------------------------------------- the epoch loop's hooks
@@ -264,13 +284,16 @@ class PosenetTrainer(EpochTrainer):
         self.model.train()
 
     def train_batch(self, index: np.ndarray) -> dict[str, float]:
-        """An augmented batch (a drawn rendition, shifted, blurred, erased) and one step on its beta-NLL."""
+        """An augmented batch (a drawn rendition, shifted, blurred, erased) and one step on its beta-NLL (under
+        torchrun: every process augments the whole batch, so its generators stay in step, and trains on its
+        share)."""
         config = self.config
         part = self.train_data.subset(index)
         images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
         images = random_blur(images, config.blur_px, self.shift_rng)
         images = random_erase(images, config.erase, self.shift_rng)
-        return {"nll": self.train_step(images, self.variables.encode(part.labels))}
+        rows = self.local_rows(len(index))
+        return {"nll": self.train_step(images[rows], self.variables.encode(part.labels)[rows])}
 
     def holdout_metric(self) -> float:
         return self.holdout_nll()

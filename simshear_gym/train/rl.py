@@ -47,6 +47,7 @@ import json
 from pathlib import Path
 
 from simshear_gym.contract import OBSERVATIONS
+from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.rl_config import (
     ALGORITHMS,
@@ -100,6 +101,9 @@ FLAG_HELP = {
                         "many env steps",
     "seed": "seed of the envs and the agent",
     "threads": "torch CPU threads of this process",
+    "device": "where the policy trains: cpu (the default: the envs step on the CPU and the policies are small), "
+              "auto (CUDA where torch finds it, else the CPU) or cuda (an error without CUDA); the trained policy "
+              "loads on any device",
 }
 
 
@@ -107,7 +111,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     config_flags(parser, RLTrainConfig, FLAG_HELP,
                  choices={"algo": ALGORITHMS, "task": TASKS, "observation": OBSERVATIONS, "obs_mode": OBS_MODES,
-                          "vec": VEC_ENVS})
+                          "vec": VEC_ENVS, "device": DEVICES})
     parser.add_argument("--resume", action="store_true", help="continue from the run's newest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no SB3 training log on stdout")
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from simshear_gym.contract import ESTIMATE_OBSERVATIONS, IMAGE_SIZES_PX, check_observation
+from simshear_gym.models.device import check_device_name
 
 ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional dependency)
 TASKS = ("tracking", "colift")
@@ -15,7 +16,8 @@ ENV_IDS = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
 OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
 VEC_ENVS = ("dummy", "subproc")
 # settings a resumed run may change (they change neither the agent nor its envs)
-RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps")
+RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps",
+               "device")
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,7 @@ class RLTrainConfig:
     checkpoint_steps: int = 2_000
     seed: int = 0
     threads: int = 1
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -60,6 +63,7 @@ class RLTrainConfig:
         check_observation(self.observation, self.history)
         if self.image_size_px not in IMAGE_SIZES_PX:
             raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px}")
+        check_device_name(self.device)
         if self.vec not in VEC_ENVS:
             raise ValueError(f"vec must be one of {VEC_ENVS}, got {self.vec!r}")
         if min(self.timesteps, self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.checkpoint_steps,

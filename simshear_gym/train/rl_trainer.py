@@ -27,6 +27,7 @@ from simshear_gym.control.policy import (
 )
 from simshear_gym.control.servo import SERVO_GAINS
 from simshear_gym.io import atomic_write, write_json
+from simshear_gym.models.device import resolve_device
 from simshear_gym.train.rl_config import RESUME_FREE, RLTrainConfig, latest_checkpoint
 from simshear_gym.train.runs import check_same_settings
 
@@ -261,6 +262,7 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(config.threads)
+    device = resolve_device(config.device)  # SB3's device for the networks; the envs step on the CPU
     saved_config = run_dir / RUN_CONFIG
     if saved_config.is_file() and resume:
         names = {field.name for field in fields(RLTrainConfig)}
@@ -291,7 +293,7 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     tensorboard = str(run_dir / "tb")
     policy_kwargs = {"net_arch": list(config.net_arch)} if config.net_arch else None
     if start_from is not None:
-        model = Algorithm.load(start_from, env=env, tensorboard_log=tensorboard, device="cpu")
+        model = Algorithm.load(start_from, env=env, tensorboard_log=tensorboard, device=device)
     elif config.algo == "ppo":
         policy = "MultiInputPolicy"
         if config.asymmetric_critic:
@@ -299,12 +301,12 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
         model = PPO(policy, env, n_steps=config.n_steps, batch_size=config.batch_size,
                     n_epochs=config.n_epochs, gamma=config.gamma, learning_rate=config.learning_rate,
                     policy_kwargs=policy_kwargs, seed=config.seed, tensorboard_log=tensorboard,
-                    verbose=int(progress), device="cpu")
+                    verbose=int(progress), device=device)
     else:  # SAC, TQC
         model = Algorithm("MultiInputPolicy", env, batch_size=config.batch_size, learning_rate=config.learning_rate,
                     gamma=config.gamma, buffer_size=min(100_000, config.timesteps),
                     learning_starts=min(1_000, config.timesteps // 4), policy_kwargs=policy_kwargs,
-                    seed=config.seed, tensorboard_log=tensorboard, verbose=int(progress), device="cpu")
+                    seed=config.seed, tensorboard_log=tensorboard, verbose=int(progress), device=device)
     remaining = config.timesteps - model.num_timesteps
     started = time.perf_counter()
     budget = WallClockBudget(config.minutes)

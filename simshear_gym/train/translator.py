@@ -29,6 +29,7 @@ import argparse
 import json
 from pathlib import Path
 
+from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.runs import LR_SCHEDULES
 from simshear_gym.train.translator_config import ARCHS, DENSITY_POOL_PX, TranslatorTrainConfig
@@ -62,6 +63,10 @@ FLAG_HELP = {
                 "--source real) of the same contact type",
     "pose_weight": "weight of the pose-consistency loss (needs --pose-net; 0: off)",
     "pose_variables": "pose-consistency loss on these of the GDNN's variables only (default: all)",
+    "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
+              "CUDA); under torchrun each process takes GPU LOCAL_RANK",
+    "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
+           "CPU always trains in float32",
 }
 
 
@@ -69,25 +74,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, TranslatorTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired"},
-                 choices={"arch": ARCHS, "lr_schedule": LR_SCHEDULES}, required=("paired_dirs",),
+                 choices={"arch": ARCHS, "lr_schedule": LR_SCHEDULES, "device": DEVICES}, required=("paired_dirs",),
                  metavars={"paired_dirs": "DIR", "pose_variables": "NAME"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
 
 
 def run(args: argparse.Namespace) -> int:
+    """Train (under torchrun: data-parallel, rank 0 writing and printing; see
+    :mod:`simshear_gym.train.distributed`)."""
+    from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.pose_consistency import PoseConsistency
     from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
 
     config = config_from_args(TranslatorTrainConfig, args)
     if (args.out / "checkpoint.pt").exists() and not args.resume:
         raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
-    pose = PoseConsistency(config.pose_net, config.pose_variables) if config.pose_weight > 0 else None
-    pairs = load_pairs(config.paired_dirs, args.data, pose)
-    trainer = TranslatorTrainer(config, args.out, pairs, pose)
-    if args.resume and trainer.resume():
-        print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-    summary = trainer.fit()
+    with distributed_session(config.device) as distributed:
+        pose = PoseConsistency(config.pose_net, config.pose_variables) if config.pose_weight > 0 else None
+        pairs = load_pairs(config.paired_dirs, args.data, pose)
+        trainer = TranslatorTrainer(config, args.out, pairs, pose, distributed)
+        resumed = args.resume and trainer.resume()
+        if resumed and trainer.is_main:
+            print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
+        summary = trainer.fit(progress=trainer.is_main)
+    if not trainer.is_main:
+        return 0
     print(json.dumps(summary))
     if args.export:
         export_run(args.out, args.export)

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from simshear_gym.models.device import check_device_name
 from simshear_gym.train.runs import scheduled_lr
 
 if TYPE_CHECKING:
@@ -49,11 +50,14 @@ class TranslatorTrainConfig:
     pose_weight: float = 0.0
     pose_net: str = ""
     pose_variables: tuple[str, ...] = ()
+    device: str = "auto"
+    amp: bool = True
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
         scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
+        check_device_name(self.device)
         if self.shear_decoder and self.arch != "shpix2pix":
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:

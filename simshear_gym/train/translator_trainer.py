@@ -16,10 +16,13 @@ from torch.nn import functional as F
 
 from simshear_gym.data.labels import SHEAR_COLUMNS
 from simshear_gym.data.paired import load_paired
+from simshear_gym.models.device import cpu_state, resolve_device
 from simshear_gym.models.translator import load_generator, normalise_shear, normalise_sim, save_generator
 from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfig, UNetGenerator
+from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.pose_consistency import PoseConsistency
+from simshear_gym.train.precision import MixedPrecision, autocast_dtype, memory_format
 from simshear_gym.train.runs import split_holdout
 from simshear_gym.train.translator_config import DENSITY_POOL_PX, TranslatorTrainConfig
 
@@ -71,17 +74,24 @@ def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None
 
 
 class TranslatorTrainer(EpochTrainer):
-    """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it."""
+    """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it.
+
+    The pairs stay on the CPU; each batch moves to ``config.device`` (under torchrun: the process's device, and
+    its share of the batch). On CUDA the networks run in ``channels_last`` and, with ``config.amp``, their forward
+    passes in mixed precision (the losses in float32)."""
 
     metric = "l1"  # history: train_l1, holdout_l1 (mean absolute pixel error, images in [0, 1])
 
     def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors,
-                 pose: PoseConsistency | None = None) -> None:
+                 pose: PoseConsistency | None = None, distributed: Distributed | None = None) -> None:
         if (pose is not None) != (config.pose_weight > 0) or (pose is not None and pairs.pose_labels is None):
             raise ValueError("a pose-consistency run (pose_weight > 0) needs its PoseConsistency and pairs loaded "
                              "with it (load_pairs(..., pose=...)); a run without one takes neither")
-        super().__init__(config, run_dir)
-        self.pose = pose
+        super().__init__(config, run_dir, distributed)
+        self.device = distributed.device if distributed is not None else resolve_device(config.device)
+        self.memory_format = memory_format(self.device)
+        self.precision = MixedPrecision(self.device, autocast_dtype(self.device, config.amp))
+        self.pose = pose.to(self.device) if pose is not None else None
         torch.manual_seed(config.seed)
         train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
         self.train_pairs, self.holdout_pairs = pairs.subset(train_rows), pairs.subset(holdout_rows)
@@ -89,6 +99,14 @@ class TranslatorTrainer(EpochTrainer):
         if config.template:
             self.generator.init_template(self.train_pairs.real.to(torch.float32).mean(0) / 255.0)
         self.discriminator = PatchDiscriminator(PatchDiscriminatorConfig()) if config.gan_weight > 0 else None
+        self.generator.to(self.device, memory_format=self.memory_format)
+        if self.discriminator is not None:
+            self.discriminator.to(self.device, memory_format=self.memory_format)
+        # what trains: the networks, or under torchrun their DistributedDataParallel wrappers (the checkpoint is
+        # written from the networks themselves: no "module." prefix)
+        self.net_g = distributed.wrap(self.generator) if distributed is not None else self.generator
+        self.net_d = (distributed.wrap(self.discriminator) if distributed is not None and self.discriminator
+                      is not None else self.discriminator)
         self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=config.lr, betas=(0.5, 0.999))
         self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=config.lr, betas=(0.5, 0.999))
                       if self.discriminator is not None else None)
@@ -97,9 +115,9 @@ class TranslatorTrainer(EpochTrainer):
     # ------------------------------------------------------------------------------------------- persistence
     def trainer_state(self) -> dict:
         return {
-            "generator": {"config": asdict(self.generator.config), "state_dict": self.generator.state_dict()},
+            "generator": {"config": asdict(self.generator.config), "state_dict": cpu_state(self.generator)},
             "opt_g": self.opt_g.state_dict(),
-            "discriminator": self.discriminator.state_dict() if self.discriminator is not None else None,
+            "discriminator": cpu_state(self.discriminator) if self.discriminator is not None else None,
             "opt_d": self.opt_d.state_dict() if self.opt_d is not None else None,
             "batch_rng": self.batch_rng.bit_generator.state, "torch_rng": torch.get_rng_state(),
         }
@@ -114,6 +132,12 @@ class TranslatorTrainer(EpochTrainer):
         torch.set_rng_state(state["torch_rng"])
 
     # ---------------------------------------------------------------------------------------------- training
+    def _on_device(self, sim: torch.Tensor, shear: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """A CPU batch's sim images (B, 1, H, W) and shear (B, 6) on the device: the generator's inputs (the
+        shear None for a pix2pix generator)."""
+        sim = sim.to(self.device, memory_format=self.memory_format, non_blocking=True)
+        return sim, shear.to(self.device, non_blocking=True) if self.generator.config.shear_dim else None
+
     def holdout_l1(self) -> float:
         """Mean absolute error (images in [0, 1]) of the generated held-out images against the real ones."""
         self.generator.eval()
@@ -122,23 +146,29 @@ class TranslatorTrainer(EpochTrainer):
             for start in range(0, len(self.holdout_pairs), 64):
                 sim, shear, real, _ = self.holdout_pairs.batch(
                     np.arange(start, min(start + 64, len(self.holdout_pairs))))
-                total += (self.generator(sim, shear if self.generator.config.shear_dim else None) - real
+                total += (self.generator(*self._on_device(sim, shear)) - real.to(self.device)
                           ).abs().mean(dim=(1, 2, 3)).sum().item()
         self.generator.train()
         return total / len(self.holdout_pairs)
 
     def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor,
                    pose_labels: torch.Tensor | None = None) -> dict[str, float]:
+        """One step of the discriminator (if any) and the generator on a CPU batch; returns the losses."""
         config = self.config
-        shear_in = shear if self.generator.config.shear_dim else None
-        fake = self.generator(sim, shear_in)
+        precision = self.precision
+        sim, shear_in = self._on_device(sim, shear)
+        real = real.to(self.device, memory_format=self.memory_format, non_blocking=True)
+        with precision.autocast():
+            fake = self.net_g(sim, shear_in)
+        fake = fake.float()  # the losses in float32
         losses = {}
         if self.discriminator is not None:
             self.opt_d.zero_grad(set_to_none=True)
-            d_real, d_fake = self.discriminator(sim, real), self.discriminator(sim, fake.detach())
-            loss_d = 0.5 * ((d_real - 1) ** 2).mean() + 0.5 * (d_fake ** 2).mean()
-            loss_d.backward()
-            self.opt_d.step()
+            with precision.autocast():
+                d_real, d_fake = self.net_d(sim, real), self.net_d(sim, fake.detach())
+            loss_d = 0.5 * ((d_real.float() - 1) ** 2).mean() + 0.5 * (d_fake.float() ** 2).mean()
+            precision.backward(loss_d)
+            precision.step(self.opt_d)
             losses["d"] = loss_d.item()
         self.opt_g.zero_grad(set_to_none=True)
         l1 = (fake - real).abs().mean()
@@ -148,15 +178,20 @@ class TranslatorTrainer(EpochTrainer):
             loss = loss + config.density_weight * density
             losses["density"] = density.item()
         if self.discriminator is not None:
-            gan = ((self.discriminator(sim, fake) - 1) ** 2).mean()
+            # the discriminator itself, not its DDP wrapper: its own gradients from this pass are zeroed before its
+            # next step, so there is nothing to average (the generator's flow back through `fake`)
+            with precision.autocast():
+                judged = self.discriminator(sim, fake)
+            gan = ((judged.float() - 1) ** 2).mean()
             loss = loss + config.gan_weight * gan
             losses["g_gan"] = gan.item()
         if self.pose is not None:
-            pose_loss = self.pose.loss(fake, pose_labels)
+            pose_loss = self.pose.loss(fake, pose_labels.to(self.device))
             loss = loss + config.pose_weight * pose_loss
             losses["pose"] = pose_loss.item()
-        loss.backward()
-        self.opt_g.step()
+        precision.backward(loss)
+        precision.step(self.opt_g)
+        precision.update()
         losses["l1"] = l1.item()
         return losses
 
@@ -173,7 +208,7 @@ class TranslatorTrainer(EpochTrainer):
         self.generator.train()
 
     def train_batch(self, index: np.ndarray) -> dict[str, float]:
-        return self.train_step(*self.train_pairs.batch(index))
+        return self.train_step(*self.train_pairs.batch(index[self.local_rows(len(index))]))
 
     def holdout_metric(self) -> float:
         return self.holdout_l1()
@@ -186,7 +221,7 @@ class TranslatorTrainer(EpochTrainer):
         sim, shear, real, _ = self.holdout_pairs.batch(np.arange(min(6, len(self.holdout_pairs))))
         self.generator.eval()
         with torch.inference_mode():
-            fake = self.generator(sim, shear if self.generator.config.shear_dim else None)
+            fake = self.generator(*self._on_device(sim, shear)).cpu()
         self.generator.train()
         grid = torch.cat([torch.cat([(s * 4).clamp(0, 1), f, r], dim=2) for s, f, r in zip(sim, fake, real)], dim=2)
         writer.add_image("holdout/sim_generated_real", grid, self.step)
