@@ -15,7 +15,7 @@ from simshear_gym.control.servo import ServoController
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.example_sensor import make_example
-from simshear_gym.pipelines.run import STAGES, run_pipeline
+from simshear_gym.pipelines.run import STAGES, contacts_of, only_contacts, run_pipeline
 from tests.test_pipeline_check import GOOD, write_lab
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -119,6 +119,19 @@ def test_a_pool_of_generators_and_random_contacts_side_by_side(tmp_path):
     assert gdnn["paired"][-1].startswith("collect/random_surface/")  # the random contacts, translated too
     again = run_pipeline(config, out, data, "smoke", STAGES, workers=1)
     assert not any(result["ran"] for result in again["results"])
+
+
+def test_a_run_restricted_to_some_contact_types_keeps_their_settings():
+    config = load_config(ROOT / "configs" / "tactip331.toml")
+    surface = only_contacts(config, ["surface"])
+    assert sorted(contacts_of(surface)) == ["surface"] and sorted(surface.datasets) == ["surface_shear", "surface_tap"]
+    full, restricted = config.profile("full"), surface.profile("full")
+    assert [g.name for g in restricted.pool] == [g.name for g in full.pool if g.contact == "surface"]
+    assert restricted.posenet.random_contacts == {} and full.posenet.random_contacts == {"edge": 10000}
+    assert (restricted.translator, restricted.jobs) == (full.translator, full.jobs)  # the cache keys' settings
+    assert only_contacts(config, None) is config
+    with pytest.raises(ValueError, match="no 'hand' datasets; its contact types: \\['edge', 'surface'\\]"):
+        only_contacts(config, ["hand"])
 
 
 def test_stages_need_the_ones_before_them(tmp_path):

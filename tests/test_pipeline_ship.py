@@ -10,7 +10,8 @@ import pytest
 
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import Translator
-from simshear_gym.pipelines import export_posenet, export_translator
+from simshear_gym.models.translator_runtime import load_translator, runtime_of
+from simshear_gym.pipelines import export_onnx, export_posenet, export_translator
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.run import STAGES, run_pipeline
 from simshear_gym.pipelines.ship import read_run, ship
@@ -35,9 +36,14 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     manifest = run_pipeline(config, run, data_root, "smoke", STAGES, rows_per_split=24, workers=1)
     to = tmp_path / "weights"
     written = ship(run, to, str(data_root), date="2026-01-01")
+    exported = not export_onnx.missing_export_packages()
     assert sorted(p.relative_to(to).as_posix() for p in written) == sorted(
-        f"{stem}.{ext}" for stem in ("shpix2pix_surface", "pix2pix_surface", "posenet/surface", "shpix2pix_edge",
-                                     "pix2pix_edge", "posenet/edge") for ext in ("pt", "md"))
+        [f"{stem}.{ext}" for stem in ("shpix2pix_surface", "pix2pix_surface", "posenet/surface", "shpix2pix_edge",
+                                      "pix2pix_edge", "posenet/edge") for ext in ("pt", "md")]
+        + [f"shpix2pix_{contact}.{ext}" for contact in ("surface", "edge") for ext in ("onnx", "onnx.md")
+           if exported])
+    if exported:  # the envs' auto runtime takes the new .onnx: it was exported from the new .pt
+        assert runtime_of(load_translator(to / "shpix2pix_edge.pt", "auto")) == "onnx"
     translator = Translator.load(to / "shpix2pix_edge.pt")
     assert translator.card["pipeline"]["profile"] == "smoke"
     assert translator.card["pipeline"]["stage"] == next(r["folder"] for r in manifest["results"]

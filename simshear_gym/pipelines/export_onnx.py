@@ -45,6 +45,7 @@ PRECISIONS = ("fp32", "fp16")
 OPSET = 20
 GATE_RELATIVE = 0.03  # ONNX MAPE may exceed the torch generator's by at most 3 % (relative) on every real val set
 KINDS = ("shear", "tap")
+DEFAULT_RESULTS = Path("results/translation_onnx.json")
 
 
 def missing_export_packages() -> list[str]:
@@ -286,9 +287,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 64)")
     parser.add_argument("--contact", choices=("surface", "edge"), default=None,
                         help="contact type of the weights (default: from the file name, *_surface.pt / *_edge.pt)")
-    parser.add_argument("--translation-results", type=Path, default=Path("results/translation_onnx.json"),
+    parser.add_argument("--translation-results", type=Path, default=DEFAULT_RESULTS,
                         help="simshear evaluate translation results that evaluate this ONNX file, quoted in the card "
                              "(default results/translation_onnx.json; skipped if absent)")
+    parser.add_argument("--no-translation-results", action="store_true",
+                        help="quote no 2000-row evaluation in the card (a file just shipped: none evaluates it yet)")
     parser.add_argument("--data", default=None,
                         help="data root holding tactip331/ (default: $SIMSHEAR_DATA, else ../shared/data)")
 
@@ -302,50 +305,68 @@ def _contact(weights: Path, explicit: str | None) -> str:
     raise ValueError(f"cannot tell the contact type of {weights} from its name: pass --contact surface|edge")
 
 
+def export(weights: Path, to: Path | None = None, precision: str = "fp16", check_rows: int = 64,
+           contact: str | None = None, translation_results: Path | None = DEFAULT_RESULTS,
+           data: str | None = None) -> dict:
+    """Export ``weights`` to ``to`` (default ``weights`` with ``.onnx``) with its card (see the module docstring);
+    ``translation_results`` None: quote no 2000-row evaluation. Returns {"onnx", "card", "command", "check",
+    "evaluation", "size_bytes"}."""
+    missing = missing_export_packages()
+    if missing:
+        raise ImportError(f"export-onnx needs {', '.join(missing)} (the export extra): pip install -e '.[export]'")
+    if not (isinstance(check_rows, int) and check_rows >= 1):
+        raise ValueError(f"check_rows (--check-rows) must be an int >= 1, got {check_rows!r}")
+    weights = Path(weights)
+    if not weights.is_file():
+        raise FileNotFoundError(f"translator weights {weights} not found")
+    import onnx
+
+    from simshear_gym.io import atomic_write
+    from simshear_gym.models.translator_runtime import METADATA_KEY, file_sha256
+
+    to = Path(to) if to is not None else weights.with_suffix(".onnx")
+    if to.suffix != ".onnx":
+        raise ValueError(f"--to must name a .onnx file, got {to}")
+    contact_name = _contact(weights, contact)
+    words = ["simshear", "train", "export-onnx", "--weights", str(weights), "--to", str(to),
+             "--precision", precision, "--check-rows", str(check_rows),
+             *(["--contact", contact] if contact else []),
+             *(["--translation-results", str(translation_results)]
+               if translation_results is not None and translation_results != DEFAULT_RESULTS else []),
+             *(["--no-translation-results"] if translation_results is None else [])]
+    command = " ".join(shlex.quote(word) for word in words)
+    model, torch_card, config = export_model(weights, precision)
+    check = check_export(model.SerializeToString(), weights, contact_name, check_rows, data)
+    source_sha256 = file_sha256(weights)
+    check.update(contact=contact_name, rows=check_rows, source_sha256=source_sha256)
+    from dataclasses import asdict
+
+    record = {"arch": "shpix2pix" if config.shear_dim else "pix2pix", "contact": contact_name,
+              "source": str(weights), "source_sha256": source_sha256, "precision": precision,
+              "opset": OPSET, "command": command, "config": asdict(config),
+              "card": {"torch_card": torch_card, "check": check}}
+    onnx.helper.set_model_props(model, {METADATA_KEY: json.dumps(record, default=float)})
+    atomic_write(to, lambda tmp: onnx.save_model(model, tmp))
+    size_bytes = to.stat().st_size
+    evaluation = full_evaluation(translation_results, to, contact_name) if translation_results is not None else {}
+    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
+    card = card_text(to, weights, command, precision, config, check, evaluation, date, size_bytes)
+    card_path = to.with_name(to.name + ".md")
+    atomic_write(card_path, lambda tmp: Path(tmp).write_text(card))
+    return {"onnx": to, "card": card_path, "command": command, "check": check, "evaluation": evaluation,
+            "size_bytes": size_bytes}
+
+
 def run(args: argparse.Namespace) -> int:
     missing = missing_export_packages()
     if missing:
         print(f"simshear: error: export-onnx needs {', '.join(missing)} (the export extra): "
               f"pip install -e '.[export]'", file=sys.stderr)
         return 2
-    if args.check_rows < 1:
-        raise ValueError(f"--check-rows must be >= 1, got {args.check_rows}")
-    if not args.weights.is_file():
-        raise FileNotFoundError(f"translator weights {args.weights} not found")
-    import onnx
-
-    from simshear_gym.io import atomic_write
-    from simshear_gym.models.translator_runtime import METADATA_KEY, file_sha256
-
-    to = args.to or args.weights.with_suffix(".onnx")
-    if to.suffix != ".onnx":
-        raise ValueError(f"--to must name a .onnx file, got {to}")
-    contact = _contact(args.weights, args.contact)
-    words = ["simshear", "train", "export-onnx", "--weights", str(args.weights), "--to", str(to),
-             "--precision", args.precision, "--check-rows", str(args.check_rows),
-             *(["--contact", args.contact] if args.contact else []),
-             *(["--translation-results", str(args.translation_results)]
-               if args.translation_results != Path("results/translation_onnx.json") else [])]
-    command = " ".join(shlex.quote(word) for word in words)
-    model, torch_card, config = export_model(args.weights, args.precision)
-    check = check_export(model.SerializeToString(), args.weights, contact, args.check_rows, args.data)
-    source_sha256 = file_sha256(args.weights)
-    check.update(contact=contact, rows=args.check_rows, source_sha256=source_sha256)
-    from dataclasses import asdict
-
-    record = {"arch": "shpix2pix" if config.shear_dim else "pix2pix", "contact": contact,
-              "source": str(args.weights), "source_sha256": source_sha256, "precision": args.precision,
-              "opset": OPSET, "command": command, "config": asdict(config),
-              "card": {"torch_card": torch_card, "check": check}}
-    onnx.helper.set_model_props(model, {METADATA_KEY: json.dumps(record, default=float)})
-    atomic_write(to, lambda tmp: onnx.save_model(model, tmp))
-    size_bytes = to.stat().st_size
-    evaluation = full_evaluation(args.translation_results, to, contact)
-    date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
-    card = card_text(to, args.weights, command, args.precision, config, check, evaluation, date, size_bytes)
-    card_path = to.with_name(to.name + ".md")
-    atomic_write(card_path, lambda tmp: Path(tmp).write_text(card))
-    print(f"exported {to} ({size_bytes / 2**20:.1f} MiB, {args.precision}) and {card_path}")
+    exported = export(args.weights, args.to, args.precision, args.check_rows, args.contact,
+                      None if args.no_translation_results else args.translation_results, args.data)
+    to, check, evaluation = exported["onnx"], exported["check"], exported["evaluation"]
+    print(f"exported {to} ({exported['size_bytes'] / 2**20:.1f} MiB, {args.precision}) and {exported['card']}")
     for set_name, row in check["sets"].items():
         print(f"  {set_name} first {row['rows']} rows: MAPE torch {row['mape_torch']:.5f} onnx {row['mape_onnx']:.5f}"
               f", pixels differing {100 * row['pixels_differing']:.3f} %, max {row['max_abs_difference_grey']}")
@@ -354,5 +375,5 @@ def run(args: argparse.Namespace) -> int:
     for set_name, row in evaluation.get("sets", {}).items():
         print(f"  {set_name} 2000 rows: MAPE torch {row['torch']:.5f} onnx {row['onnx']:.5f} "
               f"({100 * row['relative']:+.3f} %)")
-    print("command:", command)
+    print("command:", exported["command"])
     return 0

@@ -36,7 +36,7 @@ import argparse
 import json
 import subprocess
 import time
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -115,6 +115,25 @@ def stage_collect(runner: StageRunner, config: ExperimentConfig, adapted: dict, 
 
         paired[name] = runner.run(f"collect/{name}", key, work).outputs
     return paired
+
+
+def only_contacts(config: ExperimentConfig, contacts: list[str] | None) -> ExperimentConfig:
+    """The config restricted to the datasets, pool generators and random contacts of ``contacts`` (None: all);
+    the stages of a kept contact type keep their cache keys, so one contact type can be run (and shipped) at a
+    time."""
+    if not contacts:
+        return config
+    known = sorted({dataset.contact for dataset in config.datasets.values()})
+    unknown = sorted(set(contacts) - set(known))
+    if unknown:
+        raise ValueError(f"--contacts: {config.path} has no {unknown[0]!r} datasets; its contact types: {known}")
+    keep = set(contacts)
+    profiles = {name: replace(profile, pool=tuple(g for g in profile.pool if not g.contact or g.contact in keep),
+                              posenet=replace(profile.posenet, random_contacts={
+                                  c: n for c, n in profile.posenet.random_contacts.items() if c in keep}))
+                for name, profile in config.profiles.items()}
+    return replace(config, datasets={name: dataset for name, dataset in config.datasets.items()
+                                     if dataset.contact in keep}, profiles=profiles)
 
 
 def contacts_of(config: ExperimentConfig) -> dict[str, list[str]]:
@@ -386,7 +405,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         "package_version": _version(), "git_commit": git_commit(),
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
-        "jobs": jobs, "device": device,
+        "jobs": jobs, "device": device, "contacts": sorted(contacts_of(config)),
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
                      "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in results],
         "models": {"translators": translators, "posenets": posenets},
@@ -422,12 +441,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", choices=DEVICES, default=None,
                         help="where the training steps train: auto (CUDA where torch finds it, else the CPU), cpu or "
                              "cuda (default: the profile's device, auto unless the config says otherwise)")
+    parser.add_argument("--contacts", nargs="+", default=None, metavar="CONTACT",
+                        help="only these contact types' datasets (default: all); their stages keep their cache keys")
 
 
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.config import load_config
 
-    config = load_config(args.config)
+    config = only_contacts(load_config(args.config), args.contacts)
     out = args.out or Path("runs") / "pipeline" / config.name
     manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
                             args.workers, args.jobs, getattr(args, "device", None))

@@ -5,8 +5,10 @@ For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2
 ``simshear_gym/models/weights``). Each file keeps its training record and gains the run's (config, profile, stage
 folder, git commit) and a check figure that the tests reproduce (``tests/test_shipped_translator.py``,
 ``tests/test_shipped_posenet.py``); beside it a card (``.md``): data, settings, the exact commands, the metrics of
-the run's evaluation on the real validation rows, date. Nothing is trained: shipping a run twice gives the same
-files, so the shipped weights are exactly what ``simshear pipeline run CONFIG --profile P`` produced.
+the run's evaluation on the real validation rows, date. Each shPix2pix is also exported to the ``.onnx`` the envs
+run (``simshear train export-onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
+Nothing is trained: shipping a run twice gives the same files, so the shipped weights are exactly what
+``simshear pipeline run CONFIG --profile P`` produced.
 """
 
 from __future__ import annotations
@@ -43,8 +45,8 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
 
     manifest, evaluation, records = read_run(run)
     date = date or datetime.date.today().isoformat()
-    commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']} --out {run}",
-                f"simshear pipeline ship {run}"]
+    commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']}"
+                f"{_contacts_option(manifest)} --out {run}", f"simshear pipeline ship {run}"]
     written = []
     for contact, archs in manifest["models"]["translators"].items():
         for arch in ("shpix2pix", "pix2pix"):
@@ -57,6 +59,8 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
             save_generator(dest, generator, card=card)
             written += [dest, _write(dest, translator_card(dest, arch, contact, card, manifest, evaluation,
                                                            records[stage], commands, date))]
+            if arch == "shpix2pix":
+                written += _onnx_beside(dest, data)
         stage = f"posenet/{contact}_shpix2pix"
         dest = to / "posenet" / f"{contact}.pt"
         model, card = load_posenet(run / manifest["models"]["posenets"]["models"][contact]["shpix2pix"])
@@ -69,6 +73,37 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
         written += [dest, _write(dest, posenet_card(dest, contact, card, manifest, evaluation, records, commands,
                                                     date))]
     return written
+
+
+def _contacts_option(manifest: dict) -> str:
+    """`` --contacts A B`` where the run was restricted to some of its config's contact types, else ``""``."""
+    from simshear_gym.pipelines.config import load_config
+
+    contacts = manifest.get("contacts")
+    if not contacts:
+        return ""
+    try:
+        every = {dataset.contact for dataset in load_config(manifest["config"]).datasets.values()}
+    except (OSError, ValueError):  # the config moved: name the contacts anyway
+        every = set()
+    return "" if set(contacts) == every else " --contacts " + " ".join(contacts)
+
+
+def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
+    """The envs' ONNX translator beside newly shipped shPix2pix weights: exported from them where the export extra
+    is installed; else the old ``.onnx`` (and card) are removed (the envs' ``auto`` runtime would skip them anyway:
+    their recorded sha256 no longer matches) and the command to export them is printed."""
+    from simshear_gym.pipelines import export_onnx
+
+    onnx_path = weights.with_suffix(".onnx")
+    if export_onnx.missing_export_packages():
+        for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
+            stale.unlink(missing_ok=True)
+        print(f"note: {onnx_path} not written (the export extra is not installed); the envs run the torch "
+              f"translator until: pip install -e '.[export]' && simshear train export-onnx --weights {weights}")
+        return []
+    exported = export_onnx.export(weights, onnx_path, translation_results=None, data=data)
+    return [exported["onnx"], exported["card"]]
 
 
 def _provenance(manifest: dict, record: dict) -> dict:
