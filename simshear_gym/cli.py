@@ -39,6 +39,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "run a loopback Dobot MG400 emulator (dashboard, motion, feedback ports) until Ctrl-C"),
     (("train", "export-translator"), "simshear_gym.pipelines.export_translator",
      "ship a translator run as fp16 weights with a check figure"),
+    (("train", "recheck-posenet"), "simshear_gym.pipelines.recheck_posenet",
+     "measure a shipped GDNN's check figure again (after a new translator) and record it in its file and card"),
     (("train", "export-onnx"), "simshear_gym.pipelines.export_onnx",
      "export shipped translator weights to ONNX (run by onnxruntime in the envs), with a check and a card"),
     (("train", "posenet"), "simshear_gym.train.posenet",

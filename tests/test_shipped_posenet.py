@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from simshear_gym.models.posenet_io import load_shipped_posenet, shipped_posenet_path
+from simshear_gym.models.posenet_io import load_posenet, load_shipped_posenet, shipped_posenet_path
 from simshear_gym.pipelines.export_posenet import (
     check_figure,
     env_check_figure,
@@ -59,3 +59,29 @@ def test_shipped_colift_posenet_reproduces_its_check_figure():
 
 def test_card_lists_each_generator_once_with_how_often_it_is_drawn():
     assert generator_list(["a.pt", "b.pt", "a.pt", "c.pt", "a.pt", "b.pt"]) == "`a.pt` (x3), `b.pt` (x2), `c.pt`"
+
+
+@pytest.mark.data
+def test_recheck_measures_the_check_again_and_rewrites_the_cards_line(data_root, tmp_path):
+    import shutil
+
+    from simshear_gym.pipelines.recheck_posenet import recheck
+
+    weights = tmp_path / "edge.pt"
+    shutil.copy(shipped_posenet_path("edge"), weights)
+    shutil.copy(shipped_posenet_path("edge").with_suffix(".md"), weights.with_suffix(".md"))
+    _, card = load_shipped_posenet("edge")
+    check = recheck(weights, str(data_root), date="2026-01-01")
+    for name, value in card["check"]["mae"].items():  # the same images: the same figure
+        assert check["mae"][name] == pytest.approx(value, rel=1e-3, abs=1e-4), name
+    _, stored = load_posenet(weights)
+    assert stored["check"]["measured"] == "2026-01-01"
+    text = weights.with_suffix(".md").read_text()
+    assert text.count("Check figure (tests):") == 1 and "measured again on 2026-01-01" in text
+
+
+def test_recheck_of_a_missing_file_is_a_clear_error(tmp_path):
+    from simshear_gym.pipelines.recheck_posenet import recheck
+
+    with pytest.raises(FileNotFoundError, match="not found"):
+        recheck(tmp_path / "missing.pt")

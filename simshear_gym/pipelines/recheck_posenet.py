@@ -1,0 +1,72 @@
+"""``simshear train recheck-posenet W.pt``: measure a shipped GDNN's check figure again and record it.
+
+A GDNN's check figure (``tests/test_shipped_posenet.py`` reproduces it) is its MAE on a fixed set of images. For the
+co-lift GDNN that set is collected afresh from the co-lift env, whose images come from the shipped surface
+shPix2pix: when that translator is replaced (``simshear pipeline ship``), the same GDNN sees other images and its
+check figure moves. This command measures it again with the translator shipped now, stores it in the weights file
+(``check``, with the sha256 of the translator that made the images) and rewrites the card's check line, saying when
+and why. The network itself is not touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import re
+from pathlib import Path
+
+CHECK_LINE = re.compile(r"^Check figure \(tests\):.*$", re.MULTILINE)
+
+
+def recheck(weights: Path, data: str | None = None, date: str | None = None) -> dict:
+    """Measure ``weights``' check figure again (same set as recorded), store it and update its card; returns it."""
+    from simshear_gym.models.posenet_io import load_posenet, save_posenet
+    from simshear_gym.models.translator import shipped_models
+    from simshear_gym.models.translator_runtime import file_sha256
+    from simshear_gym.pipelines.export_posenet import check_figure, env_check_figure
+
+    weights = Path(weights)
+    if not weights.is_file():
+        raise FileNotFoundError(f"GDNN weights {weights} not found")
+    model, card = load_posenet(weights)
+    old = card.get("check")
+    if not old:
+        raise ValueError(f"{weights}: its card holds no check figure to measure again (export it with "
+                         "simshear train export-posenet)")
+    if old.get("kind") == "env":
+        check = env_check_figure(weights, old["collect"])
+        translator = shipped_models()[("shpix2pix", "surface")]
+        check["translator_sha256"] = file_sha256(translator)
+    else:
+        check = check_figure(weights, card["contact"], old["rows"], data)
+    date = date or datetime.date.today().isoformat()
+    check["measured"] = date
+    save_posenet(weights, model, {**card, "check": check})
+    md = weights.with_suffix(".md")
+    if md.is_file():
+        where = (f"a fresh seeded co-lift set ({check['rows']} rows, `EnvCollectConfig(**{check['collect']})`)"
+                 if check.get("kind") == "env" else
+                 f"the first {check['rows']} rows of the real `{card['contact']}_shear` validation set")
+        line = (f"Check figure (tests): MAE on {where}: "
+                + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())
+                + f" (measured again on {date} by `simshear train recheck-posenet {weights}`"
+                + (f", images from the surface shPix2pix with sha256 {check['translator_sha256'][:16]}...; was "
+                   + ", ".join(f"{k} {v:.3f}" for k, v in old["mae"].items()) if "translator_sha256" in check
+                   else "") + ")")
+        text = md.read_text()
+        md.write_text(CHECK_LINE.sub(lambda _: line, text, count=1) if CHECK_LINE.search(text)
+                      else text.rstrip("\n") + "\n\n" + line + "\n")
+    return check
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("weights", type=Path, help="shipped GDNN weights, e.g. simshear_gym/models/weights/posenet/"
+                        "colift.pt")
+    parser.add_argument("--data", default=None,
+                        help="data root of a real-data check (default: $SIMSHEAR_DATA, else ../shared/data)")
+
+
+def run(args: argparse.Namespace) -> int:
+    check = recheck(args.weights, args.data)
+    print(f"{args.weights}: check MAE " + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items()))
+    return 0
