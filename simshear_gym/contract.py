@@ -4,7 +4,8 @@ cannot tell which one it drives.
 - The TacTip's mount on the MG400 flange (:class:`TacTipMount`) and the action: a sensor-frame move
   ``(dx, dy, dz mm, dRz deg)`` scaled from ``[-1, 1]`` by :class:`ActionScale` (:func:`action_to_move`).
 - The spaces (:func:`observation_space`, :func:`action_space`): one definition for ``SimShearEnv`` and
-  ``RealTactileEnv``.
+  ``RealTactileEnv``; a 6-DoF follower's action adds the two tilt rates (:func:`action_space_6d`,
+  :func:`action_to_move_6d`).
 - The observation image: the TacTip renders at :data:`RENDER_SIZE_PX` (the translator's size); in the translated
   modes the shipped translator turns (sim image, shear) into a real-looking image (:func:`finish_tactile`), and
   every image, sim or camera, is brought to the observation size by :func:`resize_tactile`.
@@ -179,6 +180,32 @@ def filter_mean_from_estimate(estimate: np.ndarray, reference_depth_mm: float) -
 def action_space() -> spaces.Box:
     """float32 (4,) in [-1, 1]: the sensor-frame move scaled by :class:`ActionScale`."""
     return spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
+
+
+TILT_STEP_DEG = 1.0
+"""Full-scale tilt rate of the 6-DoF action (|a| = 1): deg per step about the sensor's x and y."""
+
+
+def action_space_6d() -> spaces.Box:
+    """float32 (6,) in [-1, 1]: the 4 of :func:`action_space` (dx, dy, dz, dRz) then dRx, dRy: the 6-DoF
+    follower's sensor-frame move (:func:`action_to_move_6d`)."""
+    return spaces.Box(-1.0, 1.0, (6,), dtype=np.float32)
+
+
+def action_to_move_6d(action, action_scale: ActionScale, tilt_step_deg: float = TILT_STEP_DEG) -> np.ndarray:
+    """Validate a 6-DoF action (shape (6,), finite, in [-1, 1]) and scale it to a sensor-frame move
+    ``(dx, dy, dz mm, dRz, dRx, dRy deg)``: the first four as :func:`action_to_move`, the tilts by
+    ``tilt_step_deg``."""
+    array = np.asarray(action, dtype=np.float64)
+    if array.shape != (6,):
+        raise ValueError(f"action must have shape (6,) (dx, dy, dz, dRz, dRx, dRy in [-1, 1]), got shape "
+                         f"{array.shape}")
+    if not (math.isfinite(tilt_step_deg) and tilt_step_deg > 0):
+        raise ValueError(f"tilt_step_deg must be finite and > 0, got {tilt_step_deg!r}")
+    move = action_to_move(array[:4], action_scale)
+    if np.any(np.abs(array[4:]) > 1.0 + 1e-6) or not np.all(np.isfinite(array[4:])):
+        raise ValueError(f"action must be finite and lie in [-1, 1] (the action space), got {array.tolist()}")
+    return np.concatenate([move, np.clip(array[4:], -1.0, 1.0) * tilt_step_deg])
 
 
 def policy_spaces(image_size_px: int, observation: str = "tactile", history: int = 1) -> tuple[spaces.Dict, spaces.Box]:

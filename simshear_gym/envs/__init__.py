@@ -6,6 +6,9 @@ until ``gymnasium.make``):
   processes, their images translated in batches) unless ``vectorization_mode`` is ``"sync"`` or ``"async"``.
 - ``SimShearCoLift-v0`` (:class:`simshear_gym.envs.colift.SimShearCoLiftEnv`), 500 steps per episode; the same
   batched vector env.
+- ``SimShearTracking6D-v0`` (:class:`simshear_gym.envs.tracking6d.SimShearTracking6DEnv`), 500 steps per episode: a
+  tilting plate, a 6-DoF (Panda) follower; gymnasium's own vector envs (not in :data:`ENV_IDS`, the envs with the
+  batched one).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -25,5 +28,12 @@ if "SimShearCoLift-v0" not in registry:
         id="SimShearCoLift-v0",
         entry_point="simshear_gym.envs.colift:SimShearCoLiftEnv",
         vector_entry_point="simshear_gym.envs.colift:make_colift_vector_env",
+        max_episode_steps=500,
+    )
+
+if "SimShearTracking6D-v0" not in registry:
+    register(
+        id="SimShearTracking6D-v0",
+        entry_point="simshear_gym.envs.tracking6d:SimShearTracking6DEnv",
         max_episode_steps=500,
     )

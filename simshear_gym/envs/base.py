@@ -6,7 +6,8 @@ How a task plugs in (``SimShearTracking-v0`` in :mod:`simshear_gym.envs.tracking
 (after ``EzPickle.__init__(self, **your_kwargs)`` so the env pickles), and implement five hooks:
 
 - ``_build_scene()``: spawn the task's bodies into ``self.world``, create the follower with
-  :meth:`SimShearEnv._add_follower` and any other arm with :meth:`SimShearEnv._add_arm` (added arms are moved on
+  :meth:`SimShearEnv._add_follower` (an MG400; another :class:`~simshear_gym.sim.arm.Arm` with
+  :meth:`SimShearEnv._use_follower`) and any other arm with :meth:`SimShearEnv._add_arm` (added arms are moved on
   by the base every step), and set ``self.face_half_extents_mm`` (the touched face's half size, x and y).
 - ``_reset_scene(rng, options)``: put everything at the episode's start, drawing all randomness from ``rng``;
   the follower must end in contact (:meth:`SimShearEnv.T_world_sensor_on_face` gives the sensor pose at a point
@@ -62,6 +63,7 @@ from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.observation import Estimator, PolicyObservation
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose
 from simshear_gym.robots.mg400.kinematics import KinematicsError
+from simshear_gym.sim.arm import Arm
 from simshear_gym.sim.mg400_arm import MG400ArmConfig, SimMG400
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
@@ -232,8 +234,8 @@ class SimShearEnv(gym.Env, EzPickle):
         self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
         self.T_work_face[2, 3] = SURFACE_DEPTH_MM
         self._T_face_work = invert(self.T_work_face)
-        self.follower: SimMG400 | None = None
-        self._arms: list[SimMG400] = []
+        self.follower: Arm | None = None
+        self._arms: list[Arm] = []
         self.face_half_extents_mm = (np.inf, np.inf)
         self._build_scene()
         if self.follower is None:
@@ -310,6 +312,14 @@ class SimShearEnv(gym.Env, EzPickle):
         T_flange_sensor = self.mount.T_flange_sensor() if T_flange_sensor is None else T_flange_sensor
         self.follower = self._add_arm(T_world_base, pose_mm_deg, T_flange_sensor)
         return self.follower
+
+    def _use_follower(self, arm: Arm) -> Arm:
+        """Make an arm built by the task (any :class:`~simshear_gym.sim.arm.Arm`, e.g. the 6-DoF
+        :class:`~simshear_gym.sim.panda_arm.SimPanda`; its tool the sensor's TCP) the follower, moved on every
+        step like the others."""
+        self._arms.append(arm)
+        self.follower = arm
+        return arm
 
     def T_world_sensor_on_face(self, T_world_face: np.ndarray, x_work_mm: float, y_work_mm: float,
                                depth_mm: float, rz_work_deg: float = 0.0) -> np.ndarray:

@@ -89,6 +89,9 @@ class SimMG400:
         bodies: add the link boxes to the world.
     """
 
+    tool_dof = 4
+    """The tool's degrees of freedom (:class:`~simshear_gym.sim.arm.Arm`): x, y, z and R; it stays level."""
+
     def __init__(self, world: World, T_world_base: np.ndarray, pose_mm_deg: np.ndarray,
                  T_flange_tool: np.ndarray = np.eye(4), config: MG400ArmConfig = MG400ArmConfig(),
                  bodies: bool = True) -> None:
@@ -148,6 +151,11 @@ class SimMG400:
         self._joints = check_pose_reachable(pose, self.config.geometry, self.config.limits)
         self._pose = pose.copy()
         self._motion = None
+
+    def reset_tool(self, T_world_tool: np.ndarray) -> None:
+        """:meth:`reset` to the flange pose that puts the tool at ``T_world_tool`` (the
+        :class:`~simshear_gym.sim.arm.Arm` interface)."""
+        self.reset(self.flange_pose_for_tool(T_world_tool))
 
     def flange_pose_for_tool(self, T_world_tool: np.ndarray) -> np.ndarray:
         """The flange pose (base frame) that puts the tool at ``T_world_tool``; R is unwrapped next to the
