@@ -270,7 +270,16 @@ def run(args: argparse.Namespace) -> int:
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
                    "filter + law per step (ms, median); env step = one env.step including rendering/translation",
+        "translator_runtime": _translator_runtime(),
         "results": results, "figures": figures, "seconds": round(time.perf_counter() - start, 1),
     })
     print(f"wrote {args.out / (args.name + '.json')}")
     return 0
+
+
+def _translator_runtime() -> str:
+    """The runtime the envs' shipped surface translator ran on in this process (``"onnx"`` or ``"torch"``)."""
+    from simshear_gym.contract import shipped_translator
+    from simshear_gym.models.translator_runtime import runtime_of
+
+    return runtime_of(shipped_translator("surface"))
