@@ -58,16 +58,19 @@ class EstimatorConfig:
 
 
 class TactileEstimator:
-    """Image -> (mean (4,), std (4,)) of :data:`STATE_VARIABLES`; call :meth:`reset` at each episode start."""
+    """Image -> (mean (4,), std (4,)) of :data:`STATE_VARIABLES`; call :meth:`reset` at each episode start.
+
+    Subclasses estimate another state (``state_variables``) with their own filter and motion model
+    (:meth:`_make_filter`, :meth:`_state_delta`), e.g. the 6-DoF servo's :class:`~simshear_gym.control.servo6d.
+    TiltEstimator`; the GDNN reading and the filter's use are this class's.
+    """
+
+    state_variables: tuple[str, ...] = STATE_VARIABLES
+    """The estimated state, in order (GDNN variable names)."""
 
     def __init__(self, config: EstimatorConfig = EstimatorConfig()) -> None:
         import torch
 
-        from simshear_gym.models.bayes_filter import (
-            BayesFilterConfig,
-            DiscriminativeKalmanFilter,
-        )
-        from simshear_gym.models.gdnn import OutputSpec
         from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
 
         if config.threads:
@@ -76,29 +79,46 @@ class TactileEstimator:
         path = Path(config.posenet) if config.posenet else shipped_posenet_path("surface")
         self.model, self.card = load_posenet(path)
         names = self.model.variables.names
-        if "z_mm" not in names:
-            raise ValueError(f"{path}: the GDNN predicts {names}; the estimator needs at least the depth z_mm")
-        self.unread = tuple(name for name in STATE_VARIABLES if name not in names)
+        self._check_variables(path, names)
+        self.unread = tuple(name for name in self.state_variables if name not in names)
         """State variables this GDNN does not read (a sensor recorded without shear): reported as 0 with
         :data:`UNREAD_STD`, so the servo law leaves them alone."""
-        self._present = [i for i, name in enumerate(STATE_VARIABLES) if name in names]
-        self._index = [names.index(STATE_VARIABLES[i]) for i in self._present]
-        specs = [self.model.variables.variables[names.index(name)] if name in names
-                 else OutputSpec(name, name.rpartition("_")[2], -7.5, 7.5) for name in STATE_VARIABLES]
+        self._present = [i for i, name in enumerate(self.state_variables) if name in names]
+        self._index = [names.index(self.state_variables[i]) for i in self._present]
         process_mm = DEFAULT_PROCESS_STD_MM if config.process_std_mm is None else config.process_std_mm
-        process = (process_mm,) * 3 + (config.process_std_deg,)
-        self._filter = DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
-            specs, process, prior_std=(math.inf,) * 4))
+        self._filter = self._make_filter(process_mm)
         self._size = self.model.config.image_size_px
         self._inference = self.model.frozen()
         self._started = False
+
+    def _check_variables(self, path: Path, names: tuple[str, ...]) -> None:
+        if "z_mm" not in names:
+            raise ValueError(f"{path}: the GDNN predicts {names}; the estimator needs at least the depth z_mm")
+
+    def _make_filter(self, process_mm: float):
+        """The Bayesian filter over :attr:`state_variables` (ranges from the GDNN's output specs)."""
+        from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
+        from simshear_gym.models.gdnn import OutputSpec
+
+        names = self.model.variables.names
+        specs = [self.model.variables.variables[names.index(name)] if name in names
+                 else OutputSpec(name, name.rpartition("_")[2], -7.5, 7.5) for name in STATE_VARIABLES]
+        process = (process_mm,) * 3 + (self.config.process_std_deg,)
+        return DiscriminativeKalmanFilter(BayesFilterConfig.from_output_specs(
+            specs, process, prior_std=(math.inf,) * 4))
+
+    @staticmethod
+    def _state_delta(commanded_move: np.ndarray) -> np.ndarray:
+        """The state change of a commanded move (dx, dy, dz mm, dRz deg): (+dz, +dx, +dy, +dRz)."""
+        dx, dy, dz, drz = np.asarray(commanded_move, dtype=np.float64)
+        return np.array([dz, dx, dy, drz])
 
     def reset(self) -> None:
         """Forget the belief: the next reading starts it afresh."""
         self._started = False
 
     def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The GDNN's reading of one image, uint8 (H, W) or (1, H, W): (mean (4,), std (4,)) of the state."""
+        """The GDNN's reading of one image, uint8 (H, W) or (1, H, W): (mean, std) of the state."""
         import torch
 
         from simshear_gym.models.gdnn_input import resize_images, to_input
@@ -112,15 +132,17 @@ class TactileEstimator:
         with torch.inference_mode():
             mean, std = self._inference(to_input(torch.from_numpy(image)[None]))
             mean, std = self.model.decode(mean, std)
-        state_mean, state_std = np.zeros(len(STATE_VARIABLES)), np.full(len(STATE_VARIABLES), UNREAD_STD)
+        size = len(self.state_variables)
+        state_mean, state_std = np.zeros(size), np.full(size, UNREAD_STD)
         state_mean[self._present] = mean[0, self._index].numpy()
         state_std[self._present] = std[0, self._index].numpy()
         return state_mean, state_std
 
     def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Fuse one image; ``commanded_move`` (dx, dy, dz mm, dRz deg) is the move sent since the last image.
+        """Fuse one image; ``commanded_move`` (dx, dy, dz mm, dRz deg; a subclass's own move) is the move sent since
+        the last image.
 
-        Returns the state estimate (mean (4,), std (4,)).
+        Returns the state estimate (mean, std).
         """
         reading_mean, reading_std = self.read(tactile)
         if not self.config.filtered:
@@ -129,8 +151,5 @@ class TactileEstimator:
             self._filter.reset(reading_mean, np.diag(reading_std ** 2))
             self._started = True
             return self._filter.mean, self._filter.std
-        delta = None
-        if commanded_move is not None:
-            dx, dy, dz, drz = np.asarray(commanded_move, dtype=np.float64)
-            delta = np.array([dz, dx, dy, drz])
+        delta = None if commanded_move is None else self._state_delta(commanded_move)
         return self._filter.step(delta, reading_mean, reading_std)

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.contract import TILT_STEP_DEG, ActionScale
-from simshear_gym.control.estimator import DEFAULT_PROCESS_STD_MM, STATE_VARIABLES, UNREAD_STD, EstimatorConfig
+from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.policy import as_action_scale
 from simshear_gym.control.servo import SERVO_GAINS
@@ -61,9 +61,10 @@ class Servo6DGains:
                                                  ki=(self.tilt_ki, self.tilt_ki, 0.0, 0.0)))
 
 
-class TiltEstimator:
+class TiltEstimator(TactileEstimator):
     """Image -> (mean (6,), std (6,)) of :data:`STATE_VARIABLES_6D`: one GDNN pass, the Bayesian filter over the
-    six (as :class:`~simshear_gym.control.estimator.TactileEstimator` over four). Call :meth:`reset` per episode.
+    six (as :class:`~simshear_gym.control.estimator.TactileEstimator` over four). Call :meth:`reset` per episode;
+    the commanded move is ``(dx, dy, dz mm, dRz, dRx, dRy deg)``.
 
     Args:
         config: the GDNN (``posenet``; None: the shipped ``surface`` one), process noise of depth and shear (mm)
@@ -71,72 +72,30 @@ class TiltEstimator:
         tilt_process_std_deg: the filter's process noise of Rx, Ry, deg per step.
     """
 
+    state_variables = STATE_VARIABLES_6D
+
     def __init__(self, config: EstimatorConfig = EstimatorConfig(), tilt_process_std_deg: float = 0.8) -> None:
-        import torch
+        self.tilt_process_std_deg = tilt_process_std_deg
+        super().__init__(config)
 
-        from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
-        from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
-
-        if config.threads:
-            torch.set_num_threads(config.threads)
-        self.config = config
-        path = Path(config.posenet) if config.posenet else shipped_posenet_path("surface")
-        self.model, self.card = load_posenet(path)
-        names = self.model.variables.names
+    def _check_variables(self, path: Path, names: tuple[str, ...]) -> None:
         missing = [name for name in ("z_mm", "rx_deg", "ry_deg") if name not in names]
         if missing:
             raise ValueError(f"{path}: the GDNN predicts {names}; the 6-DoF servo needs depth and tilt, missing "
                              f"{missing} (use a surface GDNN)")
-        self.unread = tuple(name for name in STATE_VARIABLES_6D if name not in names)
-        self._present = [i for i, name in enumerate(STATE_VARIABLES_6D) if name in names]
-        self._index = [names.index(STATE_VARIABLES_6D[i]) for i in self._present]
-        process_mm = DEFAULT_PROCESS_STD_MM if config.process_std_mm is None else config.process_std_mm
-        process = (process_mm,) * 3 + (config.process_std_deg, tilt_process_std_deg, tilt_process_std_deg)
-        self._filter = DiscriminativeKalmanFilter(BayesFilterConfig(
+
+    def _make_filter(self, process_mm: float):
+        from simshear_gym.models.bayes_filter import BayesFilterConfig, DiscriminativeKalmanFilter
+
+        process = (process_mm,) * 3 + (self.config.process_std_deg, self.tilt_process_std_deg,
+                                       self.tilt_process_std_deg)
+        return DiscriminativeKalmanFilter(BayesFilterConfig(
             process_std=process, prior_std=(math.inf,) * 6, names=STATE_VARIABLES_6D))
-        self._size = self.model.config.image_size_px
-        self._inference = self.model.frozen()
-        self._started = False
 
-    def reset(self) -> None:
-        self._started = False
-
-    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The GDNN's reading of one image, uint8 (H, W) or (1, H, W): (mean (6,), std (6,))."""
-        import torch
-
-        from simshear_gym.models.gdnn_input import resize_images, to_input
-
-        image = np.asarray(tactile)
-        if image.ndim == 3 and image.shape[0] == 1:
-            image = image[0]
-        if image.ndim != 2 or image.dtype != np.uint8:
-            raise ValueError(f"tactile must be a uint8 (H, W) or (1, H, W) image, got {image.dtype} {image.shape}")
-        with torch.inference_mode():
-            mean, std = self._inference(to_input(torch.from_numpy(resize_images(image, self._size))[None]))
-            mean, std = self.model.decode(mean, std)
-        state_mean = np.zeros(len(STATE_VARIABLES_6D))
-        state_std = np.full(len(STATE_VARIABLES_6D), UNREAD_STD)
-        state_mean[self._present] = mean[0, self._index].numpy()
-        state_std[self._present] = std[0, self._index].numpy()
-        return state_mean, state_std
-
-    def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Fuse one image; ``commanded_move`` ``(dx, dy, dz mm, dRz, dRx, dRy deg)`` is the move sent since the
-        last image. Returns the state estimate (mean (6,), std (6,))."""
-        reading_mean, reading_std = self.read(tactile)
-        if not self.config.filtered:
-            return reading_mean, reading_std
-        if not self._started:
-            self._filter.reset(reading_mean, np.diag(reading_std ** 2))
-            self._started = True
-            return self._filter.mean, self._filter.std
-        delta = None
-        if commanded_move is not None:
-            dx, dy, dz, drz, drx, dry = np.asarray(commanded_move, dtype=np.float64)
-            delta = np.array([dz, dx, dy, drz, drx, dry])
-        return self._filter.step(delta, reading_mean, reading_std)
+    @staticmethod
+    def _state_delta(commanded_move: np.ndarray) -> np.ndarray:
+        dx, dy, dz, drz, drx, dry = np.asarray(commanded_move, dtype=np.float64)
+        return np.array([dz, dx, dy, drz, drx, dry])
 
 
 class Servo6DController:
