@@ -47,6 +47,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
     (("train", "export-posenet"), "simshear_gym.pipelines.export_posenet",
      "ship a posenet run's best GDNN with its model card"),
+    (("train", "export-policy"), "simshear_gym.pipelines.export_policy",
+     "ship a simshear train rl policy (model, normalisation, settings) with its model card"),
     (("train", "rl"), "simshear_gym.train.rl",
      "train a PPO or SAC agent on SimShearTracking-v0 (translated images, randomised trajectories)"),
     (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import simshear_gym.envs
-from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.robots.mg400.kinematics import MG400Limits
 from simshear_gym.sim.mg400_arm import MG400ArmConfig
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
@@ -247,7 +247,29 @@ def test_the_tilted_square_tilts_and_the_spiral_rises():
     assert np.all(np.diff(spiral[:, 2]) > 0)
 
 
-@pytest.mark.parametrize("name", TRAJECTORIES)
+@pytest.mark.parametrize("name", COLIFT_TRAJECTORIES)
+def test_the_held_out_paths_run_and_random_never_draws_them(name):
+    """circular_wave and star test a tracking policy on paths it never saw: they run in the env (the oracle tracks
+    them to the end), and ``trajectory="random"`` draws only the four training paths."""
+    from simshear_gym.control.oracle import OracleController
+
+    env = make("oracle", trajectory=name)
+    controller = OracleController.for_env(env)
+    obs, info = env.reset(seed=0)
+    errors, terminated, truncated = [], False, False
+    while not (terminated or truncated):
+        obs, _, terminated, truncated, info = env.step(controller(obs))
+        errors.append(info["contact_error_mm"])
+    assert not terminated and info["trajectory"] == name and np.mean(errors) < 0.1
+    drawn = make("oracle", trajectory="random", randomise=True)
+    names = set()
+    for seed in range(40):
+        drawn.reset(seed=seed)
+        names.add(drawn.unwrapped.trajectory.config.name)
+    assert names == set(TRAJECTORIES)
+
+
+@pytest.mark.parametrize("name", TRAJECTORIES + COLIFT_TRAJECTORIES)
 def test_the_largest_randomised_trajectories_stay_within_both_arms_limits(name):
     """Scale 1.3 and +-15 deg (the randomisation's extremes), with the follower on its target +-10 mm off centre."""
     from simshear_gym.robots.mg400.kinematics import check_pose_reachable

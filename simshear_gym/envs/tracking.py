@@ -8,12 +8,14 @@ import numpy as np
 from gymnasium.utils import EzPickle
 
 from simshear_gym.envs.base import SimShearEnv, pybullet_pose_fast
-from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
+from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.sim import stimuli
 from simshear_gym.sim.mg400_arm import SimMG400
 from simshear_gym.transforms import pose_to_matrix, rz_matrix
 
-TRAJECTORY_CHOICES: tuple[str, ...] = TRAJECTORIES + ("random",)
+TRAJECTORY_CHOICES: tuple[str, ...] = TRAJECTORIES + COLIFT_TRAJECTORIES + ("random",)
+"""The tracking paths, the co-lift env's ``circular_wave`` and ``star`` (held out: ``random`` never draws them, so
+a policy trained on random paths is tested on them unseen), and ``random``."""
 
 # Scene layout, world frame (mm): z up, z = 0 at both arms' J2 axes (their base frames' origin height).
 LEADER_T_WORLD_BASE = np.eye(4)
@@ -94,7 +96,9 @@ class SimShearTrackingEnv(SimShearEnv):
     within 48 s, after which the plate holds still).
 
     Args:
-        trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, or ``random`` (one drawn per reset).
+        trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, ``random`` (one of those four drawn
+            per reset), or the held-out test paths ``circular_wave`` and ``star`` (the plate waves up and down,
+            or draws a star in the vertical y-z plane: the follower tracks depth as well as place).
         obs_mode, image_size_px, control_rate_hz, render_mode, reference_depth_mm, observation, history,
             estimator, ...: see :class:`~simshear_gym.envs.base.SimShearEnv` (defaults: ``"real"``, 128, 10 Hz,
             None, 4.0 mm, ``"tactile"``, 1; ``observation="estimate"`` needs ``estimator=

@@ -39,6 +39,7 @@ from simshear_gym.control.servo import ServoController
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
+TRACKING_CHOICES = TRACKING_TRAJECTORIES + ("circular_wave", "star")
 VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy", "ppo", "sac", "tqc")
 POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
@@ -154,7 +155,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=("tracking", "colift"),
                         help="benchmarks to run: SimShearTracking-v0 and/or SimShearCoLift-v0 (default both)")
     parser.add_argument("--trajectories", nargs="+", default=list(TRACKING_TRAJECTORIES),
-                        help="tracking trajectories")
+                        choices=TRACKING_CHOICES,
+                        help="tracking trajectories (default the four trained ones; circular_wave and star: the "
+                             "held-out test paths)")
     parser.add_argument("--objects", nargs="+", default=None, help="co-lift objects (default all)")
     parser.add_argument("--colift-trajectories", nargs="+", default=None, help="co-lift trajectories (default all)")
     parser.add_argument("--colift-rotation-deg", type=float, default=0.0,

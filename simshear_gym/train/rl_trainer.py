@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 
+import simshear_gym.envs  # noqa: F401  (registers the envs: the evaluation envs live in this process)
 from simshear_gym.contract import ESTIMATE_OBSERVATIONS
 from simshear_gym.control.env_estimator import env_estimator
 from simshear_gym.control.policy import (
@@ -89,8 +90,6 @@ def env_settings(config: RLTrainConfig, rank: int, training: bool = True) -> dic
 def make_env(config: RLTrainConfig, rank: int = 0, worker: bool = False, **overrides) -> gym.Env:
     """Training sub-env ``rank`` (``overrides``: other ``gym.make`` arguments, for evaluation), residual-wrapped
     for a residual run. ``worker``: in a worker process, so torch takes one thread."""
-    import simshear_gym.envs  # noqa: F401  (registers the envs)
-
     if worker:
         import torch
 

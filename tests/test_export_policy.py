@@ -1,0 +1,92 @@
+"""``simshear train export-policy``: a run's policy becomes a shipped folder that the benchmark and the robot load
+like the run itself (same settings, same normalisation, same actions), with a card that names its command; and the
+trainer's evaluation envs exist in the main process whatever the sub-envs' vectorisation."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch
+
+from simshear_gym import cli
+from simshear_gym.control.env_estimator import env_kwargs
+from simshear_gym.control.policy import PolicySettings, SB3Controller
+from simshear_gym.pipelines.export_policy import POLICY_WEIGHTS_DIR, export, source_files
+from simshear_gym.train.rl import RLTrainConfig, train
+
+torch.set_num_threads(1)
+COMMAND = "simshear train rl --algo ppo --timesteps 32 --out runs/rl/tiny"
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("rl") / "tiny"
+    train(RLTrainConfig(timesteps=32, observation="estimate", history=2, obs_mode="sim", image_size_px=64,
+                        n_steps=16, batch_size=16, n_epochs=2, checkpoint_steps=16, eval_steps=16, eval_max_steps=4),
+          folder, progress=False)
+    return folder
+
+
+def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp_path):
+    to = tmp_path / "policies" / "tracking_ppo"
+    code = cli.main(["train", "export-policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
+                     "--date", "2026-01-02"])
+    assert code == 0
+    assert {p.name for p in to.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json", "model.md"}
+    assert (to / "model.zip").read_bytes() == (run_dir / "best_model.zip").read_bytes()
+    config = json.loads((to / "config.json").read_text())
+    assert config["provenance"]["train_command"] == COMMAND
+    assert set(config["provenance"]["estimator_models_sha256"]) == {"translator_shpix2pix_surface", "posenet_surface"}
+    assert PolicySettings.of_model(to / "model.zip") == PolicySettings.of_model(run_dir / "best_model.zip")
+
+    settings = PolicySettings.of_model(to / "model.zip")
+    env = gym.make("SimShearTracking-v0", trajectory="circle", **env_kwargs(settings))
+    shipped = SB3Controller.for_env(to / "model.zip", env)
+    original = SB3Controller.for_env(run_dir / "best_model.zip", env)
+    observation, _ = env.reset(seed=0)
+    for _ in range(3):
+        action = shipped(observation)
+        np.testing.assert_array_equal(action, original(observation))
+        observation, *_ = env.step(action)
+    env.close()
+
+    card = (to / "model.md").read_text()
+    assert COMMAND in card and "2026-01-02" in card and "Training evaluation (best model)" in card
+    assert str(tmp_path) not in card and str(run_dir) not in card  # no absolute paths
+
+
+def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_dir):
+    (tmp_path / "config.json").write_text((run_dir / "config.json").read_text())
+    with pytest.raises(FileNotFoundError, match="best_model.zip.*--model final"):
+        source_files(tmp_path, "best")
+    with pytest.raises(FileNotFoundError, match="not a run of simshear train rl"):
+        export(tmp_path / "nothing", tmp_path / "to", COMMAND)
+
+
+def test_shipped_policies_load_in_their_env():
+    """Every folder under models/weights/policies is a complete policy that loads against its own env."""
+    folders = sorted(p for p in POLICY_WEIGHTS_DIR.glob("*") if p.is_dir()) if POLICY_WEIGHTS_DIR.is_dir() else []
+    for folder in folders:
+        assert (folder / "model.md").is_file(), folder
+        assert (folder / "model.zip").stat().st_size <= 10 * 2**20, folder
+        settings = PolicySettings.of_model(folder / "model.zip")
+        env_id = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}[settings.task]
+        env = gym.make(env_id, **env_kwargs(settings))
+        controller = SB3Controller.for_env(folder / "model.zip", env)
+        observation, _ = env.reset(seed=0)
+        action = controller(observation)
+        assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
+        env.close()
+
+
+def test_the_trainer_registers_the_envs_its_evaluation_makes():
+    """With --vec subproc only the workers make training envs; the evaluation envs are made in the main process."""
+    code = ("import gymnasium, simshear_gym.train.rl_trainer; "
+            "[gymnasium.spec(i) for i in ('SimShearTracking-v0', 'SimShearCoLift-v0')]")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
