@@ -214,3 +214,32 @@ def test_same_inputs_give_the_same_run():
         a, b, c = run(first), run(second), run(first)  # a fresh scene, and the first scene reset again
     for x, y in ((a, b), (a, c)):
         assert all(np.array_equal(u, v) for u, v in zip(x, y))
+
+
+def test_a_heavy_object_shows_its_weight_as_shear_and_stays_only_while_the_sensor_holds_its_place():
+    """FIRM_TIP, 2 kg block, 4 mm squeeze: the plate's friction holds what it can, the skin carries the rest, and
+    that deflection is shear from the first image (counted from placement). A sensor holding still keeps the block
+    in place; one that moves to cancel the shear, as for a light object, unloads the skin and the block slides out."""
+    from simshear_gym.sim.colift_scene import FIRM_TIP
+
+    config = CoLiftSceneConfig(object_name="prism", payload="heavy", squeeze_mm=4.0, **FIRM_TIP)
+    assert config.object.mass_kg == 2.0
+    with CoLiftScene(config) as scene:
+        T_world_sensor = scene.reset(T_WORLD_PLATE)
+        settled = scene.shear_sensor()
+        assert settled[1] < -2.0 and abs(settled[0]) < 0.2  # sensor +y is down: the skin sags under the load
+        for _ in range(60):
+            scene.step(T_WORLD_PLATE, T_world_sensor)
+        assert not scene.dropped() and scene.object_slip_mm() < 1.0
+        assert scene.shear_sensor()[1] == pytest.approx(settled[1], abs=0.3)
+        for _ in range(60):
+            shear = scene.shear_sensor()
+            T_world_sensor = T_world_sensor @ _translation(-0.5 * shear[0], -0.5 * shear[1])
+            scene.step(T_WORLD_PLATE, T_world_sensor)
+        assert scene.dropped()
+    light = CoLiftSceneConfig(object_name="prism", shear_from_placement=True)
+    with CoLiftScene(light) as scene:  # a 30 g object on the soft tip: its sag is no shear worth the name
+        scene.reset(T_WORLD_PLATE)
+        assert np.abs(scene.shear_sensor()[:2]).max() < 0.3
+    with pytest.raises(ValueError, match="payload"):
+        CoLiftSceneConfig(payload="medium")

@@ -84,3 +84,18 @@ def test_the_noise_goes_only_where_the_driver_steers(tmp_path):
     targets = read_set(tmp_path, required_columns=STATE_COLUMNS).targets
     assert np.abs(targets["shear_rz_deg"]).max() < 0.5
     assert np.abs(targets[["shear_x_mm", "shear_y_mm"]].to_numpy()).max() > 0.2
+
+
+def test_a_heavy_set_labels_the_shear_the_image_shows(tmp_path):
+    """payload="heavy": the shear labels are the skin's deflection, the held load's sag included (what the image
+    shows); the 2 kg block's load makes it clearly negative in y (sensor +y is down), the others' less so."""
+    out = tmp_path / "heavy"
+    assert collect(EnvCollectConfig(task="colift", rows=16, episode_steps=4, seed=3, payload="heavy"), out,
+                   progress=False) == 16
+    found = read_set(out, required_columns=STATE_COLUMNS)
+    assert found.meta["config"]["payload"] == "heavy"
+    targets = found.targets
+    assert (targets.loc[targets["object_name"] == "prism", "shear_y_mm"] < -2.0).all()
+    assert targets["shear_y_mm"].mean() < -1.0
+    with pytest.raises(ValueError, match="payload"):
+        EnvCollectConfig(task="tracking", payload="heavy")

@@ -97,3 +97,28 @@ def test_for_env_reads_each_env_with_its_own_shipped_gdnn_and_process_noise():
             assert explicit.estimator.config.process_std_mm == 0.7
         finally:
             env.close()
+
+
+def test_the_law_holds_a_shear_reference_and_the_servo_holds_its_first_reading_when_asked(tiny_posenet):
+    """hold_load: the shear of the episode's first estimate becomes the law's reference (a heavy co-lift's load);
+    reset forgets it; without hold_load the reference stays zero."""
+    law = PILaw(4.0, np.ones(4), PIGains(kp=(1.0, 1.0, 1.0, 0.0), ki=(0.0, 0.0, 0.0, 0.0)))
+    law.shear_reference_mm = np.array([0.5, -3.0])
+    np.testing.assert_allclose(law(np.array([4.0, 0.5, -3.0, 0.0])), 0.0)
+    law.reset()
+    np.testing.assert_allclose(law.shear_reference_mm, 0.0)
+
+    rng = np.random.default_rng(0)
+    image = {"tactile": rng.integers(0, 255, (1, 128, 128), dtype=np.uint8)}
+    for hold_load in (False, True):
+        controller = ServoController(estimator=EstimatorConfig(posenet=str(tiny_posenet), filtered=False),
+                                     hold_load=hold_load)
+        controller.reset()
+        controller(image)
+        first = controller.last_estimate[0][1:3]
+        expected = first if hold_load else np.zeros(2)
+        np.testing.assert_allclose(controller.law.shear_reference_mm, expected)
+        controller({"tactile": rng.integers(0, 255, (1, 128, 128), dtype=np.uint8)})
+        np.testing.assert_allclose(controller.law.shear_reference_mm, expected)  # kept for the episode
+        controller.reset()
+        np.testing.assert_allclose(controller.law.shear_reference_mm, 0.0)

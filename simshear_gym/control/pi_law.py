@@ -2,7 +2,7 @@
 
 Per step, in the sensor frame (the envs' action frame), all in full-scale actions::
 
-    error    = (shear_x, shear_y, depth - reference, shear_Rz) / action full scale
+    error    = (shear_x - ref_x, shear_y - ref_y, depth - reference, shear_Rz) / action full scale
     integral = clip(integral + error, -limit / ki, limit / ki)         (anti-windup)
     action   = clip(-(kp * error + ki * integral), -1, 1)
 
@@ -10,7 +10,8 @@ The shear since touching *is* the sensor's displacement from its target on the c
 cancels it; depth is positive into the contact like the action's z. The integral removes the lag a proportional
 law alone keeps behind a moving contact (a ramp disturbance: 0.4 mm at 4 mm/s and 10 Hz); with ``kp = 1`` the loop
 is deadbeat for a still contact and ``ki`` in (0, 1] keeps it stable (closed-loop pole at ``1 - ki``). A
-component whose gains are both 0 is not controlled.
+component whose gains are both 0 is not controlled. The shear reference ``(ref_x, ref_y)`` is zero (move back to
+where the contact began) unless set for an episode (:attr:`PILaw.shear_reference_mm`: a held load's shear).
 """
 
 from __future__ import annotations
@@ -60,9 +61,12 @@ class PILaw:
         self._kp = np.asarray(gains.kp, dtype=np.float64)
         self._ki = np.asarray(gains.ki, dtype=np.float64)
         self._integral = np.zeros(4)
+        self.shear_reference_mm = np.zeros(2)
+        """(x, y) mm: the shear the law holds this episode (zero: none; :meth:`reset` clears it)."""
 
     def reset(self) -> None:
         self._integral = np.zeros(4)
+        self.shear_reference_mm = np.zeros(2)
 
     def error(self, state: np.ndarray) -> np.ndarray:
         """(x mm, y mm, depth mm, Rz deg) error of a state (depth, shear x, shear y, shear Rz)."""
@@ -70,7 +74,8 @@ class PILaw:
         if values.shape != (4,) or not np.all(np.isfinite(values)):
             raise ValueError(f"state must be 4 finite values (depth, shear x, y, Rz), got {values}")
         depth, shear_x, shear_y, shear_rz = values
-        return np.array([shear_x, shear_y, depth - self.reference_depth_mm, shear_rz])
+        reference_x, reference_y = self.shear_reference_mm
+        return np.array([shear_x - reference_x, shear_y - reference_y, depth - self.reference_depth_mm, shear_rz])
 
     def __call__(self, state: np.ndarray) -> np.ndarray:
         """State -> action in [-1, 1]^4 (float32)."""

@@ -9,6 +9,12 @@ Servo law: :class:`~simshear_gym.control.pi_law.PILaw` (shared with the oracle).
 the oracle (exact state, deadbeat); the servo controller's defaults are lower (kp 0.6, ki 0.2 on shear,
 kp 0.5, ki 0.1 on depth, Rz off) because its state is an estimate whose noise the law would otherwise amplify. A
 variable whose gains are 0 is not controlled (shear Rz, which our networks cannot read from an image).
+
+Holding a load (``hold_load``, heavy co-lift): a heavy object's weight deflects the skin from the first image on,
+and that shear is what carries the object. The law then holds the shear it reads at the episode's first image
+(the grasp) instead of zero: it keeps its place relative to the grasp, where moving to zero shear would walk the
+skin down and let the object slide. An env asks for it with ``servo_hold_load = True`` (``SimShearCoLift-v0``
+with ``payload="heavy"``); :meth:`ServoController.for_env` reads it.
 """
 
 from __future__ import annotations
@@ -34,14 +40,17 @@ class ServoController:
         action_scale: the env's :class:`~simshear_gym.contract.ActionScale` (as the oracle's).
         gains: the law's gains (default :data:`SERVO_GAINS`).
         estimator: settings of the estimator (GDNN weights, filter on/off, process noise).
+        hold_load: hold the shear of the episode's first estimate (a carried load's) rather than zero.
     """
 
     name = "servo"
     """For logs (the real rollout's ``controller``)."""
 
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
-                 gains: PIGains = SERVO_GAINS, estimator: EstimatorConfig = EstimatorConfig()) -> None:
+                 gains: PIGains = SERVO_GAINS, estimator: EstimatorConfig = EstimatorConfig(),
+                 hold_load: bool = False) -> None:
         self.action_scale = as_action_scale(action_scale, "ServoController")
+        self.hold_load = bool(hold_load)
         self._scale = self.action_scale.as_array()
         self.estimator = TactileEstimator(estimator)
         self.law = PILaw(reference_depth_mm, self._scale, gains)
@@ -51,13 +60,14 @@ class ServoController:
 
     @classmethod
     def for_env(cls, env, gains: PIGains = SERVO_GAINS,
-                estimator: EstimatorConfig = EstimatorConfig()) -> ServoController:
+                estimator: EstimatorConfig = EstimatorConfig(), hold_load: bool | None = None) -> ServoController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through).
 
         Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
         (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none); without
         ``estimator.process_std_mm`` it takes the env's ``estimator_process_std_mm`` (how far its contact moves
-        in a step unknown to the follower), if it has one."""
+        in a step unknown to the follower), if it has one; without ``hold_load`` it takes the env's
+        ``servo_hold_load`` (False where the env has none)."""
         from dataclasses import replace
 
         from simshear_gym.models.posenet_io import shipped_posenet_path
@@ -69,7 +79,9 @@ class ServoController:
             estimator = replace(estimator, posenet=posenet)
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
-        return cls(base.reference_depth_mm, base.action_scale, gains, estimator)
+        if hold_load is None:
+            hold_load = bool(getattr(base, "servo_hold_load", False))
+        return cls(base.reference_depth_mm, base.action_scale, gains, estimator, hold_load)
 
     def reset(self) -> None:
         self.estimator.reset()
@@ -80,8 +92,11 @@ class ServoController:
     def __call__(self, observation: dict) -> np.ndarray:
         if "tactile" not in observation:
             raise ValueError(f"the servo controller needs the observation's 'tactile' image; got {sorted(observation)}")
+        first = self.last_estimate is None
         mean, std = self.estimator(observation["tactile"], self._last_move)
         self.last_estimate = (mean, std)
+        if first and self.hold_load:
+            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64).copy()
         action = self.law(mean)
         self._last_move = action.astype(np.float64) * self._scale
         return action

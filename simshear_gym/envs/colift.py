@@ -22,9 +22,9 @@ from simshear_gym.envs.trajectories import (
     Trajectory,
     TrajectoryConfig,
 )
-from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig, upright_plate
+from simshear_gym.sim.colift_scene import FIRM_TIP, CoLiftScene, CoLiftSceneConfig, upright_plate
 from simshear_gym.sim.mg400_arm import SimMG400
-from simshear_gym.sim.objects import OBJECTS, spawn_object
+from simshear_gym.sim.objects import OBJECTS, PAYLOADS, spawn_object
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.transforms import invert, pose_to_matrix, rz_matrix
@@ -49,6 +49,7 @@ START_OFFSET_LIMIT_MM = 40.0
 # lost the object), or the object 10 mm into the 20 mm dome (physical depth; 3 mm at the start). lost_contact_mm
 # is unused: losing the grip is a drop.
 COLIFT_TERMINATION = TerminationConfig(max_contact_error_mm=50.0, max_penetration_mm=10.0)
+SQUEEZE_MM = {"light": 3.0, "heavy": 4.0}  # the default squeeze per payload (reference depth - face depth)
 _PHYSICS_RATE_HZ = 240.0  # nominal; the env picks substeps so that a control period is a whole number of them
 _T_SENSOR_TURN = np.diag([1.0, -1.0, -1.0, 1.0])  # the scene's plate -> sensor turn (180 deg about x)
 
@@ -186,10 +187,18 @@ class SimShearCoLiftEnv(SimShearEnv):
     Args:
         trajectory: ``circular_wave``, ``star`` or ``random`` (one drawn per reset).
         object_name: one of :data:`OBJECT_NAMES`.
-        mass_kg: the object's mass (None: 30 g); heavier objects slip out of the default squeeze (above ~0.3 kg).
+        mass_kg: the object's mass (None: the payload's: 30 g light; heavy: prism 2.0, egg 1.5, ducky 1.0, brain
+            0.5 kg); a light object heavier than ~0.3 kg slips out of the soft grip.
+        payload: ``"light"`` (the paper's objects on the soft TacTip) or ``"heavy"``
+            (:data:`~simshear_gym.sim.objects.HEAVY_OBJECTS` on the firm TacTip of
+            :data:`~simshear_gym.sim.colift_scene.FIRM_TIP`, squeezed 4 mm): the plate's friction holds what it
+            can and the skin carries the rest, so the weight shows as a steady downward shear from the first image
+            on; a follower that keeps that shear, holding its place, carries the object; one that servoes it to
+            zero walks the skin down until the object slides out (``ServoController``'s ``hold_load``).
         obs_mode, image_size_px, control_rate_hz, render_mode, observation, history, estimator: see
             :class:`~simshear_gym.envs.base.SimShearEnv` (defaults ``"real"``, 128, 10 Hz, None, ``"tactile"``, 1).
-        reference_depth_mm: the depth to keep (label convention): 5.2 mm = a 3 mm squeeze.
+        reference_depth_mm: the depth to keep (label convention); None: the payload's squeeze, 5.2 mm = a 3 mm
+            squeeze (light), 6.2 mm = 4 mm (heavy).
         speed_mm_s: the leader's speed along its path.
         rotation_deg: amplitude of the plate's turn about the vertical along the path (``rotation_deg *
             sin(2 pi s)``, s the fraction travelled; within +-10 deg); 0 (default): the paper's translations.
@@ -209,7 +218,8 @@ class SimShearCoLiftEnv(SimShearEnv):
     ``observation`` / ``history`` arguments and the reward of ``SimShearTracking-v0``'s version history).
     """
 
-    estimator_posenet = "colift"  # the shipped GDNN trained on this env's own images (simshear collect-env)
+    # the shipped GDNN trained on this env's own images (simshear collect-env); "colift_heavy" for payload="heavy"
+    estimator_posenet = "colift"
     # The servo estimator's process noise (mm per step): the plate moves up to 6.5 mm/s (randomised speed) and
     # the star reverses at its corners, so the filter must let a reading move the state by more than the
     # tracking default of 0.4 mm (with 0.4 the state lagged a star corner until the skin slipped).
@@ -217,15 +227,20 @@ class SimShearCoLiftEnv(SimShearEnv):
 
     def __init__(self, trajectory: str = "circular_wave", object_name: str = "prism", mass_kg: float | None = None,
                  obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
-                 render_mode: str | None = None, reference_depth_mm: float = SURFACE_DEPTH_MM + 3.0,
+                 render_mode: str | None = None, reference_depth_mm: float | None = None,
                  speed_mm_s: float = 5.0, rotation_deg: float = 0.0, randomise: bool = False,
                  mount: HorizontalTacTipMount = HorizontalTacTipMount(),
-                 termination: TerminationConfig = COLIFT_TERMINATION, **base_kwargs) -> None:
+                 termination: TerminationConfig = COLIFT_TERMINATION, payload: str = "light",
+                 **base_kwargs) -> None:
         EzPickle.__init__(self, trajectory=trajectory, object_name=object_name, mass_kg=mass_kg, obs_mode=obs_mode,
                           image_size_px=image_size_px, control_rate_hz=control_rate_hz, render_mode=render_mode,
                           reference_depth_mm=reference_depth_mm, speed_mm_s=speed_mm_s,
                           rotation_deg=rotation_deg, randomise=randomise,
-                          mount=mount, termination=termination, **base_kwargs)
+                          mount=mount, termination=termination, payload=payload, **base_kwargs)
+        if payload not in PAYLOADS:
+            raise ValueError(f"payload must be one of {PAYLOADS}, got {payload!r}")
+        if reference_depth_mm is None:
+            reference_depth_mm = SURFACE_DEPTH_MM + SQUEEZE_MM[payload]
         if trajectory not in TRAJECTORY_CHOICES:
             raise ValueError(f"unknown trajectory {trajectory!r}; expected one of {TRAJECTORY_CHOICES}")
         if object_name not in OBJECT_NAMES:
@@ -240,6 +255,10 @@ class SimShearCoLiftEnv(SimShearEnv):
         self.trajectory_name = trajectory
         self.object_name = object_name
         self.mass_kg = mass_kg
+        self.payload = payload
+        self.servo_hold_load = payload == "heavy"  # the servo keeps the grasp's shear (ServoController.for_env)
+        if payload == "heavy":  # the heavy grip's images: a GDNN of its own (a sensor's models override it)
+            self.estimator_posenet = "colift_heavy"
         self.speed_mm_s = float(speed_mm_s)
         self.rotation_deg = float(rotation_deg)
         self.randomise = bool(randomise)
@@ -257,9 +276,10 @@ class SimShearCoLiftEnv(SimShearEnv):
         substeps = max(1, round(_PHYSICS_RATE_HZ / self.control_rate_hz))
         # CoLiftSceneConfig validates the mass with a clear error
         self.scene_config = CoLiftSceneConfig(
-            object_name=self.object_name, mass_kg=self.mass_kg, physics_rate_hz=self.control_rate_hz * substeps,
-            substeps=substeps, squeeze_mm=self.reference_depth_mm - SURFACE_DEPTH_MM,
-            tactip=TacTipConfig(image_size_px=128))
+            object_name=self.object_name, mass_kg=self.mass_kg, payload=self.payload,
+            physics_rate_hz=self.control_rate_hz * substeps, substeps=substeps,
+            squeeze_mm=self.reference_depth_mm - SURFACE_DEPTH_MM, tactip=TacTipConfig(image_size_px=128),
+            **(FIRM_TIP if self.payload == "heavy" else {}))
         self.scene = CoLiftScene(self.scene_config)
         self.leader: SimMG400 = self._add_arm(LEADER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE)
         spec = self.scene.spec

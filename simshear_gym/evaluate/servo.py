@@ -2,7 +2,8 @@
 
 ``simshear evaluate servo`` runs :class:`~simshear_gym.control.servo.ServoController` (tactile image -> GDNN + filter
 -> PI law; it never reads ground truth) on every trajectory of ``SimShearTracking-v0`` and every object x
-trajectory of ``SimShearCoLift-v0``, in a nominal run and randomised runs (one per seed: the env draws the
+trajectory of ``SimShearCoLift-v0`` (``--tasks colift-heavy``: its heavy objects, ``payload="heavy"``, where the
+servo holds the load's shear: ``--hold-load``), in a nominal run and randomised runs (one per seed: the env draws the
 trajectory's scale, speed, turn and the start place; co-lift turns the plate only with
 ``--colift-rotation-deg``), with estimator variants:
 
@@ -40,18 +41,20 @@ from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 TRACKING_CHOICES = TRACKING_TRAJECTORIES + ("circular_wave", "star")
+TASKS = ("tracking", "colift", "colift-heavy")
 VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy", "ppo", "sac", "tqc")
 POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
 
-def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None) -> Controller:
+def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None,
+                    hold_load: bool | None = None) -> Controller:
     """The controller of a variant, matched to ``env`` (its reference depth, action scale and spaces); ``policy``:
-    the SB3 model of a policy variant."""
+    the SB3 model of a policy variant; ``hold_load``: the servo's (None: as the env asks)."""
     if variant == "oracle":
         return OracleController.for_env(env)
     if variant in POLICY_VARIANTS:
         return SB3Controller.for_env(policy, env)
-    return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)))
+    return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)), hold_load=hold_load)
 
 
 def env_kwargs_of(variant: str, policy: str | None) -> dict:
@@ -72,7 +75,7 @@ def run_episode(env, controller: Controller, seed: int, max_steps: int | None = 
     controller.reset()
     errors, targets, sensors = [info["contact_error_mm"]], [], []
     control_s, step_s = [], []
-    out_of_contact, termination, dropped = 0, "", False
+    out_of_contact, termination, dropped, slip_mm = 0, "", False, 0.0
     steps = 0
     while True:
         started = time.perf_counter()
@@ -87,6 +90,7 @@ def run_episode(env, controller: Controller, seed: int, max_steps: int | None = 
         sensors.append(np.asarray(info["sensor_world_mm"], dtype=np.float64))
         out_of_contact += int(not info["in_contact"])
         dropped = dropped or bool(info.get("dropped", False))
+        slip_mm = max(slip_mm, float(info.get("object_slip_mm", 0.0)))
         if terminated or truncated or (max_steps is not None and steps >= max_steps):
             termination = info.get("termination", "") if terminated else ""
             break
@@ -94,7 +98,7 @@ def run_episode(env, controller: Controller, seed: int, max_steps: int | None = 
     return {
         "steps": steps, "contact_error_mean_mm": float(errors.mean()), "contact_error_std_mm": float(errors.std()),
         "contact_error_max_mm": float(errors.max()), "steps_out_of_contact": out_of_contact,
-        "termination": termination, "dropped": dropped,
+        "termination": termination, "dropped": dropped, "object_slip_max_mm": slip_mm,
         "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
         "_paths": (np.stack(targets), np.stack(sensors)),
     }
@@ -110,6 +114,7 @@ def summarise(runs: list[dict]) -> dict:
                                           for r in runs)),
         "runs_ended_early": int(sum(bool(r["termination"]) for r in runs)),
         "drops": int(sum(r["dropped"] for r in runs)),
+        "object_slip_max_mm": float(max(r.get("object_slip_max_mm", 0.0) for r in runs)),
         "control_ms_median": float(np.median([r["control_ms_median"] for r in runs])),
         "env_step_ms_median": float(np.median([r["env_step_ms_median"] for r in runs])),
         "terminations": sorted({r["termination"] for r in runs if r["termination"]}),
@@ -152,8 +157,10 @@ def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, t
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=("tracking", "colift"),
-                        help="benchmarks to run: SimShearTracking-v0 and/or SimShearCoLift-v0 (default both)")
+    parser.add_argument("--tasks", nargs="+", default=["tracking", "colift"], choices=TASKS,
+                        help="benchmarks to run: SimShearTracking-v0, SimShearCoLift-v0 (the light objects) and/or "
+                             "colift-heavy (SimShearCoLift-v0 with payload='heavy': 0.5-2 kg; default tracking and "
+                             "colift)")
     parser.add_argument("--trajectories", nargs="+", default=list(TRACKING_TRAJECTORIES),
                         choices=TRACKING_CHOICES,
                         help="tracking trajectories (default the four trained ones; circular_wave and star: the "
@@ -169,6 +176,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "sac, tqc (agents of simshear train rl: need --policy / --policy-ppo / --policy-sac / "
                              "--policy-tqc); "
                              "default shpix2pix")
+    parser.add_argument("--hold-load", choices=("env", "on", "off"), default="env",
+                        help="the servo holds the shear of its first image (a carried load's) instead of zero: env "
+                             "(as the env asks: on for colift-heavy), on, off (the light-object law: an ablation)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2],
                         help="seeds of the randomised runs (trajectory scale, speed, rotation, start place), each "
                              "besides the nominal run")
@@ -213,14 +223,18 @@ def run(args: argparse.Namespace) -> int:
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
-    if "colift" in args.tasks:
-        from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES
+    from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES
 
+    for task, payload in (("colift", "light"), ("colift-heavy", "heavy")):
+        if task not in args.tasks:
+            continue
         for trajectory in args.colift_trajectories or COLIFT_TRAJECTORIES:
             for name in args.objects or OBJECT_NAMES:
-                settings.append(("colift", f"{name}_{trajectory}", {"trajectory": trajectory, "object_name": name,
-                                                                     "rotation_deg": args.colift_rotation_deg}))
-    env_ids = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
+                settings.append((task, f"{name}_{trajectory}", {"trajectory": trajectory, "object_name": name,
+                                                                "rotation_deg": args.colift_rotation_deg,
+                                                                "payload": payload}))
+    env_ids = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0", "colift-heavy": "SimShearCoLift-v0"}
+    hold_load = {"env": None, "on": True, "off": False}[args.hold_load]
     start = time.perf_counter()
     results: dict = {}
     paths: dict[tuple[str, str], dict] = {}
@@ -231,7 +245,7 @@ def run(args: argparse.Namespace) -> int:
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
                 env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, policies.get(variant)),
                                **kwargs)
-                controller = make_controller(variant, env, posenets, policies.get(variant))
+                controller = make_controller(variant, env, posenets, policies.get(variant), hold_load)
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
                     target, sensor = r.pop("_paths")
@@ -244,7 +258,8 @@ def run(args: argparse.Namespace) -> int:
             s = results[variant][f"{task}/{label}"]
             print(f"{variant:9s} {task}/{label:22s} error {s['contact_error_mean_mm']:.3f} +- "
                   f"{s['contact_error_mean_std_mm']:.3f} mm (max {s['contact_error_max_mm']:.2f}), "
-                  f"contact losses {s['runs_with_contact_loss']}, drops {s['drops']}, ended early "
+                  f"contact losses {s['runs_with_contact_loss']}, drops {s['drops']} (slip max "
+                  f"{s['object_slip_max_mm']:.2f} mm), ended early "
                   f"{s['runs_ended_early']} {s['terminations']}, control {s['control_ms_median']:.2f} ms, "
                   f"env step {s['env_step_ms_median']:.2f} ms")
     figures = []
@@ -267,12 +282,14 @@ def run(args: argparse.Namespace) -> int:
                    ("policy", args.policy), ("policy-ppo", args.policy_ppo), ("policy-sac", args.policy_sac),
                    ("policy-tqc", args.policy_tqc)) if path)
                + (f" --max-steps {args.max_steps}" if args.max_steps else "")
+               + (f" --hold-load {args.hold_load}" if args.hold_load != "env" else "")
                + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {
         "command": command,
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
-                   "filter + law per step (ms, median); env step = one env.step including rendering/translation",
+                   "filter + law per step (ms, median); env step = one env.step including rendering/translation; "
+                   "object slip max = the co-lift object's largest drift from its place on the plate (mm)",
         "translator_runtime": _translator_runtime(),
         "results": results, "figures": figures, "seconds": round(time.perf_counter() - start, 1),
     })

@@ -52,6 +52,11 @@ class EnvCollectConfig:
         seed: seeds episodes, gains and noise.
         driver: ``oracle`` (the oracle law with the wandering gain) or ``servo`` (the servo controller).
         posenet: the servo driver's GDNN weights (None: the shipped one the controller picks).
+        payload: co-lift only: ``light`` (the paper's objects) or ``heavy`` (``SimShearCoLift-v0``'s
+            ``payload="heavy"``). A heavy set's shear labels are the skin's deflection (``info["shear_sensor_mm_deg"]``,
+            what the image shows and the translator is given, the held load's shear included), not the shear over
+            the face as carried by the plate that the oracle sees: the two differ by the load's steady deflection,
+            which an image cannot tell apart from a lag without knowing the mass.
     """
 
     task: str = "colift"
@@ -63,12 +68,16 @@ class EnvCollectConfig:
     seed: int = 0
     driver: str = "oracle"
     posenet: str | None = None
+    payload: str = "light"
 
     def __post_init__(self) -> None:
         if self.driver not in DRIVERS:
             raise ValueError(f"driver must be one of {DRIVERS}, got {self.driver!r}")
         if self.task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        if self.payload not in ("light", "heavy") or (self.payload == "heavy" and self.task != "colift"):
+            raise ValueError(f"payload must be 'light' or 'heavy' (heavy: task colift), got {self.payload!r} for "
+                             f"task {self.task!r}")
         if self.rows < 1 or self.episode_steps < 1:
             raise ValueError(f"rows and episode_steps must be >= 1, got {self.rows}, {self.episode_steps}")
         if not 0.0 <= self.gain_min <= 1.0 or self.gain_period_steps <= 0 or self.noise < 0:
@@ -80,7 +89,7 @@ class EnvCollectConfig:
         if self.task == "colift":
             from simshear_gym.envs.colift import COLIFT_TRAJECTORIES, OBJECT_NAMES
 
-            return [{"object_name": name, "trajectory": path} for path in COLIFT_TRAJECTORIES
+            return [{"object_name": name, "trajectory": path, "payload": self.payload} for path in COLIFT_TRAJECTORIES
                     for name in OBJECT_NAMES]
         from simshear_gym.envs.trajectories import TRAJECTORIES
 
@@ -130,10 +139,12 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
                 observation, _, terminated, truncated, info = env.step(np.clip(action, -1, 1).astype(np.float32))
                 name = image_name(len(rows))
                 write_image(images_dir, name, observation["tactile"][0])
+                state = dict(zip(STATE_COLUMNS, observation["true_pose_shear"].astype(float)))
+                if config.payload == "heavy":  # what the image shows: the skin's deflection, the load's included
+                    state["shear_x_mm"], state["shear_y_mm"] = (float(v) for v in info["shear_sensor_mm_deg"][:2])
                 rows.append({"sensor_image": name, "episode": episode, "step": step,
                              "object_name": setting.get("object_name", ""), "trajectory": setting["trajectory"],
-                             **dict(zip(STATE_COLUMNS, observation["true_pose_shear"].astype(float))),
-                             "contact_error_mm": float(info["contact_error_mm"])})
+                             **state, "contact_error_mm": float(info["contact_error_mm"])})
                 bar.update(1)
                 if terminated or truncated or len(rows) >= config.rows:
                     break
@@ -157,6 +168,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--driver", choices=DRIVERS, default=defaults.driver,
                         help="who moves the follower: the oracle law (wandering gain) or the servo controller")
     parser.add_argument("--posenet", default=None, help="GDNN of the servo driver (default: shipped)")
+    parser.add_argument("--payload", choices=("light", "heavy"), default="light",
+                        help="co-lift objects: light (30 g, soft TacTip) or heavy (0.5-2 kg, firm TacTip; shear "
+                             "labels are the skin's deflection, the load's included)")
     helps = {"rows": "images to keep", "episode_steps": "steps per episode at most",
              "gain_min": "the oracle law's gain wanders between this and 1",
              "gain_period_steps": "period of the gain's wander, in steps",
@@ -175,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     config = EnvCollectConfig(task=args.task, rows=args.rows, episode_steps=args.episode_steps,
                               gain_min=args.gain_min, gain_period_steps=args.gain_period_steps, noise=args.noise,
-                              seed=args.seed, driver=args.driver, posenet=args.posenet)
+                              seed=args.seed, driver=args.driver, posenet=args.posenet, payload=args.payload)
     if (Path(args.out) / "targets.csv").exists():
         raise ValueError(f"{args.out}/targets.csv exists: choose a new --out")
     started = time.perf_counter()

@@ -39,6 +39,8 @@ def check_figure(weights: Path, contact: str, rows: int, data: str | None = None
 
 ENV_CHECK = {"task": "colift", "rows": 48, "episode_steps": 12, "seed": 12345}
 """The seeded co-lift set of an env GDNN's check figure (oracle-driven, collected afresh by the check)."""
+ENV_CHECKS = {"colift": ENV_CHECK, "colift_heavy": {**ENV_CHECK, "payload": "heavy"}}
+"""The check set of each env GDNN (``--contact``): the light and the heavy co-lift."""
 
 
 def env_check_figure(weights: Path, settings: dict = ENV_CHECK) -> dict:
@@ -141,13 +143,15 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
     return path
 
 
-_VARIABLES = {"surface": "surface", "edge": "edge", "colift": "env"}  # --contact -> the GDNN's variable set
+# --contact -> the GDNN's variable set
+_VARIABLES = {"surface": "surface", "edge": "edge", "colift": "env", "colift_heavy": "env"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run", type=Path, required=True, help="posenet run directory (best.pt, config.json)")
     parser.add_argument("--contact", choices=tuple(_VARIABLES), required=True,
-                        help="surface | edge (real-data GDNNs) or colift (an env GDNN of the co-lift env)")
+                        help="surface | edge (real-data GDNNs), colift or colift_heavy (env GDNNs of the co-lift env, "
+                             "payload light or heavy)")
     parser.add_argument("--to", type=Path, required=True, help="weights file to write")
     parser.add_argument("--train-command", required=True, help="the exact command that trained the run")
     parser.add_argument("--results", type=Path, default=None, help="results json of simshear evaluate posenet")
@@ -175,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         card["collect_command"] = args.collect_command
     args.to.parent.mkdir(parents=True, exist_ok=True)
     save_posenet(args.to, model, card)
-    card["check"] = (env_check_figure(args.to) if args.contact == "colift" else
+    card["check"] = (env_check_figure(args.to, ENV_CHECKS[args.contact]) if args.contact in ENV_CHECKS else
                      check_figure(args.to, args.contact, args.check_rows, args.data))
     save_posenet(args.to, model, card)
     results = json.loads(args.results.read_text()) if args.results else None

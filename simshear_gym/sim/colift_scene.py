@@ -92,7 +92,9 @@ class CoLiftSceneConfig:
 
     Attributes:
         object_name: one of :data:`simshear_gym.sim.objects.OBJECTS` (prism, egg, brain, ducky).
-        mass_kg: object mass; None keeps the object's default (30 g for all four).
+        mass_kg: object mass; None keeps the object's default (30 g for all four light ones).
+        payload: ``light`` (:data:`~simshear_gym.sim.objects.OBJECTS`) or ``heavy``
+            (:data:`~simshear_gym.sim.objects.HEAVY_OBJECTS`, 0.5-2.0 kg: carry them with :data:`FIRM_TIP`).
         physics_rate_hz: physics steps per second.
         substeps: physics steps per control step (control period = substeps / physics_rate_hz).
         squeeze_mm: default squeeze at reset: penetration of the object into the dome along its normal.
@@ -117,12 +119,17 @@ class CoLiftSceneConfig:
         drop_threshold_mm: the object counts as dropped once its centre is this far from its place relative
             to the plate at the end of reset.
         solver_iterations: constraint solver iterations per physics step.
+        shear_from_placement: the shear counts from the moment the dome is placed on the object, before the grip
+            settles under the object's weight, so the skin's deflection under the load shows as shear (a heavy
+            object's weight is what the follower must read); False: from the end of the settle (a light object's
+            few hundredths of a millimetre of sag are not shear).
         tactip: TacTip geometry and image settings (the dome radius also sizes the tip's collision sphere).
         shear: stick-slip limits of the shear tracker.
     """
 
     object_name: str = "prism"
     mass_kg: float | None = None
+    payload: str = "light"
     physics_rate_hz: float = 240.0
     substeps: int = 12
     squeeze_mm: float = 3.0
@@ -140,13 +147,14 @@ class CoLiftSceneConfig:
     settle_s: float = 0.25
     drop_threshold_mm: float = 20.0
     solver_iterations: int = 50
+    shear_from_placement: bool = False
     tactip: TacTipConfig = field(default_factory=TacTipConfig)
     shear: ShearTrackerConfig = field(default_factory=ShearTrackerConfig)
 
     def __post_init__(self) -> None:
         if self.object_name not in OBJECTS:
             raise ValueError(f"unknown object {self.object_name!r}; expected one of {sorted(OBJECTS)}")
-        object_spec(self.object_name, self.mass_kg)  # validates the mass
+        object_spec(self.object_name, self.mass_kg, self.payload)  # validates the payload and the mass
         if not 10.0 <= self.physics_rate_hz <= 10000.0:
             raise ValueError(f"physics_rate_hz must be in [10, 10000] Hz, got {self.physics_rate_hz}")
         if self.substeps < 1:
@@ -186,7 +194,18 @@ class CoLiftSceneConfig:
 
     @property
     def object(self) -> ObjectSpec:
-        return object_spec(self.object_name, self.mass_kg)
+        return object_spec(self.object_name, self.mass_kg, self.payload)
+
+
+FIRM_TIP: dict = {"tip_contact_stiffness_npm": 4000.0, "tip_contact_damping_nspm": 14.0,
+                  "skin_shear_stiffness_npm": 2000.0, "shear_from_placement": True}
+"""The heavy co-lift's TacTip (:class:`CoLiftSceneConfig` fields): a firm dome (4 N/mm: about 12 N at a 3 mm squeeze,
+eight times the soft default's 1.5 N) whose skin holds a tangential load at 2 N/mm, the shear counted from
+placement so that the load's deflection shows. Gripped against the rigid plate at friction 1, the plate carries up
+to its friction limit and the skin the rest: a 2 kg block leaves about 3 mm of downward shear at a 4 mm squeeze
+and stays put while the sensor holds its place; a follower that servoes that shear to zero, as for a light
+object, walks the skin down, unloads it, and the block slides out (``tests/test_colift_scene.py``). Damping
+scales with the square root of the stiffness (the soft tip's 5 N s/m at 500 N/m)."""
 
 
 def _check_squeeze(squeeze_mm: float, tactip: TacTipConfig) -> None:
@@ -357,6 +376,8 @@ class CoLiftScene:
         self._T_skin_work = _translation(z_mm=-squeeze_mm)  # the skin body sits at the sensor pose at placement
         self._shear.reset()
         self._dropped = False
+        if self.config.shear_from_placement:
+            self._update_shear()  # the contact begins at placement: the settle's deflection is shear
         self._hold(T_world_plate, T_world_sensor, round(self.config.settle_s * self.config.physics_rate_hz))
         self._T_plate_object0 = invert(T_world_plate) @ self.object_pose()
         self._update_shear()

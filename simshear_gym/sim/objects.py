@@ -108,12 +108,30 @@ OBJECTS: dict[str, ObjectSpec] = {
 }
 
 
-def object_spec(name: str, mass_kg: float | None = None) -> ObjectSpec:
-    """The spec of a named object, optionally with another mass."""
+PAYLOADS = ("light", "heavy")
+HEAVY_OBJECTS: dict[str, ObjectSpec] = {
+    # the same shapes filled: a 2 kg block (the prism's size at about 55 g/cm3: a weight, not a material), a 1.5 kg
+    # egg-shaped weight, a 1 kg cast duck, and a 0.5 kg soft ball (the brain's shape, its skin firm enough that a
+    # grip can carry it: at the light brain's 600 N/m it slides out of any squeeze the dome allows)
+    "prism": replace(OBJECTS["prism"], mass_kg=2.0),
+    "egg": replace(OBJECTS["egg"], mass_kg=1.5),
+    "brain": replace(OBJECTS["brain"], mass_kg=0.5, contact_stiffness_npm=2000.0, contact_damping_nspm=5.5),
+    "ducky": replace(OBJECTS["ducky"], mass_kg=1.0),
+}
+"""The heavy co-lift set (0.5-2.0 kg), carried with the firm TacTip of
+:data:`~simshear_gym.sim.colift_scene.FIRM_TIP`; the light set is :data:`OBJECTS` (30 g each)."""
+
+
+def object_spec(name: str, mass_kg: float | None = None, payload: str = "light") -> ObjectSpec:
+    """The spec of a named object of the ``light`` (:data:`OBJECTS`) or ``heavy`` (:data:`HEAVY_OBJECTS`) set,
+    optionally with another mass."""
+    if payload not in PAYLOADS:
+        raise ValueError(f"payload must be one of {PAYLOADS}, got {payload!r}")
+    objects = HEAVY_OBJECTS if payload == "heavy" else OBJECTS
     try:
-        spec = OBJECTS[name]
+        spec = objects[name]
     except KeyError:
-        raise ValueError(f"unknown object {name!r}; expected one of {sorted(OBJECTS)}") from None
+        raise ValueError(f"unknown object {name!r}; expected one of {sorted(objects)}") from None
     return spec if mass_kg is None else replace(spec, mass_kg=mass_kg)
 
 
