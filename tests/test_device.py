@@ -205,3 +205,36 @@ def test_the_pipeline_takes_device_from_the_profile_or_the_flag(tmp_path):
     bad.write_text(open("configs/tactip331.toml").read() + '\n[profiles.gpu]\ndevice = "gpu"\n')
     with pytest.raises(ValueError, match=r"profiles.gpu.*device must be one of"):
         load_config(bad)
+
+
+def test_translator_speed_times_each_batch_size_and_names_the_device(tmp_path):
+    """``simshear evaluate translator-speed --batch-sizes``: one latency per shipped model and batch size, the
+    device and the exact command in the file (``translator_speed.json`` on the CPU)."""
+    import json
+
+    from simshear_gym import cli
+
+    assert cli.main(["evaluate", "translator-speed", "--threads", "1", "--repeats", "2", "--device", "cpu",
+                     "--batch-sizes", "1", "3", "--out", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "translator_speed.json").read_text())
+    assert result["machine"]["device"] == "cpu"
+    assert result["command"].startswith("simshear evaluate translator-speed --threads 1 --repeats 2 --device cpu "
+                                        "--batch-sizes 1 3")
+    assert {(row["model"], row["contact"]) for row in result["models"]} >= {("shpix2pix", "surface")}
+    for row in result["models"]:
+        assert row["ms_per_image_batch1"] > 0 and row["ms_per_image_batch3"] > 0
+
+
+def test_translator_speed_refuses_a_batch_size_below_one(tmp_path, capsys):
+    from simshear_gym import cli
+
+    assert cli.main(["evaluate", "translator-speed", "--batch-sizes", "1", "0", "--out", str(tmp_path)]) == 2
+    assert "--batch-sizes must be positive integers, got [0]" in capsys.readouterr().err
+    assert not (tmp_path / "translator_speed.json").exists()
+
+
+def test_translator_speed_on_cuda_without_cuda_is_one_clear_error(no_cuda, tmp_path, capsys):
+    from simshear_gym import cli
+
+    assert cli.main(["evaluate", "translator-speed", "--device", "cuda", "--out", str(tmp_path)]) == 2
+    assert "device 'cuda'" in capsys.readouterr().err

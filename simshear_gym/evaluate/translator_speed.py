@@ -1,7 +1,9 @@
-"""Translator inference latency on this CPU: per image at batch 1 and at batch 32, for the shipped models.
+"""Translator inference latency: per image at batch 1 and at batch 32 (or ``--batch-sizes``), for the shipped models.
 
-``simshear evaluate translator-speed`` writes ``results/translator_speed.json``. The envs call the translator
-every step, so batch 1 is the single-env cost and batch 32 the per-image cost of a vectorised env.
+``simshear evaluate translator-speed`` writes ``results/translator_speed.json`` (``--device cuda``:
+``results/translator_speed_cuda.json``). The envs call the translator every step, so batch 1 is the single-env
+cost and batch 32 the per-image cost of a vectorised env. On CUDA the time is the whole call as an env makes it:
+uint8 images in, the copy to the GPU, the generator, the copy back, uint8 images out.
 """
 
 from __future__ import annotations
@@ -32,7 +34,14 @@ def latency_ms(translator, batch: int, repeats: int, rng: np.random.Generator) -
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from simshear_gym.models.device import DEVICES
+
     parser.add_argument("--threads", type=int, default=2, help="torch threads")
+    parser.add_argument("--device", choices=DEVICES, default="cpu",
+                        help="where the generator runs (default cpu; auto: CUDA where there is one)")
+    parser.add_argument("--batch-sizes", type=int, nargs="+", default=[1, 32],
+                        help="batch sizes to time (default 1 32); batch 1 takes --repeats batches, the others a "
+                             "fifth of them (at least 3)")
     parser.add_argument("--repeats", type=int, default=30,
                         help="timed batches at batch 1 (a fifth, at least 3, at batch 32); the median counts "
                              "(default 30)")
@@ -43,23 +52,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
+    from simshear_gym.models.device import OnDevice, resolve_device
     from simshear_gym.models.translator import Translator, shipped_models
 
+    bad = [size for size in args.batch_sizes if size < 1]
+    if bad:
+        raise ValueError(f"--batch-sizes must be positive integers, got {bad}")
     torch.set_num_threads(args.threads)
+    device = resolve_device(args.device)
+    machine = {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+               "device": str(device)}
+    if device.type == "cuda":
+        machine["gpu"] = torch.cuda.get_device_name(device)
     rng = np.random.default_rng(0)
     rows = []
     for (arch, contact), path in sorted(shipped_models().items()):
         translator = Translator.load(path)
-        row = {"model": arch, "contact": contact, "weights": path.name,
-               "ms_per_image_batch1": round(latency_ms(translator, 1, args.repeats, rng), 3),
-               "ms_per_image_batch32": round(latency_ms(translator, 32, max(args.repeats // 5, 3), rng), 3)}
+        if device.type != "cpu":  # the generator on the GPU behind the same uint8 interface
+            translator = Translator(OnDevice(translator.generator, device), translator.card, fast=False)
+        row = {"model": arch, "contact": contact, "weights": path.name}
+        for size in args.batch_sizes:
+            repeats = args.repeats if size == 1 else max(args.repeats // 5, 3)
+            row[f"ms_per_image_batch{size}"] = round(latency_ms(translator, size, repeats, rng), 4)
         rows.append(row)
-        print(f"{arch:10s} {contact:8s} batch 1: {row['ms_per_image_batch1']:.2f} ms/image   "
-              f"batch 32: {row['ms_per_image_batch32']:.2f} ms/image")
-    write_json(args.out / "translator_speed.json", {
-        "command": f"simshear evaluate translator-speed --threads {args.threads}",
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
-        "torch_threads": args.threads, "models": rows,
+        print(f"{arch:10s} {contact:8s} " + "   ".join(f"batch {size}: {row[f'ms_per_image_batch{size}']:.3f} ms/image"
+                                                    for size in args.batch_sizes))
+    name = "translator_speed.json" if device.type == "cpu" else f"translator_speed_{device.type}.json"
+    write_json(args.out / name, {
+        "command": " ".join(["simshear evaluate translator-speed", f"--threads {args.threads}",
+                             f"--repeats {args.repeats}", f"--device {args.device}",
+                             "--batch-sizes " + " ".join(map(str, args.batch_sizes)),
+                             *([f"--out {args.out}"] if args.out != Path("results") else [])]),
+        "machine": machine, "torch_threads": args.threads, "torch": torch.__version__, "models": rows,
     })
-    print(f"wrote {args.out / 'translator_speed.json'}")
+    print(f"wrote {args.out / name}")
     return 0
