@@ -75,6 +75,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
+    (("pipeline", "env-model"), "simshear_gym.pipelines.env_model",
+     "an env GDNN (the co-lift estimator) from its [env_models.<name>] recipe: env sets, one DAgger round, training"),
     (("pipeline", "ship"), "simshear_gym.pipelines.ship",
      "make a finished pipeline run's translators and GDNNs the package's shipped weights, with cards"),
     (("pipeline", "make-example"), "simshear_gym.pipelines.example_sensor",

@@ -12,6 +12,8 @@ Tables (``configs/tactip331.toml`` describes the shipped sensor; ``configs/READM
   (:class:`~simshear_gym.data.adapter.DatasetConfig`).
 - ``[check]``: how many rows per dataset ``simshear pipeline check`` replays in simulation, and the least share of
   them that must make contact.
+- ``[env_models.<name>]``: the recipe of a GDNN trained on an env's own translated images (the co-lift estimator;
+  :class:`EnvModelRecipe`), run by ``simshear pipeline env-model CONFIG --model <name>``.
 - ``[profiles.<name>]``: the training stages' settings, budgets counted in epochs (:class:`Profile`,
   :class:`TranslatorStage`, :class:`PosenetStage`); ``smoke`` (the test suite, seconds), ``quick`` (a laptop,
   under 30 minutes) and ``full`` have built-in defaults (:data:`DEFAULT_PROFILES`) that a config's table overrides
@@ -157,6 +159,68 @@ class PoolGenerator:
         return {name: value for name, value in values.items() if value is not None}
 
 
+ENV_TASKS = ("colift", "tracking")
+PAYLOADS = ("light", "heavy")
+
+
+@dataclass(frozen=True)
+class EnvModelRecipe:
+    """A GDNN that reads an env's own translated images (``simshear pipeline env-model``;
+    :mod:`simshear_gym.pipelines.env_model`), in one round of DAgger:
+
+    1. ``oracle_seeds``: one set of ``rows`` images per seed (``simshear collect-env``: the oracle law with a
+       wandering gain drives the follower, ``episode_steps`` per episode);
+    2. a first GDNN on the sets of ``first_round_seeds`` (None: all the oracle sets), ``first_epochs`` epochs;
+    3. ``dagger_seeds``: one set per seed driven by the servo controller reading with that first GDNN (the states
+       the controller itself visits);
+    4. the GDNN on every set, ``epochs`` epochs: the one that ships.
+
+    Budgets are epochs; ``cap_minutes`` is only a wall-clock safety cap per training. ``task`` and ``payload`` pick
+    the env (``SimShearCoLift-v0`` light or heavy objects, or ``SimShearTracking-v0``)."""
+
+    task: str = "colift"
+    payload: str = "light"
+    rows: int = 12000
+    episode_steps: int = 200
+    oracle_seeds: tuple[int, ...] = (0, 1, 2)
+    first_round_seeds: tuple[int, ...] | None = None
+    dagger_seeds: tuple[int, ...] = ()
+    first_epochs: int = 10
+    epochs: int = 12
+    patience_epochs: int = 5
+    batch_size: int = 64
+    lr: float = 1e-3
+    seed: int = 0
+    threads: int = 2
+    cap_minutes: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.task not in ENV_TASKS:
+            raise ValueError(f"task must be one of {list(ENV_TASKS)}, got {self.task!r}")
+        if self.payload not in PAYLOADS or (self.payload == "heavy" and self.task != "colift"):
+            raise ValueError(f"payload must be one of {list(PAYLOADS)} (heavy: task colift), got {self.payload!r}")
+        if self.rows < 1 or self.episode_steps < 1:
+            raise ValueError(f"rows and episode_steps must be >= 1, got {self.rows!r}, {self.episode_steps!r}")
+        if not self.oracle_seeds:
+            raise ValueError("oracle_seeds must name at least one seed")
+        seeds = [*self.oracle_seeds, *self.dagger_seeds]
+        if len(set(seeds)) != len(seeds):
+            raise ValueError(f"oracle_seeds and dagger_seeds must all differ (a seed names a set), got {seeds}")
+        if self.first_round_seeds is not None and (not self.first_round_seeds
+                                                   or set(self.first_round_seeds) - set(self.oracle_seeds)):
+            raise ValueError(f"first_round_seeds must be some of oracle_seeds {list(self.oracle_seeds)}, got "
+                             f"{list(self.first_round_seeds)}")
+        if min(self.first_epochs, self.epochs, self.patience_epochs, self.batch_size, self.threads) < 1:
+            raise ValueError("first_epochs, epochs, patience_epochs, batch_size and threads must be >= 1")
+        if self.cap_minutes is not None and self.cap_minutes <= 0:
+            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+
+    @property
+    def first_round(self) -> tuple[int, ...]:
+        """The oracle seeds whose sets train the first GDNN."""
+        return self.first_round_seeds if self.first_round_seeds is not None else self.oracle_seeds
+
+
 @dataclass(frozen=True)
 class Profile:
     """A profile: how many rows of each split the pipeline uses (None: all), how many validation rows per
@@ -209,6 +273,7 @@ class ExperimentConfig:
     frame: FrameConfig = FrameConfig()
     check: CheckConfig = CheckConfig()
     profiles: Mapping[str, Profile] = field(default_factory=lambda: dict(DEFAULT_PROFILES))
+    env_models: Mapping[str, EnvModelRecipe] = field(default_factory=dict)
     path: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
@@ -216,6 +281,9 @@ class ExperimentConfig:
             raise ValueError(f"name must be letters, digits, '-' or '_' (it names folders), got {self.name!r}")
         if not self.datasets:
             raise ValueError("datasets must name at least one [datasets.<name>] table")
+        bad = [name for name in self.env_models if not name or not name.replace("_", "").isalnum()]
+        if bad:
+            raise ValueError(f"env_models: a name must be letters, digits or '_' (it names a run), got {bad[0]!r}")
         contacts = {dataset.contact for dataset in self.datasets.values()}
         for name, profile in self.profiles.items():
             unused = sorted(({g.contact for g in profile.pool if g.contact}
@@ -230,8 +298,14 @@ class ExperimentConfig:
         except KeyError:
             raise ValueError(f"{self.path}: no profile {name!r}; it has {sorted(self.profiles)}") from None
 
+    def env_model(self, name: str) -> EnvModelRecipe:
+        try:
+            return self.env_models[name]
+        except KeyError:
+            raise ValueError(f"{self.path}: no [env_models.{name}] table; it has {sorted(self.env_models)}") from None
 
-_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check", "profiles")
+
+_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check", "profiles", "env_models")
 
 
 def load_config(path: str | Path) -> ExperimentConfig:
@@ -255,12 +329,17 @@ def load_config(path: str | Path) -> ExperimentConfig:
     profiles = dict(DEFAULT_PROFILES)
     for name, overrides in (table.get("profiles") or {}).items():
         profiles[name] = _override(profiles.get(name, Profile()), overrides, source, f"profiles.{name}")
+    env_table = table.get("env_models") or {}
+    if not isinstance(env_table, dict):
+        raise ConfigError(f"{source}: env_models must be tables [env_models.<name>], got {env_table!r}")
+    env_models = {name: from_table(EnvModelRecipe, value, source, f"env_models.{name}")
+                  for name, value in env_table.items()}
     for key in ("name", "description"):
         if key in table and not isinstance(table[key], str):
             raise ConfigError(f"{source}: {key} = {table[key]!r}; expected a string")
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
-                                datasets=datasets, profiles=profiles, path=path, **parts)
+                                datasets=datasets, profiles=profiles, env_models=env_models, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
 

@@ -57,6 +57,8 @@ class EnvCollectConfig:
             what the image shows and the translator is given, the held load's shear included), not the shear over
             the face as carried by the plate that the oracle sees: the two differ by the load's steady deflection,
             which an image cannot tell apart from a lag without knowing the mass.
+        sensor: a sensor's models instead of the shipped ones (the env's ``sensor``: a ``sensor.json`` of
+            ``simshear pipeline run`` or its folder); None: the shipped translator.
     """
 
     task: str = "colift"
@@ -69,6 +71,7 @@ class EnvCollectConfig:
     driver: str = "oracle"
     posenet: str | None = None
     payload: str = "light"
+    sensor: str | None = None
 
     def __post_init__(self) -> None:
         if self.driver not in DRIVERS:
@@ -124,7 +127,8 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
             setting = settings[episode % len(settings)]
             key = tuple(sorted(setting.items()))
             if key not in envs:
-                env = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting)
+                env = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting,
+                               **({"sensor": config.sensor} if config.sensor else {}))
                 envs[key] = env, (ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
                                   if config.driver == "servo" else OracleController.for_env(env))
             env, controller = envs[key]
