@@ -216,27 +216,47 @@ def test_same_inputs_give_the_same_run():
         assert all(np.array_equal(u, v) for u, v in zip(x, y))
 
 
-def test_a_heavy_object_shows_its_weight_as_shear_and_stays_only_while_the_sensor_holds_its_place():
-    """FIRM_TIP, 2 kg block, 4 mm squeeze: the plate's friction holds what it can, the skin carries the rest, and
-    that deflection is shear from the first image (counted from placement). A sensor holding still keeps the block
-    in place; one that moves to cancel the shear, as for a light object, unloads the skin and the block slides out."""
+def test_a_heavy_object_shows_its_weight_as_shear_follows_the_plate_and_stays_while_the_sensor_holds_still():
+    """FIRM_TIP, 4 mm squeeze, rubber-padded plate: the skin carries a share of the load, a steady shear from the
+    first image (counted from placement). The plate's static friction holds the 2 kg block: a plate that lifts
+    drags the block along (the skin sees the move), where the plate of friction 1 slid up past it unseen. A sensor
+    holding still keeps the object in place; one that moves to cancel the load's shear, as for a light object,
+    walks the object along the plate."""
+    from dataclasses import replace
+
     from simshear_gym.sim.colift_scene import FIRM_TIP
 
     config = CoLiftSceneConfig(object_name="prism", payload="heavy", squeeze_mm=4.0, **FIRM_TIP)
-    assert config.object.mass_kg == 2.0
-    with CoLiftScene(config) as scene:
-        T_world_sensor = scene.reset(T_WORLD_PLATE)
-        settled = scene.shear_sensor()
-        assert settled[1] < -2.0 and abs(settled[0]) < 0.2  # sensor +y is down: the skin sags under the load
-        for _ in range(60):
-            scene.step(T_WORLD_PLATE, T_world_sensor)
-        assert not scene.dropped() and scene.object_slip_mm() < 1.0
-        assert scene.shear_sensor()[1] == pytest.approx(settled[1], abs=0.3)
-        for _ in range(60):
-            shear = scene.shear_sensor()
-            T_world_sensor = T_world_sensor @ _translation(-0.5 * shear[0], -0.5 * shear[1])
-            scene.step(T_WORLD_PLATE, T_world_sensor)
-        assert scene.dropped()
+    assert config.object.mass_kg == 2.0 and config.plate_friction == 2.0
+    for plate_friction, follows in ((2.0, True), (1.0, False)):
+        with CoLiftScene(replace(config, plate_friction=plate_friction)) as scene:
+            T_world_sensor = scene.reset(T_WORLD_PLATE)
+            settled = scene.shear_sensor()
+            assert settled[1] < -0.4 and abs(settled[0]) < 0.2  # the skin sags under the load
+            for _ in range(30):
+                scene.step(T_WORLD_PLATE, T_world_sensor)
+            assert not scene.dropped() and scene.object_slip_mm() < 1.0
+            assert scene.shear_sensor()[1] == pytest.approx(settled[1], abs=0.3)
+            before, slip_before = scene.shear_sensor()[1], scene.object_slip_mm()
+            for step in range(1, 16):  # the plate lifts 1.5 mm, the sensor holds its place
+                scene.step(_translation(z=0.1 * step) @ T_WORLD_PLATE, T_world_sensor)
+            seen, slid = scene.shear_sensor()[1] - before, scene.object_slip_mm() - slip_before
+            if follows:  # the block went up with the plate: the skin shows the lift
+                assert seen > 1.0 and slid < 0.3
+            else:  # the plate slid up past the block: the skin saw almost nothing
+                assert seen < 0.4 and slid > 0.4
+    slips = {}
+    for walk in (False, True):  # the 1.5 kg egg: 2.1 mm of the load's shear
+        with CoLiftScene(replace(config, object_name="egg")) as scene:
+            T_world_sensor = scene.reset(T_WORLD_PLATE)
+            assert scene.shear_sensor()[1] < -1.5
+            for _ in range(60):
+                shear = scene.shear_sensor()
+                if walk:
+                    T_world_sensor = T_world_sensor @ _translation(-0.5 * shear[0], -0.5 * shear[1])
+                scene.step(T_WORLD_PLATE, T_world_sensor)
+            slips[walk] = scene.object_slip_mm()
+    assert slips[True] > 2.0 * slips[False]  # servoing the load's shear to zero walks the object along the plate
     light = CoLiftSceneConfig(object_name="prism", shear_from_placement=True)
     with CoLiftScene(light) as scene:  # a 30 g object on the soft tip: its sag is no shear worth the name
         scene.reset(T_WORLD_PLATE)

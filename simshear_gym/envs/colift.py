@@ -191,10 +191,11 @@ class SimShearCoLiftEnv(SimShearEnv):
             0.5 kg); a light object heavier than ~0.3 kg slips out of the soft grip.
         payload: ``"light"`` (the paper's objects on the soft TacTip) or ``"heavy"``
             (:data:`~simshear_gym.sim.objects.HEAVY_OBJECTS` on the firm TacTip of
-            :data:`~simshear_gym.sim.colift_scene.FIRM_TIP`, squeezed 4 mm): the plate's friction holds what it
-            can and the skin carries the rest, so the weight shows as a steady downward shear from the first image
-            on; a follower that keeps that shear, holding its place, carries the object; one that servoes it to
-            zero walks the skin down until the object slides out (``ServoController``'s ``hold_load``).
+            :data:`~simshear_gym.sim.colift_scene.FIRM_TIP`, squeezed 4 mm, against a rubber-padded plate): the
+            skin carries a share of the load, so the weight shows as a steady downward shear from the first image
+            on (0.6-2.1 mm), while the plate's moves drag the object and show on the skin as for a light one; a
+            follower that keeps the load's shear, holding its place, carries the object; one that servoes it to
+            zero walks the skin down and the object slides (``ServoController``'s ``hold_load``).
         obs_mode, image_size_px, control_rate_hz, render_mode, observation, history, estimator: see
             :class:`~simshear_gym.envs.base.SimShearEnv` (defaults ``"real"``, 128, 10 Hz, None, ``"tactile"``, 1).
         reference_depth_mm: the depth to keep (label convention); None: the payload's squeeze, 5.2 mm = a 3 mm

@@ -44,6 +44,20 @@ def translator_file(recipe: EnvModelRecipe, sensor: str | None) -> Path:
     return shipped_models()[("shpix2pix", "surface")]
 
 
+def scene_fingerprint(recipe: EnvModelRecipe) -> dict:
+    """The physics a co-lift recipe's sets are collected in (its scene settings and objects), so that a change to
+    either collects them again; {} for the tracking env."""
+    if recipe.task != "colift":
+        return {}
+    from simshear_gym.sim.colift_scene import FIRM_TIP, CoLiftSceneConfig
+    from simshear_gym.sim.objects import HEAVY_OBJECTS, OBJECTS
+
+    scene = asdict(CoLiftSceneConfig(payload=recipe.payload, **(FIRM_TIP if recipe.payload == "heavy" else {})))
+    objects = HEAVY_OBJECTS if recipe.payload == "heavy" else OBJECTS
+    return {"scene": {k: v for k, v in scene.items() if k not in ("object_name", "mass_kg")},
+            "objects": {name: asdict(spec) for name, spec in objects.items()}}
+
+
 def _sha(path: Path | str) -> str:
     from simshear_gym.models.translator_runtime import file_sha256
 
@@ -60,7 +74,7 @@ def collect_step(runner: StageRunner, recipe: EnvModelRecipe, seed: int, sensor:
                                 driver="servo" if posenet else "oracle", posenet=posenet, payload=recipe.payload,
                                 sensor=sensor)
     key = {"collect": {**asdict(settings), "posenet": _sha(posenet) if posenet else None},
-           "translator_sha256": translator_sha}
+           "translator_sha256": translator_sha, "physics": scene_fingerprint(recipe)}
 
     def work(folder: Path) -> dict:
         import shutil

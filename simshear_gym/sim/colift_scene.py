@@ -198,13 +198,15 @@ class CoLiftSceneConfig:
 
 
 FIRM_TIP: dict = {"tip_contact_stiffness_npm": 4000.0, "tip_contact_damping_nspm": 14.0,
-                  "skin_shear_stiffness_npm": 2000.0, "shear_from_placement": True}
-"""The heavy co-lift's TacTip (:class:`CoLiftSceneConfig` fields): a firm dome (4 N/mm: about 12 N at a 3 mm squeeze,
-eight times the soft default's 1.5 N) whose skin holds a tangential load at 2 N/mm, the shear counted from
-placement so that the load's deflection shows. Gripped against the rigid plate at friction 1, the plate carries up
-to its friction limit and the skin the rest: a 2 kg block leaves about 3 mm of downward shear at a 4 mm squeeze
-and stays put while the sensor holds its place; a follower that servoes that shear to zero, as for a light
-object, walks the skin down, unloads it, and the block slides out (``tests/test_colift_scene.py``). Damping
+                  "skin_shear_stiffness_npm": 2000.0, "shear_from_placement": True, "plate_friction": 2.0}
+"""The heavy co-lift's grip (:class:`CoLiftSceneConfig` fields): a firm dome (4 N/mm: about 16 N at a 4 mm squeeze,
+ten times the soft default's 1.5 N at 3 mm) whose skin holds a tangential load at 2 N/mm, the shear counted from
+placement so that the load's deflection shows, against a leader's plate with a rubber pad (friction 2; Bullet
+multiplies it with the object's 1). The plate's static friction then holds the object with a margin, so the
+plate's moves drag the object and show on the skin as for a light one, while the load's share on the skin stays as a
+steady shear from the first image (0.6 mm for the 2 kg block, 2.1 mm for the 1.5 kg egg). With a plate of friction
+1 the plate sat at its friction limit: it slid past the object whenever it moved, its moves never reached the skin,
+and a follower reading the skin dropped the block and the soft ball (docs/experiments.md, servo_colift_heavy). Damping
 scales with the square root of the stiffness (the soft tip's 5 N s/m at 500 N/m)."""
 
 
