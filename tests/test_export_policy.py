@@ -90,3 +90,26 @@ def test_the_trainer_registers_the_envs_its_evaluation_makes():
             "[gymnasium.spec(i) for i in ('SimShearTracking-v0', 'SimShearCoLift-v0')]")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr[-2000:]
+
+
+def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
+    """best_model.zip is the model of the last evaluation that set a new best, and the card quotes that one."""
+    from simshear_gym.pipelines.export_policy import card_text
+
+    to = tmp_path / "policy"
+    to.mkdir()
+    (to / "model.zip").write_bytes(b"0")
+    evaluations = [{"timesteps": 100, "wall_s": 6.0, "contact_error_mean_mm": 0.7, "ended_early": 0, "best": True,
+                    "episodes": {}},
+                   {"timesteps": 200, "wall_s": 12.0, "contact_error_mean_mm": 0.2, "ended_early": 0, "best": True,
+                    "episodes": {}},
+                   {"timesteps": 300, "wall_s": 18.0, "contact_error_mean_mm": 0.3, "ended_early": 0,
+                    "episodes": {}}]
+    from dataclasses import asdict
+
+    config = {**asdict(RLTrainConfig(timesteps=300, observation="estimate")), "env_id": "SimShearTracking-v0"}
+    provenance = {"train_command": COMMAND, "exported_from": "tiny/best_model.zip", "estimator_models_sha256": {}}
+    best = card_text(config, provenance, to, "best", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    assert "At 200 env steps" in best and "0.200 mm" in best and "At 100 env steps" not in best
+    final = card_text(config, provenance, to, "final", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    assert "At 300 env steps" in final

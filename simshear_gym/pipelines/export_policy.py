@@ -96,7 +96,8 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
     """The Markdown card of a shipped policy."""
     env_id, posenet = ENV_MODELS[config["task"]]
     size_mib = (to / "model.zip").stat().st_size / 2**20
-    chosen = next((entry for entry in evaluations if entry.get("best")), None) if model == "best" else (
+    # best_model.zip is the model of the last evaluation that set a new best
+    chosen = next((entry for entry in reversed(evaluations) if entry.get("best")), None) if model == "best" else (
         evaluations[-1] if evaluations else None)
     arch = config.get("net_arch") or "the algorithm's default"
     observation = {"tactile": "the translated tactile image and the TCP pose (CNN)",
