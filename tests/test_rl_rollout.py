@@ -72,3 +72,45 @@ def test_a_trained_policy_runs_through_rollout_on_the_emulator_within_the_limits
         previous = target
     assert "truth_contact_error_mm" in summary  # the simulated camera's ground truth was logged
 
+
+
+SHIPPED_TRACKING = "simshear_gym/models/weights/policies/tracking_ppo/model.zip"
+
+
+def check_servo_commands_within_limits(emulator: MG400Emulator, steps: int, period_s: float) -> None:
+    """Every ServoP the emulator received passes the default safety checks again, from the target before."""
+    safety = SafetyConfig()
+    layer = SafetyLayer(safety)
+    sent = [command for command in emulator.received_commands("motion") if command.lower().startswith("servop")]
+    assert len(sent) == steps
+    previous = np.array([300.0, 0.0, 0.0, 0.0])
+    for command in sent:
+        target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
+        assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
+        layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=period_s + 0.02)
+        previous = target
+
+
+@pytest.mark.parametrize("camera", ["sim-surface", pytest.param("replayed", marks=pytest.mark.data)])
+def test_the_shipped_tracking_policy_runs_unchanged_on_the_emulator_within_the_limits(emulator, tmp_path, camera,
+                                                                                       request):
+    """The shipped policy folder, as it is, through ``simshear rollout --policy``: with the simulated camera, and
+    with a replayed camera (the 100 raw 640x480 TacTip frames of the data set through the real preprocessing).
+    The robot side never sees a command outside the default limits."""
+    from pathlib import Path
+
+    source = "sim-surface"
+    if camera == "replayed":
+        source = str(request.getfixturevalue("data_root") / "tactip331_raw" / "images")
+    out = tmp_path / "rollout"
+    code = cli.main(["rollout", "--robot", "127.0.0.1", "--camera", source, "--policy", SHIPPED_TRACKING,
+                     "--steps", str(STEPS), "--period-s", str(PERIOD_S), "--out", str(out),
+                     "--dashboard-port", str(emulator.dashboard_port), "--motion-port", str(emulator.motion_port),
+                     "--feedback-port", str(emulator.feedback_port)])
+    summary = json.loads((out / "rollout.json").read_text())
+    assert code == 0, summary
+    assert Path(SHIPPED_TRACKING).is_file()
+    assert summary["termination"] == "" and summary["safety_events"] == []
+    assert summary["steps_run"] == STEPS and summary["controller"].startswith("ppo:")
+    assert (summary["config"]["observation"], summary["config"]["history"]) == ("estimate", 4)
+    check_servo_commands_within_limits(emulator, STEPS, PERIOD_S)
