@@ -73,6 +73,20 @@ def generator_list(translators: list[str]) -> str:
     return ", ".join(f"`{path}`" + (f" (x{counts[path]})" if counts[path] > 1 else "") for path in counts)
 
 
+def _commands_line(card: dict, weights: Path) -> str:
+    """The card's exact commands: the sets' collection, the training, the export; one recipe command where
+    ``simshear pipeline env-model`` made both sets and run (the data paths are then relative to its run folder)."""
+    export = f"`simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`"
+    train = card.get("train_command", "")
+    if train.startswith("simshear pipeline env-model"):
+        return (f"- Exact commands: `{train}` (the recipe's cached stages: the env sets, a first GDNN, the "
+                "servo-driven sets it read, this GDNN; the data paths above are relative to its run folder), then "
+                + export
+                + " with RUN its `envposenet/final/<hash>/run`.")
+    collect = card.get("collect_command", "simshear collect --replay-all --out runs/paired")
+    return f"- Exact commands: `{collect}`, then `{train}`, then {export}."
+
+
 def write_card(weights: Path, card: dict, results: dict | None, result_name: str, date: str) -> Path:
     """``<weights>.md``: data, exact commands, metrics, date."""
     config = card.get("train_config", {})
@@ -105,9 +119,7 @@ def write_card(weights: Path, card: dict, results: dict | None, result_name: str
         f"{config.get('threads')} CPU thread(s).",
         f"- Training: best holdout NLL {card.get('holdout_nll', float('nan')):.3f} at epoch {card.get('epoch')}, "
         f"{card.get('elapsed_s', 0) / 60:.1f} min on a 2-core CPU.",
-        f"- Exact commands: `{card.get('collect_command', 'simshear collect --replay-all --out runs/paired')}`, "
-        f"then `{card.get('train_command')}`, "
-        f"then `simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`.",
+        _commands_line(card, weights),
     ]
     section = (results or {}).get("contacts", {}).get(card["contact"], {})
     if result_name in section.get("models", {}):
