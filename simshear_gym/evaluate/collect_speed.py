@@ -7,8 +7,9 @@ a temporary folder inside the results folder (so on the disk a collection would 
 
 ``--ray ADDRESS`` (``local``: a Ray on this machine) compares the executors instead: ``--rows`` random contacts
 per contact type (seed 0), collected in plain processes and as Ray tasks, each with 1 and ``--workers`` workers,
-and writes ``results/collect_ray.json``. The Ray session starts once and its workers are warmed up before the
-timed runs (both times recorded apart); every run's set is checked byte for byte against the plain 1-worker set.
+and writes ``<out>/collect_ray.json`` (``results/ablations/collect_ray.json``). The Ray session starts once and
+its workers are warmed up before the timed runs (both times recorded apart); every run's set is checked byte for
+byte against the plain 1-worker set.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Translator inference latency: per image at batch 1 and at batch 32 (or ``--batch-sizes``), for the shipped models.
 
 ``simshear evaluate translator-speed`` writes ``results/translator_speed.json`` (``--device cuda``:
-``results/translator_speed_cuda.json``). The envs call the translator every step, so batch 1 is the single-env
+``<out>/translator_speed_cuda.json``). The envs call the translator every step, so batch 1 is the single-env
 cost and batch 32 the per-image cost of a vectorised env. On CUDA the time is the whole call as an env makes it:
 uint8 images in, the copy to the GPU, the generator, the copy back, uint8 images out.
 """
