@@ -81,4 +81,4 @@ def test_a_bad_recipe_is_one_error_naming_the_file_and_the_table(tmp_path, table
 def test_an_unknown_model_names_the_ones_the_config_has(tmp_path, capsys):
     assert cli.main(["pipeline", "env-model", "configs/tactip331.toml", "--model", "colift_light",
                      "--out", str(tmp_path)]) == 2
-    assert "no [env_models.colift_light] table; it has ['colift_heavy']" in capsys.readouterr().err
+    assert "no [env_models.colift_light] table; it has ['colift', 'colift_heavy']" in capsys.readouterr().err
