@@ -111,6 +111,10 @@ def distributed_session(device_name: str) -> Iterator[Distributed | None]:
     dist.init_process_group("nccl" if device.type == "cuda" else "gloo", rank=rank, world_size=world_size)
     try:
         yield Distributed(rank, world_size, device)
+        # every rank finished (rank 0's last writes too) before the group goes: a rank that tore its group down
+        # while a peer still talked to it aborted at exit on a loaded CPU ("terminate called without an active
+        # exception"); after an error no barrier, which a dead peer would never reach
+        dist.barrier()
     finally:
         dist.destroy_process_group()
 
