@@ -283,6 +283,7 @@ def run(args: argparse.Namespace) -> int:
                    ("policy-tqc", args.policy_tqc)) if path)
                + (f" --max-steps {args.max_steps}" if args.max_steps else "")
                + (f" --hold-load {args.hold_load}" if args.hold_load != "env" else "")
+               + (f" --out {args.out}" if args.out != Path("results") else "")
                + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {
         "command": command,
