@@ -56,29 +56,16 @@ def test_a_trained_policy_runs_through_rollout_on_the_emulator_within_the_limits
         rows = list(csv.DictReader(handle))
     actions = np.array([[float(row[f"action_{i}"]) for i in range(4)] for row in rows[1:]])
     assert actions.shape == (STEPS, 4) and np.all(np.abs(actions) <= 1.0)
-    # every ServoP the emulator received passes the safety layer's checks again: reachable, inside the workspace
-    # box, within the step and speed limits from the target before
-    safety = SafetyConfig()
-    layer = SafetyLayer(safety)
-    sent = [command for command in emulator.received_commands("motion") if command.lower().startswith("servop")]
-    assert len(sent) == STEPS
-    previous = np.array([300.0, 0.0, 0.0, 0.0])
-    for command in sent:
-        target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
-        assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
-        assert safety.x_range_mm[0] <= target[0] <= safety.x_range_mm[1]
-        assert safety.z_range_mm[0] <= target[2] <= safety.z_range_mm[1]
-        layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=PERIOD_S + 0.02)
-        previous = target
+    check_servo_commands_within_limits(emulator, STEPS, PERIOD_S)
     assert "truth_contact_error_mm" in summary  # the simulated camera's ground truth was logged
-
 
 
 SHIPPED_TRACKING = "simshear_gym/models/weights/policies/tracking_ppo/model.zip"
 
 
 def check_servo_commands_within_limits(emulator: MG400Emulator, steps: int, period_s: float) -> None:
-    """Every ServoP the emulator received passes the default safety checks again, from the target before."""
+    """Every ServoP the emulator received passes the safety layer's checks again: reachable, inside the workspace
+    box, within the step and speed limits from the target before."""
     safety = SafetyConfig()
     layer = SafetyLayer(safety)
     sent = [command for command in emulator.received_commands("motion") if command.lower().startswith("servop")]
@@ -87,6 +74,8 @@ def check_servo_commands_within_limits(emulator: MG400Emulator, steps: int, peri
     for command in sent:
         target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
         assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
+        assert safety.x_range_mm[0] <= target[0] <= safety.x_range_mm[1]
+        assert safety.z_range_mm[0] <= target[2] <= safety.z_range_mm[1]
         layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=period_s + 0.02)
         previous = target
 

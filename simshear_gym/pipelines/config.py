@@ -31,6 +31,8 @@ from pathlib import Path
 
 from simshear_gym.data.adapter import CONTACTS, DatasetConfig, FrameConfig
 from simshear_gym.models.device import check_device_name
+from simshear_gym.pipelines.env_collect import TASKS as ENV_TASKS
+from simshear_gym.sim.objects import PAYLOADS
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.tables import ConfigError, from_table, read_toml
@@ -157,10 +159,6 @@ class PoolGenerator:
         values = {"seed": self.seed, "density_weight": self.density_weight, "epochs": self.epochs,
                   "decoder_scale": self.decoder_scale}
         return {name: value for name, value in values.items() if value is not None}
-
-
-ENV_TASKS = ("colift", "tracking")
-PAYLOADS = ("light", "heavy")
 
 
 @dataclass(frozen=True)
