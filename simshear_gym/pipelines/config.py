@@ -57,8 +57,10 @@ class CheckConfig:
 @dataclass(frozen=True)
 class TranslatorStage:
     """The translators' training (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields of
-    the same names): one per contact type and architecture in ``archs``. The budget is ``epochs``; a cosine
-    schedule runs over the steps, so a slower machine trains the same model."""
+    the same names): one per contact type and architecture in ``archs``. The budget is ``epochs``, or
+    ``contact_epochs[contact]`` for a contact type it names (a harder contact type's translators train longer; the
+    pool generators of that type take it too unless they give their own); a cosine schedule runs over the steps,
+    so a slower machine trains the same model."""
 
     archs: tuple[str, ...] = ("shpix2pix", "pix2pix")
     epochs: int = 20
@@ -74,16 +76,32 @@ class TranslatorStage:
     seed: int = 0
     threads: int = 2
     cap_minutes: float | None = None
+    contact_epochs: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.cap_minutes is not None and self.cap_minutes <= 0:
             raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+        bad = {contact: n for contact, n in self.contact_epochs.items()
+               if contact not in CONTACTS or not isinstance(n, int) or n < 1}
+        if bad:
+            raise ValueError(f"contact_epochs must give contact types of {list(CONTACTS)} a number of epochs >= 1, "
+                             f"got {bad}")
         if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
             raise ValueError(f"archs must name shpix2pix and/or pix2pix, got {list(self.archs)}")
         if "shpix2pix" not in self.archs:
             raise ValueError("archs must include shpix2pix: the GDNN trains on its images")
         if self.epochs < 1:
             raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+
+    def epochs_for(self, contact: str) -> int:
+        """The epochs of a contact type's translators."""
+        return self.contact_epochs.get(contact, self.epochs)
+
+    def settings_for(self, contact: str) -> dict:
+        """The :class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` settings of a contact type's
+        translators (every field but ``archs``, with ``contact_epochs`` resolved into ``epochs``)."""
+        settings = {name: value for name, value in asdict(self).items() if name not in ("archs", "contact_epochs")}
+        return settings | {"epochs": self.epochs_for(contact)}
 
 
 @dataclass(frozen=True)

@@ -186,9 +186,16 @@ def named_set(contact: str, spec: str) -> str:
     return contact if found == [(v.name, v.column) for v in named.variables] else spec
 
 
-def _translator_settings(stage, generator=None) -> dict:
-    settings = {name: value for name, value in asdict(stage).items() if name != "archs"}
-    return {**settings, **(generator.overrides() if generator else {})}
+# rough relative durations of the training steps, for the schedule's priorities (measured on the 2-core CPU: a
+# translator epoch over 10000 pairs about 1.2-2.6 min, a GDNN epoch about 0.4-0.7 min; pose consistency adds the
+# reader's passes)
+TRANSLATOR_EPOCH_COST = 0.2
+POSENET_EPOCH_COST = 0.06
+POSE_CONSISTENCY_COST = 1.2
+
+
+def _translator_settings(stage, contact: str, generator=None) -> dict:
+    return {**stage.settings_for(contact), **(generator.overrides() if generator else {})}
 
 
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
@@ -196,7 +203,7 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
     (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``), trained
     on ``device``."""
-    settings = _translator_settings(stage, generator)
+    settings = _translator_settings(stage, contact, generator)
     pose_net = ""
     if generator is not None and generator.pose_weight > 0:
         pose_net = done[f"posenet/{contact}_real"].outputs["weights"]
@@ -334,22 +341,25 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
             for arch in profile.translator.archs:
                 steps.append(Step(f"translator/{contact}_{arch}", partial(
                     translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
-                    cost=3.0))
+                    cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact)))
             for generator in profile.pool_for(contact):
                 needs = (f"posenet/{contact}_real",) if generator.pose_weight > 0 else ()
+                epochs = generator.epochs or profile.translator.epochs_for(contact)
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
                     translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
-                    device=device), needs=needs, cost=3.0))
+                    device=device), needs=needs,
+                    cost=TRANSLATOR_EPOCH_COST * epochs * (POSE_CONSISTENCY_COST if needs else 1.0)))
         if "posenet" in stages:
             steps.append(Step(f"posenet/{contact}_real", partial(
                 posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                device=device), cost=1.0))
+                device=device), cost=POSENET_EPOCH_COST * profile.posenet.epochs))
             drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
             steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
                 posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
-                device=device), needs=tuple(name for name, _ in drawn), cost=1.0))
+                device=device), needs=tuple(name for name, _ in drawn),
+                cost=POSENET_EPOCH_COST * profile.posenet.epochs))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
