@@ -99,6 +99,7 @@ pose_weight = 1.0
 pose_variables = ["rx_deg"]
 [profiles.smoke.posenet]
 random_contacts = { surface = 12 }
+baselines = ["pix2pix", "sim"]
 """
 
 
@@ -117,6 +118,11 @@ def test_a_pool_of_generators_and_random_contacts_side_by_side(tmp_path):
     translators = manifest["models"]["translators"]["surface"]
     assert gdnn["translators"] == [translators["shpix2pix"], translators["tilt"], translators["tilt"]]
     assert gdnn["paired"][-1].startswith("collect/random_surface/")  # the random contacts, translated too
+    baseline = json.loads((out / records["posenet/surface_pix2pix"]["folder"] / "stage.json").read_text())["key"]
+    assert baseline["translators"] == [translators["pix2pix"]] and baseline["source"] == "pix2pix"
+    assert not any(p.startswith("collect/random_") for p in baseline["paired"])  # baselines: the replays only
+    evaluation = json.loads((out / manifest["evaluation"]).read_text())
+    assert {"real", "shpix2pix", "pix2pix", "sim"} <= set(evaluation["posenet"]["tap"])  # scored side by side
     again = run_pipeline(config, out, data, "smoke", STAGES, workers=1)
     assert not any(result["ran"] for result in again["results"])
 

@@ -104,6 +104,10 @@ class TranslatorStage:
         return settings | {"epochs": self.epochs_for(contact)}
 
 
+BASELINES = ("pix2pix", "sim")
+"""Comparison GDNNs a profile may add (:attr:`PosenetStage.baselines`): on pix2pix translations, on raw sim renders."""
+
+
 @dataclass(frozen=True)
 class PosenetStage:
     """The GDNNs' training (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields of the same
@@ -111,7 +115,9 @@ class PosenetStage:
     sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`. The translated-image
     GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws`` times) and the
     profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
-    label ranges in the training data (no real image needed: they are translated like the replays)."""
+    label ranges in the training data (no real image needed: they are translated like the replays). ``baselines``
+    adds the paper's comparison GDNNs, scored beside the others on the real validation images: ``pix2pix`` (on
+    the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim renders)."""
 
     epochs: int = 30
     batch_size: int = 64
@@ -127,10 +133,13 @@ class PosenetStage:
     cap_minutes: float | None = None
     translator_draws: int = 1
     random_contacts: Mapping[str, int] = field(default_factory=dict)
+    baselines: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.epochs < 1:
             raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        if set(self.baselines) - set(BASELINES) or len(set(self.baselines)) != len(self.baselines):
+            raise ValueError(f"baselines must name distinct ones of {list(BASELINES)}, got {list(self.baselines)}")
         if self.cap_minutes is not None and self.cap_minutes <= 0:
             raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
         if self.translator_draws < 1:
@@ -261,6 +270,8 @@ class Profile:
         names = [generator.name for generator in self.pool]
         if len(set(names)) != len(names):
             raise ValueError(f"pool: generator names must differ, got {names}")
+        if "pix2pix" in self.posenet.baselines and "pix2pix" not in self.translator.archs:
+            raise ValueError("posenet.baselines names pix2pix, but translator.archs trains no pix2pix")
 
     def pool_for(self, contact: str) -> tuple[PoolGenerator, ...]:
         """The pool's generators of a contact type."""

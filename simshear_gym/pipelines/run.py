@@ -237,12 +237,12 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
                  done: dict, *, device: str = "auto") -> StageResult:
-    """A GDNN of a contact type on the real images (``source`` "real") or on translations of the sim renders
-    (``translator_steps``: the translator steps it draws from, each with its number of draws), trained on
+    """A GDNN of a contact type on the real images (``source`` "real"), on the raw sim renders ("sim") or on
+    translations of them (``translator_steps``: the translator steps it draws from, each with its number of draws), trained on
     ``device``."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
     settings = {name: value for name, value in asdict(stage).items()
-                if name not in ("translator_draws", "random_contacts")}
+                if name not in ("translator_draws", "random_contacts", "baselines")}
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
 
@@ -271,13 +271,19 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
     return runner.run(f"posenet/{contact}_{source}", key, work)
 
 
+def posenet_sources(profile) -> tuple[str, ...]:
+    """The GDNNs a profile trains per contact type: the real-image reference, the one on shPix2pix translations
+    (it ships) and the profile's baselines."""
+    return ("real", "shpix2pix", *profile.posenet.baselines)
+
+
 def evaluate_step(config: ExperimentConfig, profile, adapted: dict, paired: dict, variables: dict,
                   runner: StageRunner, done: dict) -> StageResult:
     """Translation and GDNN figures on every dataset's real validation rows (see the module docstring)."""
     translators = {contact: {arch: done[f"translator/{contact}_{arch}"].outputs["weights"]
                              for arch in profile.translator.archs} for contact in contacts_of(config)}
     posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
-                                     for source in ("real", "shpix2pix")} for contact in contacts_of(config)},
+                                     for source in posenet_sources(profile)} for contact in contacts_of(config)},
                 "variables": variables}
     key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
            "eval_rows": profile.eval_rows}
@@ -360,6 +366,12 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                 posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
                 device=device), needs=tuple(name for name, _ in drawn),
                 cost=POSENET_EPOCH_COST * profile.posenet.epochs))
+            for source in profile.posenet.baselines:
+                drawn = ((f"translator/{contact}_pix2pix", 1),) if source == "pix2pix" else ()
+                steps.append(Step(f"posenet/{contact}_{source}", partial(
+                    posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
+                    device=device), needs=tuple(name for name, _ in drawn),
+                    cost=POSENET_EPOCH_COST * profile.posenet.epochs))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
@@ -400,7 +412,8 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
                        for contact in contacts_of(config)}
         if "posenet" in stages:
             posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
-                                             for source in ("real", "shpix2pix")} for contact in contacts_of(config)},
+                                             for source in posenet_sources(profile_settings)}
+                                   for contact in contacts_of(config)},
                         "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
     if translators and posenets:
