@@ -238,8 +238,8 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
                  done: dict, *, device: str = "auto") -> StageResult:
     """A GDNN of a contact type on the real images (``source`` "real"), on the raw sim renders ("sim") or on
-    translations of them (``translator_steps``: the translator steps it draws from, each with its number of draws), trained on
-    ``device``."""
+    translations of them (``translator_steps``: the translator steps it draws from, each with its number of
+    draws), trained on ``device``."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
     settings = {name: value for name, value in asdict(stage).items()
                 if name not in ("translator_draws", "random_contacts", "baselines")}
