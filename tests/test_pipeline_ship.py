@@ -59,6 +59,13 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     text = (to / "posenet" / "surface.md").read_text()
     assert f"simshear pipeline run {config.path} --profile smoke --out {run}" in text
     assert "## Metrics on the real `surface_shear` validation rows (24)" in text
+    # one contact type's models only: the other's shipped files are not touched
+    edge_only = ship(run, tmp_path / "edge_only", str(data_root), date="2026-01-01", contacts=("edge",))
+    assert {p.name.split(".")[0] for p in edge_only} == {"shpix2pix_edge", "pix2pix_edge", "edge"}
+    card = (tmp_path / "edge_only" / "posenet" / "edge.md").read_text()
+    assert f"simshear pipeline ship {run} --contacts edge" in card
+    with pytest.raises(ValueError, match=r"no models of contact type\(s\) \['wall'\]"):
+        ship(run, tmp_path / "none", str(data_root), contacts=("wall",))
 
 
 def test_ship_writes_into_the_package_weights_folder_by_default():

@@ -37,18 +37,27 @@ def read_run(run: Path) -> tuple[dict, dict, dict]:
     return manifest, evaluation, records
 
 
-def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str | None = None) -> list[Path]:
-    """Write the run's models and cards under ``to`` (see the module docstring); returns the files written."""
+def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str | None = None,
+         contacts: tuple[str, ...] | None = None) -> list[Path]:
+    """Write the run's models and cards under ``to`` (see the module docstring), of the contact types in
+    ``contacts`` only where given (the others' shipped files stay); returns the files written."""
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator import load_generator, save_generator
     from simshear_gym.pipelines import export_posenet, export_translator
 
     manifest, evaluation, records = read_run(run)
     date = date or datetime.date.today().isoformat()
+    made = manifest["models"]["translators"]
+    unknown = sorted(set(contacts or ()) - set(made))
+    if unknown:
+        raise ValueError(f"{run}: no models of contact type(s) {unknown} in this run; it has {sorted(made)}")
     commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']}"
-                f"{_contacts_option(manifest)} --out {run}", f"simshear pipeline ship {run}"]
+                f"{_contacts_option(manifest)} --out {run}",
+                f"simshear pipeline ship {run}" + (f" --contacts {' '.join(contacts)}" if contacts else "")]
     written = []
-    for contact, archs in manifest["models"]["translators"].items():
+    for contact, archs in made.items():
+        if contacts and contact not in contacts:
+            continue
         for arch in ("shpix2pix", "pix2pix"):
             stage = f"translator/{contact}_{arch}"
             dest = to / f"{arch}_{contact}.pt"
@@ -231,9 +240,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="weights folder (default: the package's, simshear_gym/models/weights)")
     parser.add_argument("--data", default=None,
                         help="data root of the check figures (default: $SIMSHEAR_DATA, else ../shared/data)")
+    parser.add_argument("--contacts", nargs="+", default=None, metavar="CONTACT",
+                        help="ship only these contact types' models (default: every one the run made)")
 
 
 def run(args: argparse.Namespace) -> int:
-    for path in ship(args.run, args.to, args.data):
+    for path in ship(args.run, args.to, args.data, contacts=tuple(args.contacts) if args.contacts else None):
         print(f"wrote {path}")
     return 0
