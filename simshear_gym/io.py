@@ -33,3 +33,12 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
     import json
 
     return atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(payload, indent=2, default=float) + "\n"))
+
+
+def recorded_path(path: str | os.PathLike) -> str:
+    """``path`` as a results file records it: relative to the working directory (the repository root) where it
+    lies under it, as given otherwise, so that no absolute path of this machine lands in ``results/``."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.evaluate.model_specs import parse_contact_paths
-from simshear_gym.io import write_json
+from simshear_gym.io import recorded_path, write_json
 
 CONTACTS = ("surface", "edge")
 
@@ -255,7 +255,7 @@ def run(args: argparse.Namespace) -> int:
             key = f"{contact}_{steps}steps"
             result = evaluate_sequence(path, SequenceConfig(contact=contact, steps=steps), settings)
             series[key] = result.pop("_series")
-            results[key] = {"model": str(path), **result}
+            results[key] = {"model": recorded_path(path), **result}
             print(f"{key}:")
             for name, figures in result["variables"].items():
                 print(f"  {name:16s} MAE raw {figures['raw_mae']:7.3f} filtered {figures['filtered_mae']:7.3f} "

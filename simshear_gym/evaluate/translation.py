@@ -37,7 +37,7 @@ from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
-from simshear_gym.io import atomic_write, write_json
+from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) and pybullet (via sim) are imported inside the functions that use them,
@@ -238,9 +238,9 @@ def run(args: argparse.Namespace) -> int:
     write_json(args.out / f"{args.name}.json", {
         "command": command, "rows_per_set": args.rows or "all (2000)",
         "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
-        "models": {name: {c: str(p) for c, p in per.items()} for name, per in models.items()},
+        "models": {name: {c: recorded_path(p) for c, p in per.items()} for name, per in models.items()},
         "sets": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),
-        **({"reader": {"models": {c: str(p) for c, p in readers.items()}, "real_images": reader_floor,
+        **({"reader": {"models": {c: recorded_path(p) for c, p in readers.items()}, "real_images": reader_floor,
                        "metric": "reader_mae: MAE (mm / deg) of a GDNN trained on the real training images "
                                  "reading each method's images, against the val rows' labels"}}
            if readers else {}),
