@@ -72,7 +72,7 @@ def _convert(annotation: Any, value: Any, source: str, key: str) -> Any:
             try:
                 return _convert(option, value, source, key)
             except ConfigError as error:
-                errors.append(str(error))
+                errors.append(error)
         raise errors[0] if len(errors) == 1 else ConfigError(
             f"{source}: {key} = {value!r} is none of {[_name(arg) for arg in args]}")
     if origin is Literal:

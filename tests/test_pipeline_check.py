@@ -92,6 +92,13 @@ def test_unknown_key_names_file_and_key(tmp_path):
         load_config(path)
 
 
+def test_a_value_of_the_wrong_type_for_an_optional_key_names_key_and_value(tmp_path):
+    config = GOOD + '\n[profiles.smoke.translator]\ncap_minutes = "ten"\n'
+    path = write_lab(tmp_path, config=config)
+    with pytest.raises(ConfigError, match=r"lab\.toml: .*translator\.cap_minutes = 'ten'; expected a number"):
+        load_config(path)
+
+
 def test_wrong_unit_name_says_which_units_are_valid(tmp_path):
     path = write_lab(tmp_path, config=GOOD.replace('unit = "rad"', 'unit = "radian"'))
     message = r"lab\.toml: \[datasets\.tap\] labels\.pose_rx\.unit = 'radian'.*'deg', 'rad'"

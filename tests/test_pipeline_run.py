@@ -140,6 +140,27 @@ def test_a_run_restricted_to_some_contact_types_keeps_their_settings():
         only_contacts(config, ["hand"])
 
 
+def test_pool_generators_may_differ_in_architecture_and_keep_the_others_settings():
+    from simshear_gym.pipelines.config import PoolGenerator, TranslatorStage
+    from simshear_gym.pipelines.run import _translator_settings
+    from simshear_gym.train.translator_config import TranslatorTrainConfig
+
+    stage = TranslatorStage(epochs=14, contact_epochs={"surface": 26}, decoder_scale=0.5, threads=1)
+    plain = _translator_settings(stage, "surface", PoolGenerator("plain", seed=2, epochs=10))
+    assert {k: plain[k] for k in ("epochs", "decoder_scale", "seed")} == {"epochs": 10, "decoder_scale": 0.5, "seed": 2}
+    assert "shear_decoder" not in plain and "flow_px" not in plain  # unchanged settings: unchanged cache keys
+    flow = _translator_settings(stage, "surface", PoolGenerator("flow", seed=3, flow_px=32, lr_schedule="constant"))
+    assert (flow["flow_px"], flow["lr_schedule"], flow["epochs"]) == (32, "constant", 26)
+    wide = _translator_settings(stage, "edge", PoolGenerator("wide", decoder_scale=1.0, shear_decoder=True))
+    assert (wide["decoder_scale"], wide["shear_decoder"], wide["epochs"]) == (1.0, True, 14)
+    for settings in (flow, wide):  # what the step trains with is a valid trainer config
+        TranslatorTrainConfig(arch="shpix2pix", paired_dirs=("set",), **settings)
+    with pytest.raises(ValueError, match="flow_px must be a power of two"):
+        PoolGenerator("bad", flow_px=24)
+    with pytest.raises(ValueError, match="lr_schedule must be one of"):
+        PoolGenerator("bad", lr_schedule="linear")
+
+
 def test_stages_need_the_ones_before_them(tmp_path):
     config = load_config(write_lab(tmp_path))
     with pytest.raises(ValueError, match=r"need the stages before them too: add \['collect'\]"):

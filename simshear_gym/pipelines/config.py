@@ -36,6 +36,7 @@ from simshear_gym.sim.objects import PAYLOADS
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.tables import ConfigError, from_table, read_toml
+from simshear_gym.train.runs import LR_SCHEDULES
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,9 @@ class PoolGenerator:
     the translator stage's settings with these replaced. With ``pose_weight`` > 0 it trains with the
     pose-consistency loss (:mod:`simshear_gym.train.pose_consistency`) read by the contact's real-image GDNN on
     ``pose_variables`` (all of its variables when empty), so it runs after that GDNN. The GDNN on translated
-    images draws each row's generator at random, this one ``draws`` times as often as a generator listed once."""
+    images draws each row's generator at random, this one ``draws`` times as often as a generator listed once.
+    ``decoder_scale``, ``shear_decoder``, ``flow_px`` and ``lr_schedule`` (where given) replace the stage's
+    architecture and schedule, so that the pool's generators can differ in more than their seed."""
 
     name: str
     contact: str = ""
@@ -167,6 +170,9 @@ class PoolGenerator:
     pose_weight: float = 0.0
     pose_variables: tuple[str, ...] = ()
     decoder_scale: float | None = None
+    shear_decoder: bool | None = None
+    flow_px: int | None = None
+    lr_schedule: str | None = None
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
@@ -180,11 +186,17 @@ class PoolGenerator:
                              f"{self.density_weight!r}")
         if self.pose_variables and self.pose_weight == 0:
             raise ValueError(f"pose_variables {list(self.pose_variables)} need pose_weight > 0")
+        if self.flow_px is not None and (self.flow_px < 2 or self.flow_px & (self.flow_px - 1)):
+            raise ValueError(f"flow_px must be a power of two >= 2 (a decoder level's size) or absent, "
+                             f"got {self.flow_px!r}")
+        if self.lr_schedule is not None and self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {list(LR_SCHEDULES)} or absent, got {self.lr_schedule!r}")
 
     def overrides(self) -> dict:
         """The :class:`TranslatorStage` settings this generator replaces."""
         values = {"seed": self.seed, "density_weight": self.density_weight, "epochs": self.epochs,
-                  "decoder_scale": self.decoder_scale}
+                  "decoder_scale": self.decoder_scale, "shear_decoder": self.shear_decoder, "flow_px": self.flow_px,
+                  "lr_schedule": self.lr_schedule}
         return {name: value for name, value in values.items() if value is not None}
 
 
