@@ -150,6 +150,13 @@ class PosenetStage:
         if bad:
             raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
 
+    def train_settings(self) -> dict:
+        """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of the stage's GDNNs (its
+        fields but those that say which GDNNs train on what: ``translator_draws``, ``random_contacts``,
+        ``baselines``)."""
+        return {name: value for name, value in asdict(self).items()
+                if name not in ("translator_draws", "random_contacts", "baselines")}
+
 
 @dataclass(frozen=True)
 class PoolGenerator:

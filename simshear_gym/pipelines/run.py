@@ -241,8 +241,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
     translations of them (``translator_steps``: the translator steps it draws from, each with its number of
     draws), trained on ``device``."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = {name: value for name, value in asdict(stage).items()
-                if name not in ("translator_draws", "random_contacts", "baselines")}
+    settings = stage.train_settings()
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
 
@@ -277,14 +276,18 @@ def posenet_sources(profile) -> tuple[str, ...]:
     return ("real", "shpix2pix", *profile.posenet.baselines)
 
 
+def posenet_weights(config: ExperimentConfig, profile, done: dict) -> dict[str, dict[str, str]]:
+    """{contact: {source: weights}} of the GDNNs the finished steps ``done`` trained."""
+    return {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
+                      for source in posenet_sources(profile)} for contact in contacts_of(config)}
+
+
 def evaluate_step(config: ExperimentConfig, profile, adapted: dict, paired: dict, variables: dict,
                   runner: StageRunner, done: dict) -> StageResult:
     """Translation and GDNN figures on every dataset's real validation rows (see the module docstring)."""
     translators = {contact: {arch: done[f"translator/{contact}_{arch}"].outputs["weights"]
                              for arch in profile.translator.archs} for contact in contacts_of(config)}
-    posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
-                                     for source in posenet_sources(profile)} for contact in contacts_of(config)},
-                "variables": variables}
+    posenets = {"models": posenet_weights(config, profile, done), "variables": variables}
     key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
            "eval_rows": profile.eval_rows}
 
@@ -340,6 +343,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
     """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`); the
     training steps train on ``device`` (None: the profile's)."""
     device = device or profile.device
+    posenet_cost = POSENET_EPOCH_COST * profile.posenet.epochs
     steps = []
     for contact, names in contacts_of(config).items():
         train_sets = [paired[name]["train"] for name in names]
@@ -350,7 +354,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                     cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact)))
             for generator in profile.pool_for(contact):
                 needs = (f"posenet/{contact}_real",) if generator.pose_weight > 0 else ()
-                epochs = generator.epochs or profile.translator.epochs_for(contact)
+                epochs = _translator_settings(profile.translator, contact, generator)["epochs"]
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
                     translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
                     device=device), needs=needs,
@@ -358,20 +362,20 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
         if "posenet" in stages:
             steps.append(Step(f"posenet/{contact}_real", partial(
                 posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                device=device), cost=POSENET_EPOCH_COST * profile.posenet.epochs))
+                device=device), cost=posenet_cost))
             drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
             steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
                 posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
                 device=device), needs=tuple(name for name, _ in drawn),
-                cost=POSENET_EPOCH_COST * profile.posenet.epochs))
+                cost=posenet_cost))
             for source in profile.posenet.baselines:
                 drawn = ((f"translator/{contact}_pix2pix", 1),) if source == "pix2pix" else ()
                 steps.append(Step(f"posenet/{contact}_{source}", partial(
                     posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
                     device=device), needs=tuple(name for name, _ in drawn),
-                    cost=POSENET_EPOCH_COST * profile.posenet.epochs))
+                    cost=posenet_cost))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
@@ -411,10 +415,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
                                  for name, result in done.items() if name.startswith(f"translator/{contact}_")}
                        for contact in contacts_of(config)}
         if "posenet" in stages:
-            posenets = {"models": {contact: {source: done[f"posenet/{contact}_{source}"].outputs["weights"]
-                                             for source in posenet_sources(profile_settings)}
-                                   for contact in contacts_of(config)},
-                        "variables": variables}
+            posenets = {"models": posenet_weights(config, profile_settings, done), "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
     if translators and posenets:
         write_json(out / SENSOR_FILE, {
