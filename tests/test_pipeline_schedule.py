@@ -4,13 +4,14 @@ after the ones it needs, in this process or in worker processes; a failing step 
 from __future__ import annotations
 
 import json
+import os
 from functools import partial
 from pathlib import Path
 
 import pytest
 
 from simshear_gym.pipelines.schedule import Step, order_steps, run_steps
-from simshear_gym.pipelines.stages import StageResult, StageRunner
+from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
 
 
 def _write(value: str, runner: StageRunner, done: dict) -> StageResult:
@@ -60,3 +61,13 @@ def test_a_failing_step_stops_the_run_and_says_which(tmp_path, jobs):
     with pytest.raises((RuntimeError, ValueError), match="bad settings in step c"):
         run_steps(graph(fail=True), tmp_path, jobs=jobs, log=lambda text: None)
     assert not (tmp_path / "step" / "d").exists()
+
+
+def test_a_data_sets_fingerprint_follows_its_contents_not_its_file_times(tmp_path):
+    labels = tmp_path / "targets.csv"
+    labels.write_text("sensor_image,pose_3\nimage_1.png,-1.5\n")
+    before = file_fingerprint([labels])
+    os.utime(labels, ns=(1, 1))  # a copied or re-provisioned data set: new times, same labels
+    assert file_fingerprint([labels]) == before
+    labels.write_text("sensor_image,pose_3\nimage_1.png,-2.5\n")
+    assert file_fingerprint([labels]) != before

@@ -40,12 +40,16 @@ def _plain(value: Any) -> Any:
 
 
 def file_fingerprint(paths: list[Path]) -> str:
-    """A hash of files' names, sizes and modification times (cheap: a data set's images are not read)."""
-    entries = []
+    """A hash of files' names and contents (label files, a few MB: a data set's images are not read). Not of
+    their modification times: a copied or re-provisioned data set keeps its cache."""
+    digest = hashlib.sha1()
     for path in sorted(paths):
-        stat = path.stat()
-        entries.append(f"{path.name}|{stat.st_size}|{stat.st_mtime_ns}")
-    return hashlib.sha1("\n".join(entries).encode()).hexdigest()[:12]
+        digest.update(f"{path.name}\n".encode())
+        with open(path, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+        digest.update(b"\n")
+    return digest.hexdigest()[:12]
 
 
 @dataclass
