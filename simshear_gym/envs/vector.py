@@ -12,8 +12,12 @@ other worker renders, so the cores stay busy without torch's multi-threading, wh
 processes share the cores (two threads were ~5x slower than one under load in ``simshear evaluate env-speed``).
 Per image, a one-thread translation at batch 8-16 costs about half of one at batch 1.
 
-Autoreset: ``AutoresetMode.NEXT_STEP`` (gymnasium's default): the step after a sub-env's episode ended resets it
-(its action is ignored; reward 0, not terminated or truncated) and returns the reset observation and info.
+Autoreset (``autoreset_mode``): ``AutoresetMode.NEXT_STEP`` (gymnasium's default): the step after a sub-env's
+episode ended resets it (its action is ignored; reward 0, not terminated or truncated) and returns the reset
+observation and info. ``AutoresetMode.SAME_STEP`` (what SB3's ``VecEnv`` API needs,
+:class:`simshear_gym.train.rl_vec.SB3VectorEnv`): the step that ends an episode resets the sub-env at once and
+returns the reset observation; the episode's last observation and info are in ``info["final_obs"][i]`` and
+``info["final_info"]`` (masked by ``info["_final_obs"]``), its last image translated in the same batch.
 Truncation: ``max_episode_steps`` (from the registration) per sub-env, like gymnasium's ``TimeLimit``.
 """
 
@@ -30,14 +34,44 @@ from gymnasium.vector.utils import batch_space
 from simshear_gym.contract import TRANSLATED_MODES, finish_tactile
 
 TRANSLATE_IN: tuple[str, ...] = ("workers", "main")
+AUTORESET_MODES: tuple[AutoresetMode, ...] = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
 
 
 def make_tracking_vector_env(num_envs: int = 1, max_episode_steps: int | None = 500, workers: int | None = None,
                              translate_in: str = "workers", start_method: str | None = None,
+                             autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                              **env_kwargs: Any) -> SimShearVectorEnv:
     """The ``vector_entry_point`` of ``SimShearTracking-v0`` (see :class:`SimShearVectorEnv`)."""
     return SimShearVectorEnv("simshear_gym.envs.tracking:SimShearTrackingEnv", num_envs, env_kwargs,
-                             max_episode_steps, workers, translate_in, start_method)
+                             max_episode_steps, workers, translate_in, start_method, autoreset_mode)
+
+
+def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
+    """An :class:`AutoresetMode` or its value ("NextStep", "SameStep"; case and "_" free)."""
+    if isinstance(value, AutoresetMode) and value in AUTORESET_MODES:
+        return value
+    names = {mode.value.lower(): mode for mode in AUTORESET_MODES}
+    names.update({"next_step": AutoresetMode.NEXT_STEP, "same_step": AutoresetMode.SAME_STEP})
+    mode = names.get(str(value).lower()) if isinstance(value, str) else None
+    if mode is None:
+        raise ValueError(f"autoreset_mode must be one of {[m.value for m in AUTORESET_MODES]}, got {value!r}")
+    return mode
+
+
+def _finish_images(observations: dict[str, np.ndarray], infos: list[dict], obs_mode: str, image_size_px: int,
+                   contact: str, translator_weights: str | None) -> dict[str, np.ndarray]:
+    """Finish (translate, resize) a batch's raw images and the raw last images of the episodes that ended in it
+    (``info["final_obs"]``, SAME_STEP autoreset) in one call; the shear of each image is its info's."""
+    ended = [index for index, info in enumerate(infos) if "final_obs" in info]
+    raw = np.concatenate([observations["tactile"][:, 0]]
+                         + [infos[index]["final_obs"]["tactile"] for index in ended])
+    shear = np.stack([info["shear_sensor_mm_deg"] for info in infos]
+                     + [infos[index]["final_info"]["shear_sensor_mm_deg"] for index in ended])
+    finished = finish_tactile(raw, shear, obs_mode, image_size_px, contact, translator_weights)[:, None]
+    count = len(infos)
+    for place, index in enumerate(ended):
+        infos[index]["final_obs"] = {**infos[index]["final_obs"], "tactile": finished[count + place]}
+    return {**observations, "tactile": finished[:count]}
 
 
 def _load(entry_point: str):
@@ -50,11 +84,12 @@ class _EnvGroup:
     (translates) the group's images in one batch."""
 
     def __init__(self, entry_point: str, env_kwargs: dict, count: int, max_episode_steps: int | None,
-                 finish: bool) -> None:
+                 finish: bool, autoreset_mode: AutoresetMode = AutoresetMode.NEXT_STEP) -> None:
         env_class = _load(entry_point)
         self.envs = [env_class(**env_kwargs, raw_tactile=True) for _ in range(count)]
         self.max_episode_steps = max_episode_steps
         self.finish = finish
+        self.same_step = autoreset_mode == AutoresetMode.SAME_STEP
         self.obs_mode = env_kwargs.get("obs_mode", "real")
         self.image_size_px = env_kwargs.get("image_size_px", 128)
         self._elapsed = [0] * count
@@ -63,10 +98,9 @@ class _EnvGroup:
     def _stack(self, observations: list[dict], infos: list[dict]) -> dict[str, np.ndarray]:
         batch = {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
         if self.finish:
-            shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
             env = self.envs[0]
-            batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
-                                              env.translator_contact, env.translator_weights)[:, None]
+            batch = _finish_images(batch, infos, self.obs_mode, self.image_size_px, env.translator_contact,
+                                   env.translator_weights)
         return batch
 
     def reset(self, seeds: list, options: dict | None):
@@ -93,6 +127,11 @@ class _EnvGroup:
                 truncations[index] = (self.max_episode_steps is not None
                                       and self._elapsed[index] >= self.max_episode_steps)
                 self._needs_reset[index] = bool(terminations[index] or truncations[index])
+                if self.same_step and self._needs_reset[index]:
+                    final_obs, final_info = obs, info
+                    obs, info = env.reset()
+                    self._elapsed[index], self._needs_reset[index] = 0, False
+                    info = {**info, "final_obs": final_obs, "final_info": final_info}
             observations.append(obs)
             infos.append(info)
         return self._stack(observations, infos), rewards, terminations, truncations, infos
@@ -103,12 +142,12 @@ class _EnvGroup:
 
 
 def _worker(connection, entry_point: str, env_kwargs: dict, count: int, max_episode_steps: int | None,
-            finish: bool) -> None:
+            finish: bool, autoreset_mode: AutoresetMode) -> None:
     if finish and env_kwargs.get("obs_mode", "real") in TRANSLATED_MODES:
         import torch
 
         torch.set_num_threads(1)  # this worker's share of the cores; the others run their own groups
-    group = _EnvGroup(entry_point, env_kwargs, count, max_episode_steps, finish)
+    group = _EnvGroup(entry_point, env_kwargs, count, max_episode_steps, finish, autoreset_mode)
     connection.send(("ready", None))
     try:
         while True:
@@ -140,14 +179,17 @@ class SimShearVectorEnv(VectorEnv):
         start_method: multiprocessing start method (default ``"fork"`` where available: starts in milliseconds
             and works from unguarded scripts; else ``"spawn"``, which needs the ``if __name__ == "__main__"``
             idiom). Forked workers set torch to one thread before they translate.
+        autoreset_mode: ``AutoresetMode.NEXT_STEP`` (default) or ``SAME_STEP`` (or their names: module docstring).
     """
 
     def __init__(self, entry_point: str, num_envs: int, env_kwargs: dict, max_episode_steps: int | None = None,
-                 workers: int | None = None, translate_in: str = "workers", start_method: str | None = None) -> None:
+                 workers: int | None = None, translate_in: str = "workers", start_method: str | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP) -> None:
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
         if translate_in not in TRANSLATE_IN:
             raise ValueError(f"translate_in must be one of {TRANSLATE_IN}, got {translate_in!r}")
+        autoreset_mode = _autoreset_mode(autoreset_mode)
         if env_kwargs.get("render_mode") is not None:
             raise ValueError("SimShearVectorEnv does not render; use vectorization_mode='sync' to render sub-envs")
         if "raw_tactile" in env_kwargs:
@@ -173,7 +215,7 @@ class SimShearVectorEnv(VectorEnv):
         single.close()
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
-        self.metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+        self.metadata = {"autoreset_mode": autoreset_mode, "render_modes": []}
         self.render_mode = None
 
         finish_in_groups = translate_in == "workers" or workers == 0
@@ -183,7 +225,7 @@ class SimShearVectorEnv(VectorEnv):
         self._group: _EnvGroup | None = None
         self._processes, self._connections = [], []
         if workers == 0:
-            self._group = _EnvGroup(entry_point, env_kwargs, num_envs, max_episode_steps, finish=True)
+            self._group = _EnvGroup(entry_point, env_kwargs, num_envs, max_episode_steps, True, autoreset_mode)
         else:
             if start_method is None:
                 methods = multiprocessing.get_all_start_methods()
@@ -193,7 +235,7 @@ class SimShearVectorEnv(VectorEnv):
                 parent, child = context.Pipe()
                 process = context.Process(target=_worker, daemon=True,
                                           args=(child, entry_point, env_kwargs, count, max_episode_steps,
-                                                finish_in_groups))
+                                                finish_in_groups, autoreset_mode))
                 process.start()
                 child.close()
                 self._processes.append(process)
@@ -225,9 +267,8 @@ class SimShearVectorEnv(VectorEnv):
 
     def _finish(self, batch: dict[str, np.ndarray], infos: list[dict]) -> dict[str, np.ndarray]:
         if self._finish_in_main:
-            shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
-            batch["tactile"] = finish_tactile(batch["tactile"][:, 0], shear, self.obs_mode, self.image_size_px,
-                                              self._contact, self._translator_weights)[:, None]
+            batch = _finish_images(batch, infos, self.obs_mode, self.image_size_px, self._contact,
+                                   self._translator_weights)
         return batch
 
     def _vector_infos(self, infos: list[dict]) -> dict:

@@ -11,8 +11,10 @@ sub-env i carries object i mod 4) in what a robot can give a policy:
   image, its reading and filter state normalised (16 numbers a frame): an MLP;
 - ``--observation tactile+estimate``: both; ``--history k`` stacks the last k frames and estimates.
 
-Set-up: ``--n-envs`` sub-envs, stepped in worker processes (``--vec subproc``, one torch thread each) or in this
-one (``--vec dummy``); ``VecNormalize`` (observations but the image; rewards for PPO) unless
+Set-up: ``--n-envs`` sub-envs, stepped in worker processes (``--vec subproc``, one torch thread each), in this
+one (``--vec dummy``), or in SimShearTracking-v0's batched vector env (``--vec batched``, image-only tracking
+policies: one worker per core translates its sub-envs' images in one batch, :mod:`simshear_gym.train.rl_vec`);
+``VecNormalize`` (observations but the image; rewards for PPO) unless
 ``--no-normalize``. Options: ``--residual-bound B``: residual RL, the policy's action a correction of at most B
 full-scale actions added to the servo law on the filter's estimate
 (:class:`~simshear_gym.control.policy.ResidualServo`; needs an estimate observation); ``--asymmetric-critic``
@@ -81,7 +83,9 @@ FLAG_HELP = {
     "randomise": "domain randomisation per reset: trajectory scale, speed, turn and start place (--no-randomise: "
                  "nominal episodes of random trajectories)",
     "n_envs": "sub-envs stepped side by side",
-    "vec": "subproc: sub-envs in worker processes (one torch thread each; use the cores), dummy: in this process",
+    "vec": "subproc: sub-envs in worker processes (one torch thread each; use the cores), dummy: in this process, "
+           "batched: SimShearTracking-v0's batched vector env (sub-envs in one worker per core, each worker "
+           "translating its sub-envs' images in one batch; --task tracking --observation tactile only)",
     "n_steps": "PPO: env steps per sub-env between updates",
     "batch_size": "minibatch size of the updates",
     "n_epochs": "PPO: passes over each rollout",

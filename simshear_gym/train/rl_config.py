@@ -14,7 +14,7 @@ ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional depend
 TASKS = ("tracking", "colift")
 ENV_IDS = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}
 OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
-VEC_ENVS = ("dummy", "subproc")
+VEC_ENVS = ("dummy", "subproc", "batched")
 # settings a resumed run may change (they change neither the agent nor its envs)
 RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps",
                "device")
@@ -84,6 +84,10 @@ class RLTrainConfig:
         if self.asymmetric_critic and self.algo != "ppo":
             raise ValueError(f"--asymmetric-critic is PPO's (an actor-critic policy with two extractors), got "
                              f"--algo {self.algo}")
+        if self.vec == "batched" and (self.task != "tracking" or self.observation != "tactile" or self.history != 1):
+            raise ValueError("--vec batched steps SimShearTracking-v0's batched vector env, whose sub-envs give the "
+                             "image alone: it needs --task tracking --observation tactile --history 1, got "
+                             f"--task {self.task} --observation {self.observation} --history {self.history}")
         if self.residual_bound > 0 and self.observation not in ESTIMATE_OBSERVATIONS:
             raise ValueError("a residual policy corrects the servo law on the filter's estimate: --residual-bound "
                              f"needs --observation estimate or tactile+estimate, got {self.observation!r}")

@@ -241,8 +241,18 @@ def plot_learning_curve(evaluations: list[dict], path: Path, title: str) -> None
 
 def _vec_env(config: RLTrainConfig):
     from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
 
+    if config.vec == "batched":
+        from gymnasium.vector import AutoresetMode
+
+        from simshear_gym.train.rl_vec import SB3VectorEnv
+
+        vector_env = gym.make_vec(config.env_id, num_envs=config.n_envs, autoreset_mode=AutoresetMode.SAME_STEP,
+                                  **env_settings(config, 0))
+        venv = VecMonitor(SB3VectorEnv(vector_env))
+        venv.seed(config.seed)
+        return venv
     subproc = config.vec == "subproc"
     makers = [partial(_monitored, config, rank, subproc, Monitor) for rank in range(config.n_envs)]
     venv = SubprocVecEnv(makers) if subproc else DummyVecEnv(makers)
