@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 from gymnasium import spaces
 
+from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.models.translator_runtime import RUNTIMES as TRANSLATOR_RUNTIMES
 from simshear_gym.tables import read_toml
 from simshear_gym.transforms import pose_to_matrix
@@ -248,17 +249,41 @@ def choose_translator_runtime(runtime: str | None = None) -> str:
     return chosen
 
 
+TRANSLATOR_DEVICE_ENV = "SIMSHEAR_TRANSLATOR_DEVICE"
+
+
+def choose_translator_device(device: str | None = None) -> str:
+    """The torch device the translator runs on: ``device`` if given, else ``$SIMSHEAR_TRANSLATOR_DEVICE``, else
+    ``"cpu"`` (the envs' default: one env at batch 1 is fastest on the CPU's ONNX path, and forked vector-env
+    workers cannot share a GPU); ``"auto"`` is CUDA where torch finds it; ``"cuda"`` without one is an error
+    (:func:`simshear_gym.models.device.resolve_device`). Returns ``"cpu"`` or the CUDA device's name."""
+    chosen = device if device is not None else os.environ.get(TRANSLATOR_DEVICE_ENV) or "cpu"
+    try:
+        check_device_name(chosen)
+    except ValueError:
+        source = "device" if device is not None else f"${TRANSLATOR_DEVICE_ENV}"
+        raise ValueError(f"{source} must be one of {DEVICES} (where the translator runs), got {chosen!r}") from None
+    if chosen == "cpu":
+        return "cpu"
+    from simshear_gym.models.device import resolve_device
+
+    return str(resolve_device(chosen))
+
+
 @functools.cache
-def _cached_translator(weights: str, runtime: str):
+def _cached_translator(weights: str, runtime: str, device: str = "cpu"):
     from simshear_gym.models.translator_runtime import load_translator
 
-    return load_translator(weights, runtime)
+    return load_translator(weights, runtime, device=device)
 
 
-def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | None = None):
-    """The shipped translator for a contact type on ``runtime`` (:func:`choose_translator_runtime`), loaded once per
-    process (torch and onnxruntime are imported here, so that importing the envs stays cheap)."""
-    return _cached_translator(_shipped_weights(contact, arch), choose_translator_runtime(runtime))
+def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | None = None,
+                       device: str | None = None):
+    """The shipped translator for a contact type on ``runtime`` (:func:`choose_translator_runtime`) and ``device``
+    (:func:`choose_translator_device`), loaded once per process (torch and onnxruntime are imported here, so that
+    importing the envs stays cheap)."""
+    return _cached_translator(_shipped_weights(contact, arch), choose_translator_runtime(runtime),
+                              choose_translator_device(device))
 
 
 @functools.cache
@@ -271,24 +296,27 @@ def _shipped_weights(contact: str, arch: str) -> str:
     return str(models[(arch, contact)])
 
 
-def translator_from(weights: str, runtime: str | None = None):
+def translator_from(weights: str, runtime: str | None = None, device: str | None = None):
     """A translator from a weights file (a sensor's own, from ``simshear pipeline run``) on ``runtime``
-    (:func:`choose_translator_runtime`), loaded once per process."""
-    return _cached_translator(str(weights), choose_translator_runtime(runtime))
+    (:func:`choose_translator_runtime`) and ``device`` (:func:`choose_translator_device`), loaded once per
+    process."""
+    return _cached_translator(str(weights), choose_translator_runtime(runtime), choose_translator_device(device))
 
 
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
                    contact: str, translator_weights: str | None = None,
-                   translator_runtime: str | None = None) -> np.ndarray:
+                   translator_runtime: str | None = None, translator_device: str | None = None) -> np.ndarray:
     """Raw sim images (B, R, R) -> observation images (B, S, S): translated in the translated modes (one
     batched call, the shear as the tracker gives it; by ``translator_weights`` if given, else the shipped
-    translator of ``contact``; on ``translator_runtime``, see :func:`choose_translator_runtime`), then resized by
+    translator of ``contact``; on ``translator_runtime`` and ``translator_device``, see
+    :func:`choose_translator_runtime` and :func:`choose_translator_device`), then resized by
     :func:`resize_tactile`."""
     images = np.asarray(sim_uint8)
     if obs_mode in TRANSLATED_MODES:
         shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6)
-        translator = (translator_from(translator_weights, translator_runtime) if translator_weights
-                      else shipped_translator(contact, runtime=translator_runtime))
+        translator = (translator_from(translator_weights, translator_runtime, translator_device)
+                      if translator_weights else
+                      shipped_translator(contact, runtime=translator_runtime, device=translator_device))
         images = translator(resize_tactile(images, translator.image_size_px), shear)
     return resize_tactile(images, image_size_px)
 

@@ -36,9 +36,10 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
 
 
 def recorded_path(path: str | os.PathLike) -> str:
-    """``path`` as a results file records it: relative to the working directory (the repository root) where it
-    lies under it, as given otherwise, so that no absolute path of this machine lands in ``results/``."""
+    """``path`` as a results file or a card records it: relative to the working directory (the repository root)
+    where it lies under it; else as given when relative, else its file name alone, so that no absolute path of
+    this machine lands in ``results/`` or a card."""
     try:
         return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
-        return str(path)
+        return Path(path).name if Path(path).is_absolute() else str(path)

@@ -238,3 +238,43 @@ def test_translator_speed_on_cuda_without_cuda_is_one_clear_error(no_cuda, tmp_p
 
     assert cli.main(["evaluate", "translator-speed", "--device", "cuda", "--out", str(tmp_path)]) == 2
     assert "device 'cuda'" in capsys.readouterr().err
+
+
+def test_the_envs_translator_runs_on_the_cpu_by_default_and_on_cuda_only_where_there_is_one(no_cuda, monkeypatch):
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+    from simshear_gym.contract import TRANSLATOR_DEVICE_ENV, choose_translator_device
+
+    monkeypatch.delenv(TRANSLATOR_DEVICE_ENV, raising=False)
+    assert choose_translator_device() == "cpu" and choose_translator_device("auto") == "cpu"
+    with pytest.raises(ValueError, match=r"device 'cuda'.*finds no CUDA device"):
+        choose_translator_device("cuda")
+    with pytest.raises(ValueError, match=r"^device must be one of .*where the translator runs.*got 'tpu'"):
+        choose_translator_device("tpu")
+    monkeypatch.setenv(TRANSLATOR_DEVICE_ENV, "gpu")
+    with pytest.raises(ValueError, match=r"SIMSHEAR_TRANSLATOR_DEVICE must be one of .*got 'gpu'"):
+        choose_translator_device()
+    monkeypatch.delenv(TRANSLATOR_DEVICE_ENV)
+    with pytest.raises(ValueError, match="finds no CUDA device"):
+        gym.make("SimShearTracking-v0", device="cuda")
+    assert gym.make("SimShearTracking-v0", obs_mode="sim", device="cuda").unwrapped.translator_device == "cpu"
+
+
+def test_a_gpu_translator_is_torchs_and_vector_workers_leave_the_gpu_to_the_main_process(monkeypatch):
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+    from simshear_gym.envs import base
+    from simshear_gym.models.translator import shipped_models
+    from simshear_gym.models.translator_runtime import load_translator
+
+    weights = shipped_models()[("shpix2pix", "surface")]
+    with pytest.raises(ValueError, match="ONNX Runtime runs here on the CPU only"):
+        load_translator(weights, "onnx", device="cuda:0")
+    with pytest.raises(ValueError, match="ONNX Runtime runs here on the CPU only"):
+        load_translator(weights.with_suffix(".onnx"), "auto", device="cuda:0")
+    # as on a machine with a GPU: the env would translate on cuda:0
+    monkeypatch.setattr(base, "choose_translator_device", lambda device=None: "cuda:0" if device else "cpu")
+    with pytest.raises(ValueError, match="worker processes cannot share the GPU.*translate_in='main'"):
+        gym.make_vec("SimShearTracking-v0", num_envs=2, workers=2, device="cuda")

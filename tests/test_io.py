@@ -14,8 +14,9 @@ def test_a_path_under_the_working_directory_is_recorded_relative_to_it(tmp_path,
     assert recorded_path("runs/x/best.pt") == str(Path("runs/x/best.pt"))  # relative stays relative
 
 
-def test_a_path_outside_the_working_directory_is_recorded_as_given(tmp_path, monkeypatch):
+def test_a_path_outside_the_working_directory_is_recorded_without_this_machines_folders(tmp_path, monkeypatch):
     inside = tmp_path / "repo"
     inside.mkdir()
     monkeypatch.chdir(inside)
-    assert recorded_path(tmp_path / "elsewhere.pt") == str(tmp_path / "elsewhere.pt")
+    assert recorded_path(tmp_path / "elsewhere.pt") == "elsewhere.pt"  # absolute: its name alone
+    assert recorded_path("../elsewhere.pt") == str(Path("../elsewhere.pt"))  # relative: as given

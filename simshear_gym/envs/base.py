@@ -48,6 +48,7 @@ from simshear_gym.contract import (
     OBS_MODES,
     ORACLE_MODES,
     RENDER_SIZE_PX,
+    TRANSLATED_MODES,
     TRUE_POSE_SHEAR_LIMIT,
     ActionScale,
     TacTipMount,
@@ -55,6 +56,7 @@ from simshear_gym.contract import (
     action_to_move,
     check_image_size,
     check_observation,
+    choose_translator_device,
     finish_tactile,
     load_sensor,
     observation_space,
@@ -177,6 +179,8 @@ class SimShearEnv(gym.Env, EzPickle):
             it from this env (``simshear_gym.control.env_estimator.env_estimator``: the GDNN the env names in
             ``estimator_posenet`` and its process noise, as ``ServoController.for_env``). Envs do not import the
             controllers (same floor), so it is passed in; it is called once, at construction.
+        device: where the translator runs (``"cpu"``, ``"cuda"``, ``"auto"``; default ``$SIMSHEAR_TRANSLATOR_DEVICE``
+            or ``"cpu"``: :func:`~simshear_gym.contract.choose_translator_device`); the physics runs on the CPU.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -190,7 +194,7 @@ class SimShearEnv(gym.Env, EzPickle):
                  arm_config: MG400ArmConfig = MG400ArmConfig(),
                  shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False,
                  sensor: str | None = None, observation: str = "tactile", history: int = 1,
-                 estimator: Estimator | Callable[[Any], Estimator] | None = None) -> None:
+                 estimator: Estimator | Callable[[Any], Estimator] | None = None, device: str | None = None) -> None:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
         check_observation(observation, history)
@@ -219,6 +223,7 @@ class SimShearEnv(gym.Env, EzPickle):
         self.mount = mount
         self.arm_config = arm_config
         self.raw_tactile = raw_tactile
+        self.translator_device = choose_translator_device(device) if obs_mode in TRANSLATED_MODES else "cpu"
         self.metadata = {**self.metadata, "render_fps": self.control_rate_hz}
 
         self.world = World()
@@ -425,7 +430,8 @@ class SimShearEnv(gym.Env, EzPickle):
             image = sim
         else:
             image = finish_tactile(sim[None], state.shear_sensor[None], self.obs_mode, self.image_size_px,
-                                   self.translator_contact, self.translator_weights)[0]
+                                   self.translator_contact, self.translator_weights,
+                                   translator_device=self.translator_device)[0]
         self._last_tactile = image
         tcp = self.follower.tool_pose_mm_deg()
         if move is None:

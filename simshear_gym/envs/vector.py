@@ -7,6 +7,9 @@ the translator then runs once per group and step on the whole group's images (``
 default), or once per step on all N images in the main process (``translate_in="main"``). With ``workers=0``
 everything runs in this process (one group, one batched translation per step).
 
+On a GPU (``device="cuda"``: where the translator runs, :func:`~simshear_gym.contract.choose_translator_device`)
+the workers only render and this process translates all N images in one batch: ``translate_in="main"``.
+
 Why translating in the workers is the default: each worker translates its group with one torch thread while the
 other worker renders, so the cores stay busy without torch's multi-threading, which collapses when other
 processes share the cores (two threads were ~5x slower than one under load in ``simshear evaluate env-speed``).
@@ -59,7 +62,7 @@ def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
 
 
 def _finish_images(observations: dict[str, np.ndarray], infos: list[dict], obs_mode: str, image_size_px: int,
-                   contact: str, translator_weights: str | None) -> dict[str, np.ndarray]:
+                   contact: str, translator_weights: str | None, device: str = "cpu") -> dict[str, np.ndarray]:
     """Finish (translate, resize) a batch's raw images and the raw last images of the episodes that ended in it
     (``info["final_obs"]``, SAME_STEP autoreset) in one call; the shear of each image is its info's."""
     ended = [index for index, info in enumerate(infos) if "final_obs" in info]
@@ -67,7 +70,8 @@ def _finish_images(observations: dict[str, np.ndarray], infos: list[dict], obs_m
                          + [infos[index]["final_obs"]["tactile"] for index in ended])
     shear = np.stack([info["shear_sensor_mm_deg"] for info in infos]
                      + [infos[index]["final_info"]["shear_sensor_mm_deg"] for index in ended])
-    finished = finish_tactile(raw, shear, obs_mode, image_size_px, contact, translator_weights)[:, None]
+    finished = finish_tactile(raw, shear, obs_mode, image_size_px, contact, translator_weights,
+                              translator_device=device)[:, None]
     count = len(infos)
     for place, index in enumerate(ended):
         infos[index]["final_obs"] = {**infos[index]["final_obs"], "tactile": finished[count + place]}
@@ -100,7 +104,7 @@ class _EnvGroup:
         if self.finish:
             env = self.envs[0]
             batch = _finish_images(batch, infos, self.obs_mode, self.image_size_px, env.translator_contact,
-                                   env.translator_weights)
+                                   env.translator_weights, env.translator_device)
         return batch
 
     def reset(self, seeds: list, options: dict | None):
@@ -212,6 +216,7 @@ class SimShearVectorEnv(VectorEnv):
         self.obs_mode, self.image_size_px = single.obs_mode, single.image_size_px
         self._contact = single.translator_contact
         self._translator_weights = single.translator_weights
+        self._translator_device = single.translator_device
         single.close()
         self.observation_space = batch_space(self.single_observation_space, num_envs)
         self.action_space = batch_space(self.single_action_space, num_envs)
@@ -219,7 +224,12 @@ class SimShearVectorEnv(VectorEnv):
         self.render_mode = None
 
         finish_in_groups = translate_in == "workers" or workers == 0
+        if self._translator_device != "cpu" and workers > 0 and translate_in == "workers":
+            raise ValueError(f"device {self._translator_device!r}: worker processes cannot share the GPU; translate "
+                             "all sub-envs' images there in this process with translate_in='main'")
         self._finish_in_main = not finish_in_groups
+        if self._finish_in_main:
+            env_kwargs = {**env_kwargs, "device": "cpu"}  # the workers only render; this process translates
         counts = [len(part) for part in np.array_split(np.arange(num_envs), max(workers, 1))]
         self._slices = np.cumsum([0] + counts)
         self._group: _EnvGroup | None = None
@@ -268,7 +278,7 @@ class SimShearVectorEnv(VectorEnv):
     def _finish(self, batch: dict[str, np.ndarray], infos: list[dict]) -> dict[str, np.ndarray]:
         if self._finish_in_main:
             batch = _finish_images(batch, infos, self.obs_mode, self.image_size_px, self._contact,
-                                   self._translator_weights)
+                                   self._translator_weights, self._translator_device)
         return batch
 
     def _vector_infos(self, infos: list[dict]) -> dict:

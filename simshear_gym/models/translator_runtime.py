@@ -85,16 +85,30 @@ def _current_onnx(weights: Path, threads: int) -> OnnxTranslator | Exception:
     return translator
 
 
-def load_translator(weights: str | os.PathLike, runtime: str = "auto", threads: int = DEFAULT_THREADS):
+def load_translator(weights: str | os.PathLike, runtime: str = "auto", threads: int = DEFAULT_THREADS,
+                    device: str = "cpu"):
     """A translator from a weights file: a torch :class:`~simshear_gym.models.translator.Translator`, or an
     :class:`OnnxTranslator` of the ``.onnx`` beside the ``.pt`` (or of ``weights`` itself if it is a ``.onnx``,
     which only ONNX Runtime runs). ``"auto"`` picks ONNX where it can; ``"onnx"`` raises where it cannot
     (ImportError: onnxruntime missing; FileNotFoundError: no ``.onnx``; ValueError: an ``.onnx`` not exported from
-    the ``.pt`` as it is now). ``threads``: ONNX Runtime's intra-op threads (torch keeps its own setting)."""
+    the ``.pt`` as it is now). ``threads``: ONNX Runtime's intra-op threads (torch keeps its own setting).
+    ``device``: a torch device name (``"cpu"``, ``"cuda"``, ``"cuda:1"``); on a GPU the torch translator runs
+    there ("auto" then means torch: the ONNX path here is the CPU's)."""
     check_runtime(runtime)
     weights = Path(weights)
     if not weights.is_file():
         raise FileNotFoundError(f"translator weights {weights} not found")
+    if not str(device).startswith("cpu"):
+        if runtime == "onnx" or weights.suffix == ONNX_SUFFIX:
+            raise ValueError(f"translator on device {device!r}: ONNX Runtime runs here on the CPU only; give torch "
+                             f"weights (.pt) with runtime 'torch' or 'auto', got {weights} with runtime {runtime!r}")
+        import torch
+
+        from simshear_gym.models.device import OnDevice
+        from simshear_gym.models.translator import Translator, load_generator
+
+        generator, card = load_generator(weights)
+        return Translator(OnDevice(generator, torch.device(device)), card, fast=False)
     if weights.suffix == ONNX_SUFFIX:
         if runtime == "torch":
             raise ValueError(f"{weights} is an ONNX file: translator runtime 'torch' needs torch weights (.pt)")

@@ -19,7 +19,7 @@ import json
 import shutil
 from pathlib import Path
 
-from simshear_gym.io import atomic_write, write_json
+from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.pipelines.ship import WEIGHTS_DIR
 
 POLICY_WEIGHTS_DIR = WEIGHTS_DIR / "policies"
@@ -125,7 +125,7 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
         + (f"; ran {summary['timesteps']} steps in {summary['seconds'] / 60:.1f} min on a 2-core CPU (stopped by "
            f"{summary['stopped_by']})" if summary else "") + ".",
         f"- Exact command: `{provenance['train_command']}`, then `simshear train export-policy --run RUN --to "
-        f"{_relative(to)} --model {model}" + (f" --results {_relative(results)}" if results else "") + "`.",
+        f"{recorded_path(to)} --model {model}" + (f" --results {recorded_path(results)}" if results else "") + "`.",
         "- Made its observations with (sha256 at export): "
         + ", ".join(f"{name} `{digest[:12]}`" for name, digest in provenance["estimator_models_sha256"].items())
         + ". A new translator or GDNN changes what it sees: train it again.",
@@ -147,15 +147,6 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
                          f"{row['contact_error_max_mm']:.2f} | {row['seeds']} | {row['runs_ended_early']} | "
                          f"{row['runs_with_contact_loss']} | {row['drops']} |")
     return "\n".join(lines) + "\n"
-
-
-def _relative(path: Path) -> str:
-    """A path relative to the working directory where it lies below it (cards hold no absolute paths)."""
-    path = Path(path)
-    try:
-        return str(path.resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return path.name
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
