@@ -183,3 +183,49 @@ def test_asymmetric_critic_sees_the_true_state_and_the_actor_does_not(tmp_path):
         env.close()
     with pytest.raises(ValueError, match="asymmetric-critic is PPO's"):
         tiny(algo="sac", asymmetric_critic=True)
+
+
+def test_discounted_returns_restart_at_each_episode_and_run_per_env():
+    from simshear_gym.train.rl_imitation import discounted_returns
+
+    rewards = np.array([1.0, 1.0, 1.0, 2.0, 2.0])
+    stream = np.array([0, 1, 0, 1, 0])  # env 0: steps 0, 2, 4 (a new episode at 4); env 1: steps 1, 3
+    starts = np.array([True, True, False, False, True])
+    future, running = discounted_returns(rewards, stream, starts, gamma=0.5)
+    np.testing.assert_allclose(future, [1.5, 2.0, 1.0, 2.0, 2.0])
+    np.testing.assert_allclose(running, [1.0, 1.0, 1.5, 2.5, 2.0])
+
+
+def test_the_teacher_is_the_servo_law_on_the_observations_estimate():
+    from simshear_gym.control.policy import ResidualServo, ResidualSettings
+    from simshear_gym.control.servo import SERVO_GAINS
+    from simshear_gym.train.rl_imitation import ServoTeacher
+    from simshear_gym.train.rl_trainer import make_env
+
+    env = make_env(tiny())
+    teacher = ServoTeacher(env)
+    base = env.unwrapped
+    law = ResidualServo(ResidualSettings(bound=0.5, kp=SERVO_GAINS.kp, ki=SERVO_GAINS.ki), base.reference_depth_mm,
+                        base.action_scale)
+    observation, _ = env.reset(seed=3)
+    for _ in range(4):
+        action = teacher(observation)
+        np.testing.assert_allclose(action, law(observation, np.zeros(4)), atol=1e-6)
+        observation, *_ = env.step(action)
+    env.close()
+
+
+def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
+    summary = train(tiny(bc_steps=48, bc_epochs=60, bc_noise=0.2, eval_steps=0), tmp_path / "bc", progress=False)
+    imitation = summary["imitation"]
+    assert imitation["steps"] == 48 and imitation["noise"] == 0.2
+    assert imitation["after"]["actor_mse"] < 0.25 * imitation["before"]["actor_mse"]
+    assert imitation["after"]["critic_mse"] < imitation["before"]["critic_mse"]
+    assert json.loads((tmp_path / "bc" / "imitation.json").read_text()) == imitation
+    assert summary["timesteps"] >= 32 and (tmp_path / "bc" / "model.zip").is_file()
+    with pytest.raises(ValueError, match="--bc-steps clones the servo law .* needs --algo ppo"):
+        tiny(bc_steps=10, algo="sac")
+    with pytest.raises(ValueError, match="--bc-steps .* --observation estimate"):
+        tiny(bc_steps=10, observation="tactile", history=1)
+    with pytest.raises(ValueError, match="bc_noise in"):
+        tiny(bc_noise=0.0)

@@ -20,7 +20,9 @@ full-scale actions added to the servo law on the filter's estimate
 (:class:`~simshear_gym.control.policy.ResidualServo`; needs an estimate observation); ``--asymmetric-critic``
 (PPO): the critic also sees the true contact state (the env's ``true_pose_shear``,
 :mod:`simshear_gym.control.asymmetric`), the actor only the observation above; the deployed policy needs no true
-state (the controller fills those inputs with zeros, which the actor never reads).
+state (the controller fills those inputs with zeros, which the actor never reads); ``--bc-steps N`` (PPO, estimate
+observations): the policy starts as a clone of the servo controller's law, fitted on N steps of it acting, the
+critic on their returns (:mod:`simshear_gym.train.rl_imitation`; ``imitation.json`` in the run folder).
 
 Training stops at ``--timesteps`` env steps or after ``--minutes`` of wall-clock time in this invocation, whichever
 comes first. Every ``--eval-steps`` env steps (and at the end) the deterministic policy runs the nominal episodes
@@ -99,6 +101,11 @@ FLAG_HELP = {
                       "(needs an estimate observation; 0: the policy acts alone)",
     "asymmetric_critic": "PPO: the critic also sees the true contact state (depth, shear), the actor only the "
                          "observation (asymmetric actor-critic; the deployed policy needs no true state)",
+    "bc_steps": "PPO: first clone the servo controller's law (on the filter estimate) into the policy from this many "
+                "env steps of it acting (0: start from a random policy; simshear_gym.train.rl_imitation)",
+    "bc_epochs": "passes of the clone's fit over those steps",
+    "bc_noise": "std (full-scale actions) of the noise added to the law's actions while cloning, and the cloned "
+                "policy's action std",
     "eval_steps": "evaluate the deterministic policy on the nominal episodes every this many env steps (0: never)",
     "eval_max_steps": "cap on each evaluation episode's steps",
     "checkpoint_steps": "write checkpoints/rl_model_<steps>_steps.zip (+ its VecNormalize statistics) every this "

@@ -45,6 +45,9 @@ class RLTrainConfig:
     normalize: bool = True
     residual_bound: float = 0.0
     asymmetric_critic: bool = False
+    bc_steps: int = 0
+    bc_epochs: int = 30
+    bc_noise: float = 0.1
     eval_steps: int = 0
     eval_max_steps: int = 500
     checkpoint_steps: int = 2_000
@@ -88,6 +91,15 @@ class RLTrainConfig:
             raise ValueError("--vec batched steps SimShearTracking-v0's batched vector env, whose sub-envs give the "
                              "image alone: it needs --task tracking --observation tactile --history 1, got "
                              f"--task {self.task} --observation {self.observation} --history {self.history}")
+        if self.bc_steps < 0 or self.bc_epochs < 1 or not 0.0 < self.bc_noise <= 1.0:
+            raise ValueError(f"need bc_steps >= 0, bc_epochs >= 1 and bc_noise in (0, 1], got {self.bc_steps}, "
+                             f"{self.bc_epochs}, {self.bc_noise}")
+        if self.bc_steps and (self.algo != "ppo" or self.observation not in ESTIMATE_OBSERVATIONS
+                              or self.residual_bound > 0):
+            raise ValueError("--bc-steps clones the servo law from the filter estimate into PPO's actor: it needs "
+                             "--algo ppo, --observation estimate or tactile+estimate and no --residual-bound, got "
+                             f"--algo {self.algo} --observation {self.observation} --residual-bound "
+                             f"{self.residual_bound}")
         if self.residual_bound > 0 and self.observation not in ESTIMATE_OBSERVATIONS:
             raise ValueError("a residual policy corrects the servo law on the filter's estimate: --residual-bound "
                              f"needs --observation estimate or tactile+estimate, got {self.observation!r}")

@@ -239,6 +239,21 @@ def plot_learning_curve(evaluations: list[dict], path: Path, title: str) -> None
     plt.close(figure)
 
 
+def clone_servo_law(config: RLTrainConfig, model, vec_normalize) -> dict:
+    """``--bc-steps``: the servo law's rollouts in the training envs' settings, cloned into ``model``'s policy
+    (:mod:`simshear_gym.train.rl_imitation`); returns the fit's record."""
+    from simshear_gym.train.rl_imitation import collect, imitate
+
+    envs = [make_env(config, rank) for rank in range(config.n_envs)]
+    try:
+        rollouts = collect(envs, config.bc_steps, config.bc_noise, config.seed)
+    finally:
+        for env in envs:
+            env.close()
+    return imitate(model, vec_normalize, rollouts, config.bc_epochs, config.bc_noise,
+                   batch_size=max(config.batch_size, 64), seed=config.seed, gamma=config.gamma)
+
+
 def _vec_env(config: RLTrainConfig):
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
@@ -316,6 +331,10 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
                     gamma=config.gamma, buffer_size=min(100_000, config.timesteps),
                     learning_starts=min(1_000, config.timesteps // 4), policy_kwargs=policy_kwargs,
                     seed=config.seed, tensorboard_log=tensorboard, verbose=int(progress), device=device)
+    imitation = None
+    if start_from is None and config.bc_steps:
+        imitation = clone_servo_law(config, model, vec_normalize)
+        write_json(run_dir / "imitation.json", imitation)
     remaining = config.timesteps - model.num_timesteps
     started = time.perf_counter()
     budget = WallClockBudget(config.minutes)
@@ -337,6 +356,6 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
                "timesteps": int(model.num_timesteps), "resumed_from": str(start_from) if start_from else None,
                "stopped_by": "minutes" if budget.stopped else "timesteps",
                "seconds": round(time.perf_counter() - started, 1), "model": str(run_dir / "model.zip"),
-               "last_evaluation": evaluation.history[-1] if evaluation.history else None}
+               "last_evaluation": evaluation.history[-1] if evaluation.history else None, "imitation": imitation}
     write_json(run_dir / "summary.json", summary)
     return summary

@@ -1,0 +1,165 @@
+"""The servo law as the policy's starting point (``simshear train rl --bc-steps N``): behaviour cloning before RL.
+
+A policy trained from scratch on co-lift learns to hold the object but not to follow it (docs/experiments.md,
+rl_colift_ppo); the servo controller does both. Here PPO's actor starts as a clone of the servo controller:
+
+1. **Teacher**: the servo controller's PI law (:data:`~simshear_gym.control.servo.SERVO_GAINS`, holding the first
+   estimate's shear where the env carries a load, as :class:`~simshear_gym.control.servo.ServoController`) on the
+   filter mean that the estimate observation itself carries (:func:`~simshear_gym.contract.filter_mean_from_estimate`):
+   the teacher needs nothing the robot lacks.
+2. **Rollouts**: ``bc_steps`` env steps in the training envs' settings (envs made in this process, one per
+   sub-env, seeds apart from training's). The env executes the teacher's action plus Gaussian noise of std
+   ``bc_noise`` (full-scale actions), the label is the clean teacher action, so the clone sees the states a
+   slightly wrong policy reaches and how the teacher leaves them.
+3. **Normalisation**: the run's ``VecNormalize`` statistics (observations, and PPO's discounted-return scale) are
+   updated with the rollouts, so that PPO starts from the same normalised inputs the clone was fitted on.
+4. **Fit**: the actor's mean by mean squared error against the teacher's actions, the critic by mean squared error
+   against the rollouts' normalised discounted returns (an untrained critic's advantages would pull the clone away
+   in PPO's first updates), ``bc_epochs`` passes, Adam; then the policy's log std is set to ``log(bc_noise)``.
+
+The fit's losses before and after, per part, go into the run's ``summary.json`` (``imitation``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from simshear_gym.contract import filter_mean_from_estimate
+from simshear_gym.control.pi_law import PILaw
+from simshear_gym.control.servo import SERVO_GAINS
+
+SEED_OFFSET = 100_000  # the rollouts' env seeds, apart from training's (seed + rank) and evaluation's
+
+
+class ServoTeacher:
+    """The servo controller's law on an estimate observation (module docstring, 1); one per env stream."""
+
+    def __init__(self, env) -> None:
+        base = env.unwrapped
+        self.reference_depth_mm = float(base.reference_depth_mm)
+        self.law = PILaw(self.reference_depth_mm, base.action_scale.as_array(), SERVO_GAINS)
+        self.hold_load = bool(getattr(base, "servo_hold_load", False))
+        self._first = True
+
+    def reset(self) -> None:
+        self.law.reset()
+        self._first = True
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        mean = filter_mean_from_estimate(observation["estimate"], self.reference_depth_mm)
+        if self._first and self.hold_load:
+            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64).copy()
+        self._first = False
+        return self.law(mean)
+
+
+def collect(envs: list, steps: int, noise: float, seed: int) -> dict:
+    """``steps`` teacher steps over ``envs`` in turn (module docstring, 2): {"observations": {key: (N, ...)},
+    "actions": (N, 4) teacher labels, "rewards": (N,), "stream": (N,) env index, "starts": (N,) bool: first step
+    of an episode}, in step order per env."""
+    rng = np.random.default_rng(seed)
+    teachers = [ServoTeacher(env) for env in envs]
+    episodes = [0] * len(envs)
+    current = []
+    for index, (env, teacher) in enumerate(zip(envs, teachers)):
+        observation, _ = env.reset(seed=seed + SEED_OFFSET + 1000 * index)
+        teacher.reset()
+        current.append(observation)
+    rows: dict[str, list] = {"observations": [], "actions": [], "rewards": [], "stream": [], "starts": []}
+    start = [True] * len(envs)
+    while len(rows["actions"]) < steps:
+        for index, (env, teacher) in enumerate(zip(envs, teachers)):
+            if len(rows["actions"]) >= steps:
+                break
+            label = teacher(current[index])
+            executed = np.clip(label + rng.normal(0.0, noise, 4), -1.0, 1.0).astype(np.float32)
+            observation, reward, terminated, truncated, _ = env.step(executed)
+            rows["observations"].append(current[index])
+            rows["actions"].append(label)
+            rows["rewards"].append(float(reward))
+            rows["stream"].append(index)
+            rows["starts"].append(start[index])
+            start[index] = False
+            if terminated or truncated:
+                episodes[index] += 1
+                observation, _ = env.reset(seed=seed + SEED_OFFSET + 1000 * index + episodes[index])
+                teacher.reset()
+                start[index] = True
+            current[index] = observation
+    keys = rows["observations"][0].keys()
+    return {"observations": {key: np.stack([obs[key] for obs in rows["observations"]]) for key in keys},
+            "actions": np.stack(rows["actions"]).astype(np.float32),
+            "rewards": np.asarray(rows["rewards"], dtype=np.float64),
+            "stream": np.asarray(rows["stream"]), "starts": np.asarray(rows["starts"], dtype=bool)}
+
+
+def discounted_returns(rewards: np.ndarray, stream: np.ndarray, starts: np.ndarray, gamma: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """(the return from each step to its episode's end or the rollout's, the running discounted sum up to each step
+    as ``VecNormalize`` accumulates it to scale rewards), per step."""
+    future = np.zeros(len(rewards))
+    running = np.zeros(len(rewards))
+    for index in np.unique(stream):
+        rows = np.flatnonzero(stream == index)
+        total = 0.0
+        for row in rows:  # forwards: the running sum, reset at each episode start
+            total = (0.0 if starts[row] else total * gamma) + rewards[row]
+            running[row] = total
+        total = 0.0
+        for position in range(len(rows) - 1, -1, -1):  # backwards: the return to go
+            row = rows[position]
+            ends_here = position + 1 < len(rows) and starts[rows[position + 1]]
+            total = rewards[row] + (0.0 if ends_here else gamma * total)
+            future[row] = total
+    return future, running
+
+
+def imitate(model, vec_normalize, rollouts: dict, epochs: int, noise: float, batch_size: int = 256,
+            learning_rate: float = 1e-3, seed: int = 0, gamma: float = 0.99) -> dict:
+    """Fit ``model.policy`` (an SB3 actor-critic) to the rollouts (module docstring, 3-4); returns the losses."""
+    import torch
+
+    observations = rollouts["observations"]
+    future, running = discounted_returns(rollouts["rewards"], rollouts["stream"], rollouts["starts"], gamma)
+    reward_scale = 1.0
+    if vec_normalize is not None:
+        for key, statistics in vec_normalize.obs_rms.items():
+            statistics.update(observations[key])
+        if vec_normalize.norm_reward:
+            vec_normalize.ret_rms.update(running)
+            reward_scale = float(np.sqrt(vec_normalize.ret_rms.var + vec_normalize.epsilon))
+        observations = vec_normalize.normalize_obs(observations)
+    policy = model.policy
+    tensors, _ = policy.obs_to_tensor(observations)
+    actions = torch.as_tensor(rollouts["actions"], device=policy.device)
+    values = torch.as_tensor(future / reward_scale, dtype=torch.float32, device=policy.device)
+    optimiser = torch.optim.Adam(policy.parameters(), lr=learning_rate)
+    generator = torch.Generator().manual_seed(seed)
+
+    def losses(rows) -> tuple:
+        batch = {key: value[rows] for key, value in tensors.items()}
+        mean = policy.get_distribution(batch).distribution.mean
+        return (torch.mean((mean - actions[rows]) ** 2),
+                torch.mean((policy.predict_values(batch).flatten() - values[rows]) ** 2))
+
+    def evaluate() -> dict:
+        with torch.no_grad():
+            actor, critic = losses(torch.arange(len(actions)))
+        return {"actor_mse": float(actor), "critic_mse": float(critic)}
+
+    before = evaluate()
+    policy.set_training_mode(True)
+    for _ in range(epochs):
+        order = torch.randperm(len(actions), generator=generator)
+        for first in range(0, len(order), batch_size):
+            actor, critic = losses(order[first:first + batch_size])
+            optimiser.zero_grad()
+            (actor + critic).backward()
+            optimiser.step()
+    policy.set_training_mode(False)
+    with torch.no_grad():
+        policy.log_std.fill_(math.log(noise))
+    after = evaluate()
+    return {"steps": len(actions), "epochs": epochs, "noise": noise, "before": before, "after": after}
