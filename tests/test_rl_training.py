@@ -216,11 +216,15 @@ def test_the_teacher_is_the_servo_law_on_the_observations_estimate():
 
 
 def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
-    summary = train(tiny(bc_steps=48, bc_epochs=60, bc_noise=0.2, eval_steps=0), tmp_path / "bc", progress=False)
+    summary = train(tiny(bc_steps=48, bc_rounds=2, bc_epochs=60, bc_noise=0.2, eval_steps=0), tmp_path / "bc",
+                    progress=False)
     imitation = summary["imitation"]
-    assert imitation["steps"] == 48 and imitation["noise"] == 0.2
-    assert imitation["after"]["actor_mse"] < 0.25 * imitation["before"]["actor_mse"]
-    assert imitation["after"]["critic_mse"] < imitation["before"]["critic_mse"]
+    first, dagger = imitation["rounds"]
+    assert imitation["steps"] == 96 and imitation["noise"] == 0.2
+    assert (first["actor"], dagger["actor"]) == ("servo law", "policy") and dagger["steps"] == 96
+    assert first["after"]["actor_mse"] < 0.25 * first["before"]["actor_mse"]
+    assert first["after"]["critic_mse"] < first["before"]["critic_mse"]
+    assert dagger["after"]["actor_mse"] < dagger["before"]["actor_mse"]
     assert json.loads((tmp_path / "bc" / "imitation.json").read_text()) == imitation
     assert summary["timesteps"] >= 32 and (tmp_path / "bc" / "model.zip").is_file()
     with pytest.raises(ValueError, match="--bc-steps clones the servo law .* needs --algo ppo"):
@@ -229,3 +233,5 @@ def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
         tiny(bc_steps=10, observation="tactile", history=1)
     with pytest.raises(ValueError, match="bc_noise in"):
         tiny(bc_noise=0.0)
+    with pytest.raises(ValueError, match="bc_rounds and bc_epochs >= 1"):
+        tiny(bc_rounds=0)

@@ -21,8 +21,9 @@ full-scale actions added to the servo law on the filter's estimate
 (PPO): the critic also sees the true contact state (the env's ``true_pose_shear``,
 :mod:`simshear_gym.control.asymmetric`), the actor only the observation above; the deployed policy needs no true
 state (the controller fills those inputs with zeros, which the actor never reads); ``--bc-steps N`` (PPO, estimate
-observations): the policy starts as a clone of the servo controller's law, fitted on N steps of it acting, the
-critic on their returns (:mod:`simshear_gym.train.rl_imitation`; ``imitation.json`` in the run folder).
+observations): the policy starts as a clone of the servo controller's law, fitted on N steps of it acting (and
+``--bc-rounds`` - 1 rounds of DAgger), the critic on their returns (:mod:`simshear_gym.train.rl_imitation`;
+``imitation.json`` in the run folder).
 
 Training stops at ``--timesteps`` env steps or after ``--minutes`` of wall-clock time in this invocation, whichever
 comes first. Every ``--eval-steps`` env steps (and at the end) the deterministic policy runs the nominal episodes
@@ -74,7 +75,8 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
 FLAG_HELP = {
     "algo": "SB3 algorithm (tqc: sb3-contrib's TQC, SAC with a distributional critic; needs sb3-contrib)",
     "task": "env: tracking (SimShearTracking-v0) or colift (SimShearCoLift-v0; sub-env i carries object i mod 4)",
-    "timesteps": "env steps to train in all (a resumed run trains until its step count reaches this)",
+    "timesteps": "env steps to train in all (a resumed run trains until its step count reaches this; 0 with "
+                 "--bc-steps: the servo law's clone, no RL)",
     "minutes": "wall-clock budget of this invocation: stop (and save) after this many minutes",
     "observation": "what the policy sees: tactile (image + TCP pose), estimate (the servo controller's GDNN + filter "
                    "estimate of the image, normalised), tactile+estimate",
@@ -103,7 +105,9 @@ FLAG_HELP = {
                          "observation (asymmetric actor-critic; the deployed policy needs no true state)",
     "bc_steps": "PPO: first clone the servo controller's law (on the filter estimate) into the policy from this many "
                 "env steps of it acting (0: start from a random policy; simshear_gym.train.rl_imitation)",
-    "bc_epochs": "passes of the clone's fit over those steps",
+    "bc_rounds": "DAgger: after the first fit, this many - 1 more rounds of BC_STEPS steps in which the clone acts and "
+                 "the law labels each step, the fit redone on all rounds' steps",
+    "bc_epochs": "passes of the clone's fit over the steps",
     "bc_noise": "std (full-scale actions) of the noise added to the law's actions while cloning, and the cloned "
                 "policy's action std",
     "eval_steps": "evaluate the deterministic policy on the nominal episodes every this many env steps (0: never)",

@@ -46,6 +46,7 @@ class RLTrainConfig:
     residual_bound: float = 0.0
     asymmetric_critic: bool = False
     bc_steps: int = 0
+    bc_rounds: int = 1
     bc_epochs: int = 30
     bc_noise: float = 0.1
     eval_steps: int = 0
@@ -69,10 +70,10 @@ class RLTrainConfig:
         check_device_name(self.device)
         if self.vec not in VEC_ENVS:
             raise ValueError(f"vec must be one of {VEC_ENVS}, got {self.vec!r}")
-        if min(self.timesteps, self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.checkpoint_steps,
-               self.eval_max_steps) < 1:
-            raise ValueError("timesteps, n_envs, n_steps, batch_size, n_epochs, checkpoint_steps and "
-                             f"eval_max_steps must be >= 1, got {self}")
+        if min(self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.checkpoint_steps,
+               self.eval_max_steps) < 1 or self.timesteps < (0 if self.bc_steps else 1):
+            raise ValueError("timesteps (0 allowed with --bc-steps: the clone alone), n_envs, n_steps, batch_size, "
+                             f"n_epochs, checkpoint_steps and eval_max_steps must be >= 1, got {self}")
         if self.eval_steps < 0:
             raise ValueError(f"eval_steps must be >= 0 (0: no evaluation), got {self.eval_steps}")
         if self.minutes is not None and not self.minutes > 0:
@@ -91,9 +92,9 @@ class RLTrainConfig:
             raise ValueError("--vec batched steps SimShearTracking-v0's batched vector env, whose sub-envs give the "
                              "image alone: it needs --task tracking --observation tactile --history 1, got "
                              f"--task {self.task} --observation {self.observation} --history {self.history}")
-        if self.bc_steps < 0 or self.bc_epochs < 1 or not 0.0 < self.bc_noise <= 1.0:
-            raise ValueError(f"need bc_steps >= 0, bc_epochs >= 1 and bc_noise in (0, 1], got {self.bc_steps}, "
-                             f"{self.bc_epochs}, {self.bc_noise}")
+        if self.bc_steps < 0 or min(self.bc_rounds, self.bc_epochs) < 1 or not 0.0 < self.bc_noise <= 1.0:
+            raise ValueError(f"need bc_steps >= 0, bc_rounds and bc_epochs >= 1 and bc_noise in (0, 1], got "
+                             f"{self.bc_steps}, {self.bc_rounds}, {self.bc_epochs}, {self.bc_noise}")
         if self.bc_steps and (self.algo != "ppo" or self.observation not in ESTIMATE_OBSERVATIONS
                               or self.residual_bound > 0):
             raise ValueError("--bc-steps clones the servo law from the filter estimate into PPO's actor: it needs "

@@ -55,10 +55,11 @@ class ServoTeacher:
         return self.law(mean)
 
 
-def collect(envs: list, steps: int, noise: float, seed: int) -> dict:
-    """``steps`` teacher steps over ``envs`` in turn (module docstring, 2): {"observations": {key: (N, ...)},
-    "actions": (N, 4) teacher labels, "rewards": (N,), "stream": (N,) env index, "starts": (N,) bool: first step
-    of an episode}, in step order per env."""
+def collect(envs: list, steps: int, noise: float, seed: int, actor=None) -> dict:
+    """``steps`` steps over ``envs`` in turn (module docstring, 2), the teacher's action executed (plus noise) or,
+    given an ``actor`` (observation -> action), the actor's, the teacher labelling every step either way (DAgger):
+    {"observations": {key: (N, ...)}, "actions": (N, 4) teacher labels, "rewards": (N,), "stream": (N,) env index,
+    "starts": (N,) bool: first step of an episode}, in step order per env."""
     rng = np.random.default_rng(seed)
     teachers = [ServoTeacher(env) for env in envs]
     episodes = [0] * len(envs)
@@ -74,7 +75,8 @@ def collect(envs: list, steps: int, noise: float, seed: int) -> dict:
             if len(rows["actions"]) >= steps:
                 break
             label = teacher(current[index])
-            executed = np.clip(label + rng.normal(0.0, noise, 4), -1.0, 1.0).astype(np.float32)
+            chosen = label if actor is None else np.asarray(actor(current[index]), dtype=np.float64).reshape(4)
+            executed = np.clip(chosen + rng.normal(0.0, noise, 4), -1.0, 1.0).astype(np.float32)
             observation, reward, terminated, truncated, _ = env.step(executed)
             rows["observations"].append(current[index])
             rows["actions"].append(label)
@@ -116,19 +118,54 @@ def discounted_returns(rewards: np.ndarray, stream: np.ndarray, starts: np.ndarr
     return future, running
 
 
+def merge(parts: list[dict]) -> dict:
+    """Rollouts of several :func:`collect` calls as one (their env streams kept apart)."""
+    offset, streams = 0, []
+    for part in parts:
+        streams.append(part["stream"] + offset)
+        offset += int(part["stream"].max()) + 1
+    return {"observations": {key: np.concatenate([part["observations"][key] for part in parts])
+                             for key in parts[0]["observations"]},
+            "actions": np.concatenate([part["actions"] for part in parts]),
+            "rewards": np.concatenate([part["rewards"] for part in parts]),
+            "stream": np.concatenate(streams), "starts": np.concatenate([part["starts"] for part in parts])}
+
+
+def update_normalisation(vec_normalize, rollouts: dict, gamma: float) -> None:
+    """The run's ``VecNormalize`` statistics updated with new rollouts (observations; the discounted-return scale
+    of PPO's rewards)."""
+    if vec_normalize is None:
+        return
+    for key, statistics in vec_normalize.obs_rms.items():
+        statistics.update(rollouts["observations"][key])
+    if vec_normalize.norm_reward:
+        _, running = discounted_returns(rollouts["rewards"], rollouts["stream"], rollouts["starts"], gamma)
+        vec_normalize.ret_rms.update(running)
+
+
+def policy_actor(model, vec_normalize):
+    """observation -> the policy's deterministic action, through the run's normalisation."""
+    def act(observation: dict) -> np.ndarray:
+        batch = {key: np.asarray(value)[None] for key, value in observation.items()}
+        if vec_normalize is not None:
+            batch = vec_normalize.normalize_obs(batch)
+        action, _ = model.policy.predict(batch, deterministic=True)
+        return np.asarray(action).reshape(4)
+
+    return act
+
+
 def imitate(model, vec_normalize, rollouts: dict, epochs: int, noise: float, batch_size: int = 256,
             learning_rate: float = 1e-3, seed: int = 0, gamma: float = 0.99) -> dict:
-    """Fit ``model.policy`` (an SB3 actor-critic) to the rollouts (module docstring, 3-4); returns the losses."""
+    """Fit ``model.policy`` (an SB3 actor-critic) to the rollouts (module docstring, 4), through the run's
+    normalisation as it stands (:func:`update_normalisation` first); returns the losses."""
     import torch
 
     observations = rollouts["observations"]
-    future, running = discounted_returns(rollouts["rewards"], rollouts["stream"], rollouts["starts"], gamma)
+    future, _ = discounted_returns(rollouts["rewards"], rollouts["stream"], rollouts["starts"], gamma)
     reward_scale = 1.0
     if vec_normalize is not None:
-        for key, statistics in vec_normalize.obs_rms.items():
-            statistics.update(observations[key])
         if vec_normalize.norm_reward:
-            vec_normalize.ret_rms.update(running)
             reward_scale = float(np.sqrt(vec_normalize.ret_rms.var + vec_normalize.epsilon))
         observations = vec_normalize.normalize_obs(observations)
     policy = model.policy

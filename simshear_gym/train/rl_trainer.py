@@ -240,18 +240,29 @@ def plot_learning_curve(evaluations: list[dict], path: Path, title: str) -> None
 
 
 def clone_servo_law(config: RLTrainConfig, model, vec_normalize) -> dict:
-    """``--bc-steps``: the servo law's rollouts in the training envs' settings, cloned into ``model``'s policy
-    (:mod:`simshear_gym.train.rl_imitation`); returns the fit's record."""
-    from simshear_gym.train.rl_imitation import collect, imitate
+    """``--bc-steps``: the servo law's rollouts in the training envs' settings cloned into ``model``'s policy, then
+    ``--bc-rounds`` - 1 rounds of DAgger (the clone acts, the law labels, all rounds' steps refitted;
+    :mod:`simshear_gym.train.rl_imitation`); returns the fits' records."""
+    from simshear_gym.train.rl_imitation import collect, imitate, merge, policy_actor, update_normalisation
 
     envs = [make_env(config, rank) for rank in range(config.n_envs)]
+    rounds, parts = [], []
     try:
-        rollouts = collect(envs, config.bc_steps, config.bc_noise, config.seed)
+        for round_index in range(config.bc_rounds):
+            actor = None if round_index == 0 else policy_actor(model, vec_normalize)
+            part = collect(envs, config.bc_steps, config.bc_noise, config.seed + round_index, actor=actor)
+            update_normalisation(vec_normalize, part, config.gamma)
+            parts.append(part)
+            record = imitate(model, vec_normalize, merge(parts), config.bc_epochs, config.bc_noise,
+                             batch_size=max(config.batch_size, 64), seed=config.seed, gamma=config.gamma)
+            rounds.append({**record, "round": round_index, "actor": "servo law" if actor is None else "policy",
+                           "new_steps": len(part["actions"]),
+                           "episodes_ended": max(0, int(part["starts"].sum()) - len(envs))})
     finally:
         for env in envs:
             env.close()
-    return imitate(model, vec_normalize, rollouts, config.bc_epochs, config.bc_noise,
-                   batch_size=max(config.batch_size, 64), seed=config.seed, gamma=config.gamma)
+    return {"steps": sum(len(part["actions"]) for part in parts), "epochs": config.bc_epochs,
+            "noise": config.bc_noise, "before": rounds[0]["before"], "after": rounds[-1]["after"], "rounds": rounds}
 
 
 def _vec_env(config: RLTrainConfig):
