@@ -13,7 +13,7 @@ in ``obs_mode="real"``, translating every image) and writes ``results/env_speed.
   comparison, in the main process (torch on ``--threads`` threads, ONNX Runtime on one).
 
 The runtime is chosen for the env (and its workers) by ``$SIMSHEAR_TRANSLATOR_RUNTIME``
-(:func:`simshear_gym.contract.choose_translator_runtime`). Goals: >= 100 steps/s in one process, >= 200 steps/s
+(:func:`simshear_gym.contract.choose_translator_runtime`). Goals: >= 100 steps/s in one process, >= 600 steps/s
 vectorised over both cores, and (issue 22) translated steps in one process at least half as many per second as
 raw sim steps. The machine's load average
 before each run is recorded: on a shared machine other jobs take cores and the numbers with them; the
@@ -34,7 +34,7 @@ import numpy as np
 from simshear_gym.io import write_json
 
 GOAL_SINGLE_STEPS_PER_S = 100.0
-GOAL_VECTOR_STEPS_PER_S = 200.0
+GOAL_VECTOR_STEPS_PER_S = 600.0  # issue 22 (the earlier goal was 200)
 GOAL_TRANSLATED_SHARE_OF_SIM_RATE = 0.5
 
 
