@@ -93,3 +93,22 @@ def test_batched_vec_trains_an_image_policy_and_is_refused_where_it_cannot_serve
         RLTrainConfig(vec="batched", observation="estimate")
     with pytest.raises(ValueError, match="--vec batched"):
         RLTrainConfig(vec="batched", task="colift")
+
+
+def test_same_step_final_images_agree_whether_workers_or_this_process_translate():
+    kwargs = dict(num_envs=2, obs_mode="real", image_size_px=64, max_episode_steps=4, autoreset_mode="same_step")
+    in_process = gym.make_vec("SimShearTracking-v0", workers=0, **kwargs)
+    in_main = gym.make_vec("SimShearTracking-v0", workers=2, translate_in="main", **kwargs)
+    try:
+        results = []
+        for envs in (in_process, in_main):
+            envs.reset(seed=5)
+            for _ in range(3):
+                obs, _, terminated, _, info = envs.step(np.stack([LIFT, HOLD]))
+            assert terminated.tolist() == [True, False]
+            results.append((obs["tactile"], info["final_obs"][0]["tactile"]))
+        np.testing.assert_array_equal(results[0][0], results[1][0])
+        np.testing.assert_array_equal(results[0][1], results[1][1])
+    finally:
+        in_process.close()
+        in_main.close()
