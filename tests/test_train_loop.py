@@ -223,7 +223,8 @@ COMMAND_FLAGS = {
     rl: {"--algo", "--out", "--timesteps", "--obs-mode", "--image-size", "--n-envs", "--n-steps", "--batch-size",
          "--learning-rate", "--checkpoint-steps", "--seed", "--threads", "--resume", "--quiet", "--device", "--task",
          "--minutes", "--observation", "--history", "--no-randomise", "--vec", "--n-epochs", "--gamma", "--net-arch",
-         "--no-normalize", "--residual-bound", "--asymmetric-critic", "--eval-steps", "--eval-max-steps"},
+         "--no-normalize", "--residual-bound", "--asymmetric-critic", "--bc-steps", "--bc-rounds", "--bc-epochs",
+         "--bc-noise", "--eval-steps", "--eval-max-steps"},
 }
 REQUIRED = {posenet: ["--source", "real", "--contact", "surface", "--paired", "p"],
             translator: ["--paired", "p"], rl: []}
