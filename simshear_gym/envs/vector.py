@@ -66,10 +66,12 @@ def _finish_images(observations: dict[str, np.ndarray], infos: list[dict], obs_m
     """Finish (translate, resize) a batch's raw images and the raw last images of the episodes that ended in it
     (``info["final_obs"]``, SAME_STEP autoreset) in one call; the shear of each image is its info's."""
     ended = [index for index, info in enumerate(infos) if "final_obs" in info]
-    raw = np.concatenate([observations["tactile"][:, 0]]
-                         + [infos[index]["final_obs"]["tactile"] for index in ended])
-    shear = np.stack([info["shear_sensor_mm_deg"] for info in infos]
-                     + [infos[index]["final_info"]["shear_sensor_mm_deg"] for index in ended])
+    raw = observations["tactile"][:, 0]
+    shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
+    if ended:  # no copies on the common step where no episode ended
+        raw = np.concatenate([raw] + [infos[index]["final_obs"]["tactile"] for index in ended])
+        shear = np.concatenate([shear, np.stack([infos[index]["final_info"]["shear_sensor_mm_deg"]
+                                                 for index in ended])])
     finished = finish_tactile(raw, shear, obs_mode, image_size_px, contact, translator_weights,
                               translator_device=device)[:, None]
     count = len(infos)

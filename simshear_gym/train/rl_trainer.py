@@ -277,11 +277,10 @@ def _vec_env(config: RLTrainConfig):
         vector_env = gym.make_vec(config.env_id, num_envs=config.n_envs, autoreset_mode=AutoresetMode.SAME_STEP,
                                   **env_settings(config, 0))
         venv = VecMonitor(SB3VectorEnv(vector_env))
-        venv.seed(config.seed)
-        return venv
-    subproc = config.vec == "subproc"
-    makers = [partial(_monitored, config, rank, subproc, Monitor) for rank in range(config.n_envs)]
-    venv = SubprocVecEnv(makers) if subproc else DummyVecEnv(makers)
+    else:
+        subproc = config.vec == "subproc"
+        makers = [partial(_monitored, config, rank, subproc, Monitor) for rank in range(config.n_envs)]
+        venv = SubprocVecEnv(makers) if subproc else DummyVecEnv(makers)
     venv.seed(config.seed)
     return venv
 
