@@ -161,6 +161,33 @@ def test_pool_generators_may_differ_in_architecture_and_keep_the_others_settings
         PoolGenerator("bad", lr_schedule="linear")
 
 
+def test_a_pool_generator_may_be_read_by_a_second_real_gdnn(tmp_path):
+    from simshear_gym.pipelines.config import PoolGenerator
+    from simshear_gym.pipelines.run import training_steps
+
+    second = POOLED.replace('[profiles.smoke.posenet]', """[[profiles.smoke.pool]]
+name = "tilt2"
+contact = "surface"
+seed = 2
+pose_weight = 1.0
+reader_seed = 1
+[profiles.smoke.posenet]""")
+    config = load_config(write_lab(tmp_path, config=second))
+    profile = config.profile("smoke")
+    names = contacts_of(config)
+    paired = {name: {"train": f"collect/{name}/train"} for contact in names for name in names[contact]}
+    steps = {step.name: step for step in training_steps(config, profile, {}, paired, {}, {"surface": "z_mm"},
+                                                        STAGES)}
+    assert steps["translator/surface_tilt"].needs == ("posenet/surface_real",)
+    assert steps["translator/surface_tilt2"].needs == ("posenet/surface_real_s1",)
+    reader = steps["posenet/surface_real_s1"].action
+    assert reader.keywords["seed"] == 1 and reader.args[3] == "real"  # the reference's recipe, another seed
+    with pytest.raises(ValueError, match="reader_seed 1 needs pose_weight > 0"):
+        PoolGenerator("plain", reader_seed=1)
+    with pytest.raises(ValueError, match="reader_seed must be an integer >= 0"):
+        PoolGenerator("tilt", pose_weight=1.0, reader_seed=-1)
+
+
 def test_stages_need_the_ones_before_them(tmp_path):
     config = load_config(write_lab(tmp_path))
     with pytest.raises(ValueError, match=r"need the stages before them too: add \['collect'\]"):

@@ -166,7 +166,9 @@ class PoolGenerator:
     ``pose_variables`` (all of its variables when empty), so it runs after that GDNN. The GDNN on translated
     images draws each row's generator at random, this one ``draws`` times as often as a generator listed once.
     ``decoder_scale``, ``shear_decoder``, ``flow_px`` and ``lr_schedule`` (where given) replace the stage's
-    architecture and schedule, so that the pool's generators can differ in more than their seed."""
+    architecture and schedule, so that the pool's generators can differ in more than their seed. ``reader_seed``
+    > 0 reads the pose consistency with a second real-image GDNN trained with that seed (the reference's settings
+    otherwise), so that the generators do not all learn one network's quirks."""
 
     name: str
     contact: str = ""
@@ -180,6 +182,7 @@ class PoolGenerator:
     shear_decoder: bool | None = None
     flow_px: int | None = None
     lr_schedule: str | None = None
+    reader_seed: int = 0
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").isalnum():
@@ -193,11 +196,21 @@ class PoolGenerator:
                              f"{self.density_weight!r}")
         if self.pose_variables and self.pose_weight == 0:
             raise ValueError(f"pose_variables {list(self.pose_variables)} need pose_weight > 0")
+        if not isinstance(self.reader_seed, int) or self.reader_seed < 0:
+            raise ValueError(f"reader_seed must be an integer >= 0 (0: the reference GDNN), got {self.reader_seed!r}")
+        if self.reader_seed and self.pose_weight == 0:
+            raise ValueError(f"reader_seed {self.reader_seed} needs pose_weight > 0 (it names the pose reader)")
         if self.flow_px is not None and (self.flow_px < 2 or self.flow_px & (self.flow_px - 1)):
             raise ValueError(f"flow_px must be a power of two >= 2 (a decoder level's size) or absent, "
                              f"got {self.flow_px!r}")
         if self.lr_schedule is not None and self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"lr_schedule must be one of {list(LR_SCHEDULES)} or absent, got {self.lr_schedule!r}")
+
+    @property
+    def reader_step(self) -> str:
+        """The suffix of the real-image GDNN step that reads this generator's pose consistency ("real" or
+        "real_s<seed>")."""
+        return f"real_s{self.reader_seed}" if self.reader_seed else "real"
 
     def overrides(self) -> dict:
         """The :class:`TranslatorStage` settings this generator replaces."""

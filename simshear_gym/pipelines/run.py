@@ -206,7 +206,7 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
     settings = _translator_settings(stage, contact, generator)
     pose_net = ""
     if generator is not None and generator.pose_weight > 0:
-        pose_net = done[f"posenet/{contact}_real"].outputs["weights"]
+        pose_net = done[f"posenet/{contact}_{generator.reader_step}"].outputs["weights"]
         settings |= {"pose_weight": generator.pose_weight, "pose_net": pose_net,
                      "pose_variables": tuple(generator.pose_variables)}
     key = {"paired": train_sets, "arch": arch, "settings": settings}
@@ -236,12 +236,14 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
 
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
-                 done: dict, *, device: str = "auto") -> StageResult:
+                 done: dict, *, device: str = "auto", seed: int | None = None) -> StageResult:
     """A GDNN of a contact type on the real images (``source`` "real"), on the raw sim renders ("sim") or on
     translations of them (``translator_steps``: the translator steps it draws from, each with its number of
-    draws), trained on ``device``."""
+    draws), trained on ``device``; ``seed`` (not None) replaces the stage's seed and names the step
+    ``<source>_s<seed>`` (a further pose-consistency reader)."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = stage.train_settings()
+    settings = stage.train_settings() | ({"seed": seed} if seed is not None else {})
+    step_source = f"{source}_s{seed}" if seed is not None else source
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
 
@@ -262,12 +264,12 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
         trainer.resume()
         summary = trainer.fit(progress=False)
         model, card = load_posenet(folder / "run" / "best.pt")
-        path = folder / f"posenet_{contact}_{source}.pt"
+        path = folder / f"posenet_{contact}_{step_source}.pt"
         train_record = json.loads((folder / "run" / "config.json").read_text())  # paths relative to the run
         save_posenet(path, model, card={**card, "sensor": config.name, "train_config": train_record})
         return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
-    return runner.run(f"posenet/{contact}_{source}", key, work)
+    return runner.run(f"posenet/{contact}_{step_source}", key, work)
 
 
 def posenet_sources(profile) -> tuple[str, ...]:
@@ -353,7 +355,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                     translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
                     cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact)))
             for generator in profile.pool_for(contact):
-                needs = (f"posenet/{contact}_real",) if generator.pose_weight > 0 else ()
+                needs = (f"posenet/{contact}_{generator.reader_step}",) if generator.pose_weight > 0 else ()
                 epochs = _translator_settings(profile.translator, contact, generator)["epochs"]
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
                     translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
@@ -363,6 +365,10 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
             steps.append(Step(f"posenet/{contact}_real", partial(
                 posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
                 device=device), cost=posenet_cost))
+            for reader_seed in sorted({g.reader_seed for g in profile.pool_for(contact) if g.reader_seed}):
+                steps.append(Step(f"posenet/{contact}_real_s{reader_seed}", partial(
+                    posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
+                    device=device, seed=reader_seed), cost=posenet_cost))
             drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
