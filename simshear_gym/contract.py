@@ -100,11 +100,12 @@ def check_image_size(image_size_px: int, owner: str = "image_size_px") -> None:
         raise ValueError(f"{owner} must be one of {IMAGE_SIZES_PX}, got {image_size_px!r}")
 
 
-OBSERVATIONS: tuple[str, ...] = ("tactile", "estimate", "tactile+estimate")
+OBSERVATIONS: tuple[str, ...] = ("tactile", "estimate", "tactile+estimate", "estimate+action")
 """What a policy observes (the ``observation`` argument of the sim envs and ``RealTactileEnv``); which image the
 ``tactile`` key holds is the separate ``obs_mode``."""
 TACTILE_OBSERVATIONS: tuple[str, ...] = ("tactile", "tactile+estimate")  # those with the ``tactile`` image
-ESTIMATE_OBSERVATIONS: tuple[str, ...] = ("estimate", "tactile+estimate")  # those with the ``estimate`` (an estimator)
+ESTIMATE_OBSERVATIONS: tuple[str, ...] = ("estimate", "tactile+estimate", "estimate+action")  # with an estimator
+ACTION_OBSERVATIONS: tuple[str, ...] = ("estimate+action",)  # those with the ``last_action``
 ESTIMATE_VARIABLES: tuple[str, ...] = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 ESTIMATE_SCALE = np.array([2.0, 7.5, 7.5, 7.5])
 """Per variable (depth mm, shear x, y mm, shear Rz deg): the unit of the normalised estimate (about the GDNN's
@@ -134,6 +135,9 @@ def observation_space(image_size_px: int, oracle: bool = False, observation: str
       reading and filter state, normalised); no image, no pose (an absolute pose in the robot's base frame
       differs between the sim scene and a real cell: a policy must not lean on it);
     - ``"tactile+estimate"``: ``tactile`` and ``estimate``;
+    - ``"estimate+action"``: ``estimate`` and ``last_action`` float32 (4,) in [-1, 1]: the move commanded since
+      the previous image over the action's full scale (the action as the arm took it; zeros at reset). With it
+      and two frames a policy can hold a PI law's integral (velocity form: ``a_t = a_t-1 + ...``);
     - with ``oracle`` (sim only), ``true_pose_shear``: float32 (4,).
     """
     check_observation(observation, history)
@@ -145,6 +149,8 @@ def observation_space(image_size_px: int, oracle: bool = False, observation: str
     if observation in ESTIMATE_OBSERVATIONS:
         observations["estimate"] = spaces.Box(-ESTIMATE_MEAN_LIMIT, ESTIMATE_MEAN_LIMIT, (ESTIMATE_SIZE * history,),
                                               dtype=np.float32)
+    if observation in ACTION_OBSERVATIONS:
+        observations["last_action"] = spaces.Box(-1.0, 1.0, (4,), dtype=np.float32)
     if oracle:
         observations["true_pose_shear"] = spaces.Box(-TRUE_POSE_SHEAR_LIMIT, TRUE_POSE_SHEAR_LIMIT, dtype=np.float32)
     return spaces.Dict(observations)

@@ -90,6 +90,35 @@ def test_history_holds_the_last_frames_oldest_first():
         env.close()
 
 
+def test_the_last_action_is_the_move_the_arm_took_over_the_full_scale():
+    env = make("estimate+action", history=2)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert env.observation_space.contains(obs)
+        np.testing.assert_array_equal(obs["last_action"], np.zeros(4, np.float32))  # nothing commanded yet
+        for action in ([0.5, -0.25, 0.1, 0.0], [1.0, 0.0, -1.0, 0.3]):
+            obs, *_ = env.step(np.array(action, np.float32))
+            assert env.observation_space.contains(obs)
+            np.testing.assert_allclose(obs["last_action"], action, atol=1e-6)
+        obs, _ = env.reset(seed=1)
+        np.testing.assert_array_equal(obs["last_action"], np.zeros(4, np.float32))
+    finally:
+        env.close()
+    from simshear_gym.envs.observation import PolicyObservation
+
+    class Still:
+        last_reading = None
+
+        def reset(self):
+            pass
+
+        def __call__(self, tactile, commanded_move=None):
+            return np.zeros(4), np.ones(4)
+
+    with pytest.raises(ValueError, match="needs action_scale="):
+        PolicyObservation("estimate+action", 2, 4.0, estimator=Still())
+
+
 def test_the_estimate_is_the_servo_controllers_own_estimate():
     """Driven by the servo controller reading the same images, the env's estimate decodes to the controller's state
     estimate every step: one estimator (the env is fed the moves the controller commanded)."""

@@ -126,7 +126,7 @@ def test_servo_benchmark_runs_ppo_and_checks_the_algorithm(tmp_path):
 
 
 def test_bad_training_settings_name_the_flag():
-    with pytest.raises(ValueError, match="--residual-bound needs --observation estimate"):
+    with pytest.raises(ValueError, match="--residual-bound needs --observation one of .*'estimate'"):
         tiny(observation="tactile", residual_bound=0.3)
     with pytest.raises(ValueError, match="vec must be one of"):
         tiny(vec="threads")
@@ -215,6 +215,33 @@ def test_the_teacher_is_the_servo_law_on_the_observations_estimate():
     env.close()
 
 
+def test_with_the_last_action_the_teacher_is_the_servo_law_in_velocity_form():
+    """On ``estimate+action`` the label is a function of the observation alone; executed, it gives the servo law's
+    own actions (its integral carried by the last action) while nothing clips."""
+    from simshear_gym.contract import filter_mean_from_estimate
+    from simshear_gym.control.pi_law import PILaw
+    from simshear_gym.control.servo import SERVO_GAINS
+    from simshear_gym.train.rl_imitation import ServoTeacher
+    from simshear_gym.train.rl_trainer import make_env
+
+    env = make_env(tiny(observation="estimate+action", history=2))
+    teacher = ServoTeacher(env)
+    base = env.unwrapped
+    law = PILaw(base.reference_depth_mm, base.action_scale.as_array(), SERVO_GAINS)
+    observation, _ = env.reset(seed=3)
+    for step in range(6):
+        action = teacher(observation)
+        expected = law(filter_mean_from_estimate(observation["estimate"], base.reference_depth_mm))
+        if np.all(np.abs(expected) < 1.0):
+            np.testing.assert_allclose(action, expected, atol=1e-5)
+        if step:  # past the first step the label is a function of the observation: a fresh teacher agrees
+            again = ServoTeacher(env)
+            again._first = False
+            np.testing.assert_allclose(again(observation), action, atol=1e-6)
+        observation, *_ = env.step(action)
+    env.close()
+
+
 def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
     summary = train(tiny(bc_steps=48, bc_rounds=2, bc_epochs=60, bc_noise=0.2, eval_steps=0), tmp_path / "bc",
                     progress=False)
@@ -229,8 +256,10 @@ def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
     assert summary["timesteps"] >= 32 and (tmp_path / "bc" / "model.zip").is_file()
     with pytest.raises(ValueError, match="--bc-steps clones the servo law .* needs --algo ppo"):
         tiny(bc_steps=10, algo="sac")
-    with pytest.raises(ValueError, match="--bc-steps .* --observation estimate"):
+    with pytest.raises(ValueError, match="--bc-steps .* --observation one of .*'estimate'"):
         tiny(bc_steps=10, observation="tactile", history=1)
+    with pytest.raises(ValueError, match="velocity form .* needs --history >= 2, got 1"):
+        tiny(bc_steps=10, observation="estimate+action", history=1)
     with pytest.raises(ValueError, match="bc_noise in"):
         tiny(bc_noise=0.0)
     with pytest.raises(ValueError, match="bc_rounds and bc_epochs >= 1"):

@@ -36,6 +36,25 @@ def test_pi_law_removes_the_lag_behind_a_ramp():
     assert offset == pytest.approx(-0.3, abs=1e-3)  # a P law keeps one step's drift behind
 
 
+def test_the_velocity_form_fed_its_own_last_action_is_the_pi_law():
+    rng = np.random.default_rng(0)
+    law = PILaw(4.0, SCALE, PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0), integral_limit=10.0))
+    twin = PILaw(4.0, SCALE, law.gains)
+    previous, last = np.array([4.0, 0.0, 0.0, 0.0]), np.zeros(4)
+    for step in range(30):
+        state = np.array([4.0 + rng.normal(0, 0.2), *rng.normal(0, 0.3, 2), rng.normal(0, 1.0)])
+        action = law(state)
+        velocity = twin.velocity_form(state, state if step == 0 else previous, last)
+        if step:  # the first step: the velocity form has no earlier error to take the change from
+            np.testing.assert_allclose(velocity, action, atol=1e-6)
+        assert velocity[3] == 0.0  # Rz: both gains 0, not controlled
+        previous, last = state, action
+    np.testing.assert_array_equal(twin.velocity_form(np.array([9.0, 50.0, -50.0, 0.0]), previous, np.ones(4)),
+                                  np.array([-1.0, 1.0, -1.0, 0.0], np.float32))  # clipped, as the law
+    with pytest.raises(ValueError, match="last_action must be 4 finite values"):
+        twin.velocity_form(previous, previous, np.array([np.nan, 0, 0, 0]))
+
+
 def test_pi_law_depth_sign_saturation_and_anti_windup():
     law = PILaw(4.0, SCALE, PIGains(kp=(1, 1, 1, 1), ki=(0.5, 0.5, 0.5, 0.5), integral_limit=1.0))
     action = law(np.array([3.0, 0.0, 0.0, 0.0]))  # 1 mm too shallow: push in (+z)

@@ -68,6 +68,19 @@ class PILaw:
         self._integral = np.zeros(4)
         self.shear_reference_mm = np.zeros(2)
 
+    def velocity_form(self, state: np.ndarray, previous_state: np.ndarray, last_action: np.ndarray) -> np.ndarray:
+        """The law without an integral of its own: ``clip(last_action - kp * (error - previous error) - ki *
+        error, -1, 1)`` (errors over the full scale as in :meth:`__call__`), float32 (4,). Fed its own last action
+        it gives :meth:`__call__`'s actions while neither clips (the difference of two PI steps), so a policy that
+        sees the last action and two frames can hold the integral; the clip stands for the anti-windup."""
+        last = np.asarray(last_action, dtype=np.float64).reshape(-1)
+        if last.shape != (4,) or not np.all(np.isfinite(last)):
+            raise ValueError(f"last_action must be 4 finite values in [-1, 1], got {last_action!r}")
+        error = self.error(state) / self._scale
+        change = error - self.error(previous_state) / self._scale
+        action = last - (self._kp * change + self._ki * error)
+        return np.clip(np.where(self.gains.controlled, action, 0.0), -1.0, 1.0).astype(np.float32)
+
     def error(self, state: np.ndarray) -> np.ndarray:
         """(x mm, y mm, depth mm, Rz deg) error of a state (depth, shear x, shear y, shear Rz)."""
         values = np.asarray(state, dtype=np.float64)

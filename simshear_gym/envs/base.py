@@ -259,7 +259,8 @@ class SimShearEnv(gym.Env, EzPickle):
             if not isinstance(estimator, Estimator):
                 estimator = estimator(self)
         self._policy_observation = PolicyObservation(observation, history, self.reference_depth_mm,
-                                                     estimator if observation in ESTIMATE_OBSERVATIONS else None)
+                                                     estimator if observation in ESTIMATE_OBSERVATIONS else None,
+                                                     self.action_scale.as_array())
 
         self._time_s = 0.0
         self._steps_out_of_contact = 0

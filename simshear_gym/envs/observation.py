@@ -2,9 +2,10 @@
 
 :class:`PolicyObservation` turns each step's tactile image and TCP pose into the observation of
 :func:`simshear_gym.contract.observation_space` for an ``observation`` (``tactile``, ``estimate``,
-``tactile+estimate``) and a ``history`` of k frames: it keeps the last k images (or estimates), oldest first, and,
-for the estimate, runs an :class:`Estimator` (the servo controller's: GDNN + Bayesian filter) on every image,
-fed with the move actually commanded since the last one. At reset the history is filled with the first frame.
+``tactile+estimate``, ``estimate+action``) and a ``history`` of k frames: it keeps the last k images (or
+estimates), oldest first, and, for the estimate, runs an :class:`Estimator` (the servo controller's: GDNN + Bayesian
+filter) on every image, fed with the move actually commanded since the last one (``last_action``: that move over the
+action's full scale). At reset the history is filled with the first frame.
 
 The estimator is passed in (envs do not import :mod:`simshear_gym.control`, which sits on their floor):
 :func:`simshear_gym.control.env_estimator.env_estimator` builds the one ``ServoController.for_env`` would.
@@ -18,6 +19,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from simshear_gym.contract import (
+    ACTION_OBSERVATIONS,
     ESTIMATE_OBSERVATIONS,
     TACTILE_OBSERVATIONS,
     TCP_POSE_LOW,
@@ -49,10 +51,12 @@ class PolicyObservation:
         history: k, frames or estimates stacked (1: none).
         reference_depth_mm: the depth the task holds (labels' convention): the estimate's depth is relative to it.
         estimator: needed when the observation holds the estimate; else unused.
+        action_scale: the action's full scale (x, y, z mm, Rz deg): needed when the observation holds the last
+            action (the commanded move over it); else unused.
     """
 
     def __init__(self, observation: str, history: int, reference_depth_mm: float,
-                 estimator: Estimator | None = None) -> None:
+                 estimator: Estimator | None = None, action_scale: np.ndarray | None = None) -> None:
         check_observation(observation, history)
         self.observation = observation
         self.history = history
@@ -62,6 +66,13 @@ class PolicyObservation:
             raise ValueError(f"observation={observation!r} needs an estimator (reset, __call__ and last_reading), "
                              f"got {estimator!r}")
         self.estimator = estimator
+        self.with_action = observation in ACTION_OBSERVATIONS
+        if self.with_action:
+            scale = np.asarray(action_scale if action_scale is not None else [], dtype=np.float64).reshape(-1)
+            if scale.shape != (4,) or not np.all(scale > 0):
+                raise ValueError(f"observation={observation!r} needs action_scale=, 4 positive full-scale moves "
+                                 f"(x, y, z mm, Rz deg), got {action_scale!r}")
+            self._action_scale = scale
         self.reference_depth_mm = float(reference_depth_mm)
         self._images: deque[np.ndarray] = deque(maxlen=history)
         self._estimates: deque[np.ndarray] = deque(maxlen=history)
@@ -102,6 +113,9 @@ class PolicyObservation:
             for _ in range(count):
                 self._estimates.append(features)
             obs["estimate"] = np.concatenate(self._estimates).astype(np.float32)
+        if self.with_action:
+            last = np.zeros(4) if move is None else np.asarray(move, dtype=np.float64) / self._action_scale
+            obs["last_action"] = np.clip(np.nan_to_num(last), -1.0, 1.0).astype(np.float32)
         return obs
 
 

@@ -348,7 +348,8 @@ class RealTactileEnv(gym.Env):
 
             estimator = env_estimator(self)
         self._policy_observation = PolicyObservation(config.observation, config.history, config.reference_depth_mm,
-                                                     estimator if config.observation in ESTIMATE_OBSERVATIONS else None)
+                                                     estimator if config.observation in ESTIMATE_OBSERVATIONS else None,
+                                                     config.action_scale.as_array())
         self.safety = SafetyLayer(replace(config.safety, dry_run=config.dry_run))
         self.client = MG400Client(config.client_config(), self.safety)
         self._camera = camera

@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from simshear_gym.contract import ESTIMATE_OBSERVATIONS, IMAGE_SIZES_PX, check_observation
+from simshear_gym.contract import ACTION_OBSERVATIONS, ESTIMATE_OBSERVATIONS, IMAGE_SIZES_PX, check_observation
 from simshear_gym.models.device import check_device_name
 
 ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional dependency)
@@ -98,12 +98,16 @@ class RLTrainConfig:
         if self.bc_steps and (self.algo != "ppo" or self.observation not in ESTIMATE_OBSERVATIONS
                               or self.residual_bound > 0):
             raise ValueError("--bc-steps clones the servo law from the filter estimate into PPO's actor: it needs "
-                             "--algo ppo, --observation estimate or tactile+estimate and no --residual-bound, got "
-                             f"--algo {self.algo} --observation {self.observation} --residual-bound "
-                             f"{self.residual_bound}")
+                             f"--algo ppo, --observation one of {list(ESTIMATE_OBSERVATIONS)} and no "
+                             f"--residual-bound, got --algo {self.algo} --observation {self.observation} "
+                             f"--residual-bound {self.residual_bound}")
+        if self.bc_steps and self.observation in ACTION_OBSERVATIONS and self.history < 2:
+            raise ValueError(f"--bc-steps with --observation {self.observation} clones the servo law in velocity form "
+                             f"(the last action plus the change between the newest two frames): it needs --history "
+                             f">= 2, got {self.history}")
         if self.residual_bound > 0 and self.observation not in ESTIMATE_OBSERVATIONS:
             raise ValueError("a residual policy corrects the servo law on the filter's estimate: --residual-bound "
-                             f"needs --observation estimate or tactile+estimate, got {self.observation!r}")
+                             f"needs --observation one of {list(ESTIMATE_OBSERVATIONS)}, got {self.observation!r}")
 
     @property
     def env_id(self) -> str:

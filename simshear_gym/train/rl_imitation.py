@@ -6,7 +6,10 @@ rl_colift_ppo); the servo controller does both. Here PPO's actor starts as a clo
 1. **Teacher**: the servo controller's PI law (:data:`~simshear_gym.control.servo.SERVO_GAINS`, holding the first
    estimate's shear where the env carries a load, as :class:`~simshear_gym.control.servo.ServoController`) on the
    filter mean that the estimate observation itself carries (:func:`~simshear_gym.contract.filter_mean_from_estimate`):
-   the teacher needs nothing the robot lacks.
+   the teacher needs nothing the robot lacks. With the ``estimate+action`` observation the teacher is the same law
+   in velocity form (:meth:`~simshear_gym.control.pi_law.PILaw.velocity_form`: the last action taken plus the
+   change the newest two frames ask for), so that the label is a function of the observation alone: the PI law's
+   integral, which a policy on the estimates cannot see, is carried by the action it took.
 2. **Rollouts**: ``bc_steps`` env steps in the training envs' settings (envs made in this process, one per
    sub-env, seeds apart from training's). The env executes the teacher's action plus Gaussian noise of std
    ``bc_noise`` (full-scale actions), the label is the clean teacher action, so the clone sees the states a
@@ -26,7 +29,7 @@ import math
 
 import numpy as np
 
-from simshear_gym.contract import filter_mean_from_estimate
+from simshear_gym.contract import ESTIMATE_SIZE, filter_mean_from_estimate
 from simshear_gym.control.pi_law import PILaw
 from simshear_gym.control.servo import SERVO_GAINS
 
@@ -49,9 +52,18 @@ class ServoTeacher:
 
     def __call__(self, observation: dict) -> np.ndarray:
         mean = filter_mean_from_estimate(observation["estimate"], self.reference_depth_mm)
-        if self._first and self.hold_load:
+        first, self._first = self._first, False
+        if first and self.hold_load:
             self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64).copy()
-        self._first = False
+        if "last_action" in observation:  # the law in velocity form: a function of what the policy sees
+            frames = np.asarray(observation["estimate"], dtype=np.float64).reshape(-1, ESTIMATE_SIZE)
+            if len(frames) < 2:
+                raise ValueError("the teacher's velocity form needs the previous frame: history >= 2")
+            # an episode's first step (the history filled with one frame, no action yet): from rest on the target,
+            # which makes it the PI law's first step
+            previous = (np.array([self.reference_depth_mm, *self.law.shear_reference_mm, 0.0]) if first
+                        else filter_mean_from_estimate(frames[:-1].reshape(-1), self.reference_depth_mm))
+            return self.law.velocity_form(mean, previous, observation["last_action"])
         return self.law(mean)
 
 
