@@ -172,7 +172,8 @@ class SimShearEnv(gym.Env, EzPickle):
         observation: what the policy sees (:func:`~simshear_gym.contract.observation_space`, the same in
             ``RealTactileEnv``): ``"tactile"`` (the image of ``obs_mode`` and ``tcp_pose``: the default, as
             before), ``"estimate"`` (the estimator's GDNN reading and Bayesian filter state of that image,
-            normalised) or ``"tactile+estimate"``.
+            normalised), ``"tactile+estimate"`` or ``"estimate+action"`` (the estimate and ``last_action``, the
+            move commanded since the previous image over the action's full scale).
         history: k: the observation stacks the last k images (``tactile`` (k, S, S)) and estimates (``estimate``
             (16 k,)), oldest first; at reset all k are the first frame.
         estimator: for the estimate observations: the servo controller's estimator, or a callable that builds

@@ -150,6 +150,8 @@ class SimShearCoLiftEnv(SimShearEnv):
                                                      controller's estimator on it (the shipped ``colift`` GDNN,
                                                      process noise 1.5 mm; ``estimator=``), normalised relative
                                                      to the reference depth as in ``SimShearTracking-v0``
+    ``last_action``      Box float32 (4,) in         "estimate+action" only (with ``estimate``): the move
+                         [-1, 1]                     commanded since the previous image over the full scale
     ``true_pose_shear``  Box float32 (4,)            oracle modes only: depth (label convention: the object's
                                                      face, where it sat on the plate at reset and carried with
                                                      the plate, at 2.2 mm), shear x, y (mm, sensor frame: the

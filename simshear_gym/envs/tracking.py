@@ -74,6 +74,8 @@ class SimShearTrackingEnv(SimShearEnv):
                                                      (reference depth, 0, 0, 0)) / (2 mm, 7.5 mm, 7.5 mm,
                                                      7.5 deg) clipped to +-4, stds as clip(std / that, 0, 2) - 1
                                                      (:func:`~simshear_gym.contract.estimate_features`)
+    ``last_action``      Box float32 (4,) in         "estimate+action" only (with ``estimate``): the move
+                         [-1, 1]                     commanded since the previous image over the full scale
     ``true_pose_shear``  Box float32 (4,)            oracle modes only: depth (label convention: the plate's face
                                                      at 2.2 mm), shear x, y (mm), shear Rz (deg), sensor frame
     ===================  ==========================  ============================================================

@@ -9,7 +9,9 @@ sub-env i carries object i mod 4) in what a robot can give a policy:
   image (at least 36 px: 64 px by default, half the policy's cost at the same translation cost);
 - ``--observation estimate``: the servo controller's estimator (the env's shipped GDNN + Bayesian filter) on that
   image, its reading and filter state normalised (16 numbers a frame): an MLP;
-- ``--observation tactile+estimate``: both; ``--history k`` stacks the last k frames and estimates.
+- ``--observation tactile+estimate``: both; ``--history k`` stacks the last k frames and estimates;
+- ``--observation estimate+action``: the estimate and the last action taken (over the full scale): with two frames a
+  policy can carry a PI law's integral in its action (the ``--bc-steps`` teacher is the law in velocity form).
 
 Set-up: ``--n-envs`` sub-envs, stepped in worker processes (``--vec subproc``, one torch thread each), in this
 one (``--vec dummy``), or in SimShearTracking-v0's batched vector env (``--vec batched``, image-only tracking
@@ -79,7 +81,8 @@ FLAG_HELP = {
                  "--bc-steps: the servo law's clone, no RL)",
     "minutes": "wall-clock budget of this invocation: stop (and save) after this many minutes",
     "observation": "what the policy sees: tactile (image + TCP pose), estimate (the servo controller's GDNN + filter "
-                   "estimate of the image, normalised), tactile+estimate",
+                   "estimate of the image, normalised), tactile+estimate, estimate+action (the estimate and the last "
+                   "action)",
     "history": "the observation stacks the last HISTORY images / estimates",
     "obs_mode": "tactile images the policy (or its estimator) sees: real (sim renders through the shipped "
                 "translator, as on the robot) or sim (the raw sim renders)",
