@@ -113,3 +113,23 @@ def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
     assert "At 200 env steps" in best and "0.200 mm" in best and "At 100 env steps" not in best
     final = card_text(config, provenance, to, "final", evaluations, {}, {}, "ppo", None, "2026-01-02")
     assert "At 300 env steps" in final
+
+
+def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
+    from dataclasses import asdict
+
+    from simshear_gym.pipelines.export_policy import card_text
+
+    to = tmp_path / "policy"
+    to.mkdir()
+    (to / "model.zip").write_bytes(b"0")
+    config = {**asdict(RLTrainConfig(task="colift", timesteps=0, observation="estimate+action", history=2,
+                                     bc_steps=100, bc_rounds=2)), "env_id": "SimShearCoLift-v0"}
+    provenance = {"train_command": COMMAND, "exported_from": "tiny/model.zip", "estimator_models_sha256": {}}
+    imitation = {"noise": 0.1, "epochs": 30, "after": {"actor_mse": 3e-5}, "rounds": [{}, {}], "seconds": 120.0}
+    summary = {"timesteps": 0, "seconds": 0.0, "stopped_by": "timesteps", "imitation": imitation}
+    card = card_text(config, provenance, to, "final", [], summary, {}, "ppo", None, "2026-01-02")
+    assert "Budget: no RL steps" in card and "ran 0 steps" not in card
+    assert "DAgger clone of the servo law in velocity form" in card and "2 round(s) of 100 steps" in card
+    assert "actor MSE against the teacher 3e-05" in card and "2.0 min" in card
+    assert "and the last action (MLP)" in card

@@ -103,7 +103,10 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
     observation = {"tactile": "the translated tactile image and the TCP pose (CNN)",
                    "estimate": f"the servo controller's estimate: the shipped `{posenet}` GDNN's mean and std and the "
                                "Bayesian filter's state, normalised (MLP)",
-                   "tactile+estimate": "the translated image and the estimate"}[config["observation"]]
+                   "tactile+estimate": "the translated image and the estimate",
+                   "estimate+action": f"the servo controller's estimate (the shipped `{posenet}` GDNN's mean and std "
+                                      "and the Bayesian filter's state, normalised) and the last action (MLP)",
+                   }[config["observation"]]
     lines = [
         f"# {config['algo'].upper()} policy, {config['task']}",
         "",
@@ -120,10 +123,12 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
         f"{config['batch_size']}, {config['n_epochs']} epochs, gamma {config['gamma']}, learning rate "
         f"{config['learning_rate']}, seed {config['seed']}, {config['threads']} torch thread(s), "
         f"{config['device']}.",
-        f"- Budget: {config['timesteps']} env steps"
-        + (f", capped at {config['minutes']:g} min" if config.get("minutes") else "")
-        + (f"; ran {summary['timesteps']} steps in {summary['seconds'] / 60:.1f} min on a 2-core CPU (stopped by "
-           f"{summary['stopped_by']})" if summary else "") + ".",
+        ("- Budget: no RL steps (the clone's env steps below)." if not config["timesteps"] else
+         f"- Budget: {config['timesteps']} env steps"
+         + (f", capped at {config['minutes']:g} min" if config.get("minutes") else "")
+         + (f"; ran {summary['timesteps']} steps in {summary['seconds'] / 60:.1f} min on a 2-core CPU (stopped by "
+            f"{summary['stopped_by']})" if summary else "") + "."),
+        *([_imitation_line(summary["imitation"], config)] if summary.get("imitation") else []),
         f"- Exact command: `{provenance['train_command']}`, then `simshear train export-policy --run RUN --to "
         f"{recorded_path(to)} --model {model}" + (f" --results {recorded_path(results)}" if results else "") + "`.",
         "- Made its observations with (sha256 at export): "
@@ -147,6 +152,19 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
                          f"{row['contact_error_max_mm']:.2f} | {row['seeds']} | {row['runs_ended_early']} | "
                          f"{row['runs_with_contact_loss']} | {row['drops']} |")
     return "\n".join(lines) + "\n"
+
+
+def _imitation_line(imitation: dict, config: dict) -> str:
+    """The card's line on the servo law's clone (``--bc-steps``) the policy started from."""
+    rounds = imitation.get("rounds", [])
+    teacher = ("the servo law in velocity form (the last action plus the change between the newest two frames)"
+               if config["observation"] == "estimate+action" else "the servo law on the filter estimate")
+    after = imitation.get("after", {}).get("actor_mse")
+    return (f"- Start: a DAgger clone of {teacher}: {len(rounds)} round(s) of {config['bc_steps']} steps with "
+            f"action noise {imitation.get('noise')}, {imitation.get('epochs')} epochs each"
+            + (f", actor MSE against the teacher {after:.2g} after the last round" if after is not None else "")
+            + (f", {imitation['seconds'] / 60:.1f} min on a 2-core CPU" if imitation.get("seconds") else "")
+            + ("; no RL steps after it (`--timesteps 0`)" if not config["timesteps"] else "") + ".")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -245,6 +245,7 @@ def clone_servo_law(config: RLTrainConfig, model, vec_normalize) -> dict:
     :mod:`simshear_gym.train.rl_imitation`); returns the fits' records."""
     from simshear_gym.train.rl_imitation import collect, imitate, merge, policy_actor, update_normalisation
 
+    started = time.perf_counter()
     envs = [make_env(config, rank) for rank in range(config.n_envs)]
     rounds, parts = [], []
     try:
@@ -262,7 +263,8 @@ def clone_servo_law(config: RLTrainConfig, model, vec_normalize) -> dict:
         for env in envs:
             env.close()
     return {"steps": sum(len(part["actions"]) for part in parts), "epochs": config.bc_epochs,
-            "noise": config.bc_noise, "before": rounds[0]["before"], "after": rounds[-1]["after"], "rounds": rounds}
+            "noise": config.bc_noise, "before": rounds[0]["before"], "after": rounds[-1]["after"], "rounds": rounds,
+            "seconds": round(time.perf_counter() - started, 1)}
 
 
 def _vec_env(config: RLTrainConfig):
