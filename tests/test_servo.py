@@ -141,3 +141,33 @@ def test_the_law_holds_a_shear_reference_and_the_servo_holds_its_first_reading_w
         np.testing.assert_allclose(controller.law.shear_reference_mm, expected)  # kept for the episode
         controller.reset()
         np.testing.assert_allclose(controller.law.shear_reference_mm, 0.0)
+
+
+def test_a_held_load_takes_the_envs_margin_and_shear_gains(tiny_posenet):
+    """Heavy co-lift asks the servo to carry 0.3 mm more shear along the weight than the grasp's, with deadbeat
+    shear gains; the light task and tracking keep the defaults; explicit gains win over the env's."""
+    import gymnasium as gym
+
+    import simshear_gym.envs  # noqa: F401
+    from simshear_gym.control.servo import SERVO_GAINS, servo_law_for_env
+
+    heavy = gym.make("SimShearCoLift-v0", obs_mode="sim", payload="heavy")
+    light = gym.make("SimShearCoLift-v0", obs_mode="sim")
+    try:
+        gains, hold, margin = servo_law_for_env(heavy)
+        assert hold and np.allclose(margin, [0.0, -0.3])
+        assert gains.kp == (1.0, 1.0, 0.5, 0.0) and gains.ki == (0.5, 0.5, 0.1, 0.0)
+        mine = PIGains(kp=(0.3, 0.3, 0.3, 0.0), ki=(0.1, 0.1, 0.1, 0.0))
+        assert servo_law_for_env(heavy, mine)[0] == mine
+        assert servo_law_for_env(light) == (SERVO_GAINS, False, pytest.approx(np.zeros(2)))
+        assert servo_law_for_env(light, hold_load=True)[2] == pytest.approx(np.zeros(2))  # no margin asked
+    finally:
+        heavy.close()
+        light.close()
+    controller = ServoController(estimator=EstimatorConfig(posenet=str(tiny_posenet), filtered=False),
+                                 hold_load=True, load_margin_mm=(0.0, -0.3))
+    controller.reset()
+    controller({"tactile": np.random.default_rng(1).integers(0, 255, (1, 128, 128), dtype=np.uint8)})
+    np.testing.assert_allclose(controller.law.shear_reference_mm, controller.last_estimate[0][1:3] + [0.0, -0.3])
+    with pytest.raises(ValueError, match="load_margin_mm must be 2 finite values"):
+        ServoController(estimator=EstimatorConfig(posenet=str(tiny_posenet)), load_margin_mm=(0.0, np.nan))

@@ -14,7 +14,10 @@ Holding a load (``hold_load``, heavy co-lift): a heavy object's weight deflects 
 and that shear is what carries the object. The law then holds the shear it reads at the episode's first image
 (the grasp) instead of zero: it keeps its place relative to the grasp, where moving to zero shear would walk the
 skin down and let the object slide. An env asks for it with ``servo_hold_load = True`` (``SimShearCoLift-v0``
-with ``payload="heavy"``); :meth:`ServoController.for_env` reads it.
+with ``payload="heavy"``), and may ask for a margin (``servo_load_margin_mm``: shear added to the grasp's, mm,
+sensor frame: along the weight, the follower carries more than it felt at the grasp) and shear gains of its own
+(``servo_shear_gains``: (kp, ki) on shear x and y); :meth:`ServoController.for_env` reads them
+(:func:`servo_law_for_env`).
 """
 
 from __future__ import annotations
@@ -30,6 +33,25 @@ SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 """Default gains of :class:`ServoController` (see the module docstring)."""
 
 
+def servo_law_for_env(env, gains: PIGains = SERVO_GAINS, hold_load: bool | None = None
+                      ) -> tuple[PIGains, bool, np.ndarray]:
+    """(gains, hold_load, load margin (x, y) mm) of the servo law for an env (wrappers looked through): the env's
+    ``servo_hold_load`` where ``hold_load`` is None; while holding a load, its ``servo_load_margin_mm`` and, where
+    ``gains`` are the defaults, its ``servo_shear_gains`` (kp, ki) on shear x and y."""
+    base = env.unwrapped
+    if hold_load is None:
+        hold_load = bool(getattr(base, "servo_hold_load", False))
+    margin = np.zeros(2)
+    if hold_load:
+        margin = np.asarray(getattr(base, "servo_load_margin_mm", (0.0, 0.0)), dtype=np.float64).reshape(2)
+        shear_gains = getattr(base, "servo_shear_gains", None)
+        if shear_gains is not None and gains == SERVO_GAINS:
+            kp, ki = shear_gains
+            gains = PIGains(kp=(kp, kp, *gains.kp[2:]), ki=(ki, ki, *gains.ki[2:]),
+                            integral_limit=gains.integral_limit)
+    return gains, bool(hold_load), margin
+
+
 class ServoController:
     """Tactile image -> action: :class:`TactileEstimator` then :class:`PILaw`. Call :meth:`reset` per episode.
 
@@ -41,6 +63,7 @@ class ServoController:
         gains: the law's gains (default :data:`SERVO_GAINS`).
         estimator: settings of the estimator (GDNN weights, filter on/off, process noise).
         hold_load: hold the shear of the episode's first estimate (a carried load's) rather than zero.
+        load_margin_mm: (x, y) mm added to that held shear (sensor frame; along the weight: carry more).
     """
 
     name = "servo"
@@ -48,9 +71,12 @@ class ServoController:
 
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  gains: PIGains = SERVO_GAINS, estimator: EstimatorConfig = EstimatorConfig(),
-                 hold_load: bool = False) -> None:
+                 hold_load: bool = False, load_margin_mm: tuple[float, float] = (0.0, 0.0)) -> None:
         self.action_scale = as_action_scale(action_scale, "ServoController")
         self.hold_load = bool(hold_load)
+        self.load_margin_mm = np.asarray(load_margin_mm, dtype=np.float64).reshape(2)
+        if not np.all(np.isfinite(self.load_margin_mm)):
+            raise ValueError(f"load_margin_mm must be 2 finite values (x, y mm), got {load_margin_mm!r}")
         self._scale = self.action_scale.as_array()
         self.estimator = TactileEstimator(estimator)
         self.law = PILaw(reference_depth_mm, self._scale, gains)
@@ -66,8 +92,8 @@ class ServoController:
         Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
         (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none); without
         ``estimator.process_std_mm`` it takes the env's ``estimator_process_std_mm`` (how far its contact moves
-        in a step unknown to the follower), if it has one; without ``hold_load`` it takes the env's
-        ``servo_hold_load`` (False where the env has none)."""
+        in a step unknown to the follower), if it has one; the law's gains, load hold and margin as
+        :func:`servo_law_for_env` gives them."""
         from dataclasses import replace
 
         from simshear_gym.models.posenet_io import shipped_posenet_path
@@ -79,9 +105,8 @@ class ServoController:
             estimator = replace(estimator, posenet=posenet)
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
-        if hold_load is None:
-            hold_load = bool(getattr(base, "servo_hold_load", False))
-        return cls(base.reference_depth_mm, base.action_scale, gains, estimator, hold_load)
+        gains, hold_load, margin = servo_law_for_env(env, gains, hold_load)
+        return cls(base.reference_depth_mm, base.action_scale, gains, estimator, hold_load, tuple(margin))
 
     def reset(self) -> None:
         self.estimator.reset()
@@ -96,7 +121,7 @@ class ServoController:
         mean, std = self.estimator(observation["tactile"], self._last_move)
         self.last_estimate = (mean, std)
         if first and self.hold_load:
-            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64).copy()
+            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64) + self.load_margin_mm
         action = self.law(mean)
         self._last_move = action.astype(np.float64) * self._scale
         return action

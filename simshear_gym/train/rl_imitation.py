@@ -31,7 +31,7 @@ import numpy as np
 
 from simshear_gym.contract import ESTIMATE_SIZE, filter_mean_from_estimate
 from simshear_gym.control.pi_law import PILaw
-from simshear_gym.control.servo import SERVO_GAINS
+from simshear_gym.control.servo import servo_law_for_env
 
 SEED_OFFSET = 100_000  # the rollouts' env seeds, apart from training's (seed + rank) and evaluation's
 
@@ -42,8 +42,8 @@ class ServoTeacher:
     def __init__(self, env) -> None:
         base = env.unwrapped
         self.reference_depth_mm = float(base.reference_depth_mm)
-        self.law = PILaw(self.reference_depth_mm, base.action_scale.as_array(), SERVO_GAINS)
-        self.hold_load = bool(getattr(base, "servo_hold_load", False))
+        gains, self.hold_load, self.load_margin_mm = servo_law_for_env(env)  # as ServoController.for_env
+        self.law = PILaw(self.reference_depth_mm, base.action_scale.as_array(), gains)
         self._first = True
 
     def reset(self) -> None:
@@ -54,7 +54,7 @@ class ServoTeacher:
         mean = filter_mean_from_estimate(observation["estimate"], self.reference_depth_mm)
         first, self._first = self._first, False
         if first and self.hold_load:
-            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64).copy()
+            self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64) + self.load_margin_mm
         if "last_action" in observation:  # the law in velocity form: a function of what the policy sees
             frames = np.asarray(observation["estimate"], dtype=np.float64).reshape(-1, ESTIMATE_SIZE)
             if len(frames) < 2:
