@@ -159,6 +159,7 @@ def test_a_held_load_takes_the_envs_margin_and_shear_gains(tiny_posenet):
         assert gains.kp == (1.0, 1.0, 0.5, 0.0) and gains.ki == (0.5, 0.5, 0.1, 0.0)
         mine = PIGains(kp=(0.3, 0.3, 0.3, 0.0), ki=(0.1, 0.1, 0.1, 0.0))
         assert servo_law_for_env(heavy, mine)[0] == mine
+        assert servo_law_for_env(heavy, SERVO_GAINS)[0] == SERVO_GAINS  # the defaults asked for explicitly
         assert servo_law_for_env(light) == (SERVO_GAINS, False, pytest.approx(np.zeros(2)))
         assert servo_law_for_env(light, hold_load=True)[2] == pytest.approx(np.zeros(2))  # no margin asked
     finally:

@@ -33,19 +33,21 @@ SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 """Default gains of :class:`ServoController` (see the module docstring)."""
 
 
-def servo_law_for_env(env, gains: PIGains = SERVO_GAINS, hold_load: bool | None = None
+def servo_law_for_env(env, gains: PIGains | None = None, hold_load: bool | None = None
                       ) -> tuple[PIGains, bool, np.ndarray]:
     """(gains, hold_load, load margin (x, y) mm) of the servo law for an env (wrappers looked through): the env's
     ``servo_hold_load`` where ``hold_load`` is None; while holding a load, its ``servo_load_margin_mm`` and, where
-    ``gains`` are the defaults, its ``servo_shear_gains`` (kp, ki) on shear x and y."""
+    ``gains`` is None, :data:`SERVO_GAINS` with its ``servo_shear_gains`` (kp, ki) on shear x and y."""
     base = env.unwrapped
+    explicit = gains is not None
+    gains = gains if explicit else SERVO_GAINS
     if hold_load is None:
         hold_load = bool(getattr(base, "servo_hold_load", False))
     margin = np.zeros(2)
     if hold_load:
         margin = np.asarray(getattr(base, "servo_load_margin_mm", (0.0, 0.0)), dtype=np.float64).reshape(2)
         shear_gains = getattr(base, "servo_shear_gains", None)
-        if shear_gains is not None and gains == SERVO_GAINS:
+        if shear_gains is not None and not explicit:
             kp, ki = shear_gains
             gains = PIGains(kp=(kp, kp, *gains.kp[2:]), ki=(ki, ki, *gains.ki[2:]),
                             integral_limit=gains.integral_limit)
@@ -85,15 +87,16 @@ class ServoController:
         """(mean (4,), std (4,)) of the last step's state estimate, for logging."""
 
     @classmethod
-    def for_env(cls, env, gains: PIGains = SERVO_GAINS,
-                estimator: EstimatorConfig = EstimatorConfig(), hold_load: bool | None = None) -> ServoController:
+    def for_env(cls, env, gains: PIGains | None = None,
+                estimator: EstimatorConfig = EstimatorConfig(), hold_load: bool | None = None,
+                load_margin_mm: tuple[float, float] | None = None) -> ServoController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through).
 
         Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
         (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none); without
         ``estimator.process_std_mm`` it takes the env's ``estimator_process_std_mm`` (how far its contact moves
-        in a step unknown to the follower), if it has one; the law's gains, load hold and margin as
-        :func:`servo_law_for_env` gives them."""
+        in a step unknown to the follower), if it has one; the law's gains (None: the defaults, or the env's),
+        load hold and margin (None: the env's) as :func:`servo_law_for_env` gives them."""
         from dataclasses import replace
 
         from simshear_gym.models.posenet_io import shipped_posenet_path
@@ -106,6 +109,8 @@ class ServoController:
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
         gains, hold_load, margin = servo_law_for_env(env, gains, hold_load)
+        if load_margin_mm is not None:
+            margin = np.asarray(load_margin_mm, dtype=np.float64).reshape(2)
         return cls(base.reference_depth_mm, base.action_scale, gains, estimator, hold_load, tuple(margin))
 
     def reset(self) -> None:

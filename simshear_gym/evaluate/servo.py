@@ -35,8 +35,9 @@ import numpy as np
 
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
+from simshear_gym.control.pi_law import PIGains
 from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
-from simshear_gym.control.servo import ServoController
+from simshear_gym.control.servo import SERVO_GAINS, ServoController
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -47,14 +48,22 @@ POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
 
 def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None,
-                    hold_load: bool | None = None) -> Controller:
+                    hold_load: bool | None = None, load_margin_mm: tuple[float, float] | None = None,
+                    shear_gains: tuple[float, float] | None = None) -> Controller:
     """The controller of a variant, matched to ``env`` (its reference depth, action scale and spaces); ``policy``:
-    the SB3 model of a policy variant; ``hold_load``: the servo's (None: as the env asks)."""
+    the SB3 model of a policy variant; ``hold_load``, ``load_margin_mm`` and ``shear_gains`` ((kp, ki) on shear x
+    and y): the servo's (None: as the env asks)."""
     if variant == "oracle":
         return OracleController.for_env(env)
     if variant in POLICY_VARIANTS:
         return SB3Controller.for_env(policy, env)
-    return ServoController.for_env(env, estimator=EstimatorConfig(posenet=posenets.get(variant)), hold_load=hold_load)
+    gains = None  # the env's
+    if shear_gains is not None:
+        kp, ki = shear_gains
+        gains = PIGains(kp=(kp, kp, *SERVO_GAINS.kp[2:]), ki=(ki, ki, *SERVO_GAINS.ki[2:]),
+                        integral_limit=SERVO_GAINS.integral_limit)
+    return ServoController.for_env(env, gains=gains, estimator=EstimatorConfig(posenet=posenets.get(variant)),
+                                   hold_load=hold_load, load_margin_mm=load_margin_mm)
 
 
 def env_kwargs_of(variant: str, policy: str | None) -> dict:
@@ -179,6 +188,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hold-load", choices=("env", "on", "off"), default="env",
                         help="the servo holds the shear of its first image (a carried load's) instead of zero: env "
                              "(as the env asks: on for colift-heavy), on, off (the light-object law: an ablation)")
+    parser.add_argument("--load-margin-mm", type=float, nargs=2, default=None, metavar=("X", "Y"),
+                        help="shear (mm, sensor frame) the servo adds to a held load's (default: as the env asks: "
+                             "0 -0.3 on colift-heavy, where sensor +y is down)")
+    parser.add_argument("--shear-gains", type=float, nargs=2, default=None, metavar=("KP", "KI"),
+                        help="the servo's gains on shear x and y (default: the env's where it holds a load, "
+                             "kp 1 ki 0.5 on colift-heavy; else 0.6 0.2)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2],
                         help="seeds of the randomised runs (trajectory scale, speed, rotation, start place), each "
                              "besides the nominal run")
@@ -245,7 +260,8 @@ def run(args: argparse.Namespace) -> int:
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
                 env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, policies.get(variant)),
                                **kwargs)
-                controller = make_controller(variant, env, posenets, policies.get(variant), hold_load)
+                controller = make_controller(variant, env, posenets, policies.get(variant), hold_load,
+                                             args.load_margin_mm, args.shear_gains)
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
                     target, sensor = r.pop("_paths")
@@ -283,6 +299,8 @@ def run(args: argparse.Namespace) -> int:
                    ("policy-tqc", args.policy_tqc)) if path)
                + (f" --max-steps {args.max_steps}" if args.max_steps else "")
                + (f" --hold-load {args.hold_load}" if args.hold_load != "env" else "")
+               + (" --load-margin-mm {:g} {:g}".format(*args.load_margin_mm) if args.load_margin_mm else "")
+               + (" --shear-gains {:g} {:g}".format(*args.shear_gains) if args.shear_gains else "")
                + (f" --out {args.out}" if args.out != Path("results") else "")
                + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {

@@ -108,7 +108,7 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
     import simshear_gym.envs  # noqa: F401  (registers the env ids)
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.oracle import OracleController
-    from simshear_gym.control.servo import ServoController
+    from simshear_gym.control.servo import SERVO_GAINS, ServoController
     from simshear_gym.data.tactile_set import image_name, write_image, write_targets
 
     env_id = "SimShearCoLift-v0" if config.task == "colift" else "SimShearTracking-v0"
@@ -129,7 +129,10 @@ def collect(config: EnvCollectConfig, out_dir: Path, progress: bool = True) -> i
             if key not in envs:
                 env = gym.make(env_id, obs_mode="oracle_real", randomise=True, **setting,
                                **({"sensor": config.sensor} if config.sensor else {}))
-                envs[key] = env, (ServoController.for_env(env, estimator=EstimatorConfig(posenet=config.posenet))
+                # the DAgger driver: the servo law as the shipped env GDNNs' recipes ran it (default gains, the
+                # grasp's shear held without a margin), whatever the env asks of the servo since
+                envs[key] = env, (ServoController.for_env(env, SERVO_GAINS, EstimatorConfig(posenet=config.posenet),
+                                                          load_margin_mm=(0.0, 0.0))
                                   if config.driver == "servo" else OracleController.for_env(env))
             env, controller = envs[key]
             steered = controller.law.gains.controlled  # noise there only: an unsteered yaw would random-walk
