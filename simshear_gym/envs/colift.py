@@ -198,7 +198,7 @@ class SimShearCoLiftEnv(SimShearEnv):
             on (0.6-2.1 mm), while the plate's moves drag the object and show on the skin as for a light one; a
             follower that keeps the load's shear, holding its place, carries the object; one that servoes it to
             zero walks the skin down and the object slides (``ServoController``'s ``hold_load``). The env asks the
-            servo for 0.3 mm more shear along the weight than the grasp's (``servo_load_margin_mm``) and deadbeat
+            servo for 0.4 mm more shear along the weight than the grasp's (``servo_load_margin_mm``) and deadbeat
             shear gains (``servo_shear_gains`` kp 1, ki 0.5): a follower that carries only what it felt at the
             grasp, and answers the plate's turns over several steps, lets the duck and the soft ball slide.
         obs_mode, image_size_px, control_rate_hz, render_mode, observation, history, estimator: see
@@ -263,10 +263,10 @@ class SimShearCoLiftEnv(SimShearEnv):
         self.mass_kg = mass_kg
         self.payload = payload
         self.servo_hold_load = payload == "heavy"  # the servo keeps the grasp's shear (ServoController.for_env)
-        # ... plus 0.3 mm along the weight (sensor +y is down: the load's shear is -y), with deadbeat shear gains:
+        # ... plus 0.4 mm along the weight (sensor +y is down: the load's shear is -y), with deadbeat shear gains:
         # carrying a little more than the grasp felt, and at once, keeps the duck and the soft ball from sliding on
         # the plate where the star's path turns (docs/experiments.md, servo_colift_heavy_margin)
-        self.servo_load_margin_mm = (0.0, -0.3) if payload == "heavy" else (0.0, 0.0)
+        self.servo_load_margin_mm = (0.0, -0.4) if payload == "heavy" else (0.0, 0.0)
         self.servo_shear_gains = (1.0, 0.5) if payload == "heavy" else None
         if payload == "heavy":  # the heavy grip's images: a GDNN of its own (a sensor's models override it)
             self.estimator_posenet = "colift_heavy"

@@ -190,7 +190,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(as the env asks: on for colift-heavy), on, off (the light-object law: an ablation)")
     parser.add_argument("--load-margin-mm", type=float, nargs=2, default=None, metavar=("X", "Y"),
                         help="shear (mm, sensor frame) the servo adds to a held load's (default: as the env asks: "
-                             "0 -0.3 on colift-heavy, where sensor +y is down)")
+                             "0 -0.4 on colift-heavy, where sensor +y is down)")
     parser.add_argument("--shear-gains", type=float, nargs=2, default=None, metavar=("KP", "KI"),
                         help="the servo's gains on shear x and y (default: the env's where it holds a load, "
                              "kp 1 ki 0.5 on colift-heavy; else 0.6 0.2)")
