@@ -64,6 +64,13 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     assert {p.name.split(".")[0] for p in edge_only} == {"shpix2pix_edge", "pix2pix_edge", "edge"}
     card = (tmp_path / "edge_only" / "posenet" / "edge.md").read_text()
     assert f"simshear pipeline ship {run} --contacts edge" in card
+    gdnn_only = ship(run, tmp_path / "gdnn_only", str(data_root), date="2026-01-01", contacts=("surface",),
+                     models=("posenet",))
+    assert [p.relative_to(tmp_path / "gdnn_only").as_posix() for p in gdnn_only] == ["posenet/surface.pt",
+                                                                                       "posenet/surface.md"]
+    assert "--contacts surface --models posenet" in (tmp_path / "gdnn_only" / "posenet" / "surface.md").read_text()
+    with pytest.raises(ValueError, match="models must name some of"):
+        ship(run, tmp_path / "none", str(data_root), models=("policies",))
     with pytest.raises(ValueError, match=r"no models of contact type\(s\) \['wall'\]"):
         ship(run, tmp_path / "none", str(data_root), contacts=("wall",))
 

@@ -8,7 +8,8 @@ folder, git commit) and a check figure that the tests reproduce (``tests/test_sh
 the run's evaluation on the real validation rows, date. Each shPix2pix is also exported to the ``.onnx`` the envs
 run (``simshear train export-onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
 Nothing is trained: shipping a run twice gives the same files, so the shipped weights are exactly what
-``simshear pipeline run CONFIG --profile P`` produced.
+``simshear pipeline run CONFIG --profile P`` produced. ``--contacts`` and ``--models`` (translators, posenet) ship a
+part of the run.
 """
 
 from __future__ import annotations
@@ -37,14 +38,21 @@ def read_run(run: Path) -> tuple[dict, dict, dict]:
     return manifest, evaluation, records
 
 
+MODEL_KINDS = ("translators", "posenet")
+"""What ``ship --models`` may name: a contact type's translators (shPix2pix, pix2pix, the ONNX export) and its GDNN."""
+
+
 def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str | None = None,
-         contacts: tuple[str, ...] | None = None) -> list[Path]:
+         contacts: tuple[str, ...] | None = None, models: tuple[str, ...] = MODEL_KINDS) -> list[Path]:
     """Write the run's models and cards under ``to`` (see the module docstring), of the contact types in
-    ``contacts`` only where given (the others' shipped files stay); returns the files written."""
+    ``contacts`` only where given and of the kinds in ``models`` (:data:`MODEL_KINDS`; the others' shipped files
+    stay: a GDNN shipped alone reads the images of translators the run did not ship); returns the files written."""
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator import load_generator, save_generator
     from simshear_gym.pipelines import export_posenet, export_translator
 
+    if not models or set(models) - set(MODEL_KINDS):
+        raise ValueError(f"models must name some of {list(MODEL_KINDS)}, got {list(models)}")
     manifest, evaluation, records = read_run(run)
     date = date or datetime.date.today().isoformat()
     made = manifest["models"]["translators"]
@@ -53,12 +61,13 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
         raise ValueError(f"{run}: no models of contact type(s) {unknown} in this run; it has {sorted(made)}")
     commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']}"
                 f"{_contacts_option(manifest)} --out {run}",
-                f"simshear pipeline ship {run}" + (f" --contacts {' '.join(contacts)}" if contacts else "")]
+                f"simshear pipeline ship {run}" + (f" --contacts {' '.join(contacts)}" if contacts else "")
+                + (f" --models {' '.join(models)}" if set(models) != set(MODEL_KINDS) else "")]
     written = []
     for contact, archs in made.items():
         if contacts and contact not in contacts:
             continue
-        for arch in ("shpix2pix", "pix2pix"):
+        for arch in ("shpix2pix", "pix2pix") if "translators" in models else ():
             stage = f"translator/{contact}_{arch}"
             dest = to / f"{arch}_{contact}.pt"
             generator, card = load_generator(run / archs[arch])
@@ -70,6 +79,8 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
                                                            records[stage], commands, date))]
             if arch == "shpix2pix":
                 written += _onnx_beside(dest, data)
+        if "posenet" not in models:
+            continue
         stage = f"posenet/{contact}_shpix2pix"
         dest = to / "posenet" / f"{contact}.pt"
         model, card = load_posenet(run / manifest["models"]["posenets"]["models"][contact]["shpix2pix"])
@@ -242,9 +253,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="data root of the check figures (default: $SIMSHEAR_DATA, else ../shared/data)")
     parser.add_argument("--contacts", nargs="+", default=None, metavar="CONTACT",
                         help="ship only these contact types' models (default: every one the run made)")
+    parser.add_argument("--models", nargs="+", default=list(MODEL_KINDS), choices=MODEL_KINDS,
+                        help="ship only these kinds: translators (shPix2pix, pix2pix, ONNX) and/or posenet (the GDNN "
+                             "on translated images); default both")
 
 
 def run(args: argparse.Namespace) -> int:
-    for path in ship(args.run, args.to, args.data, contacts=tuple(args.contacts) if args.contacts else None):
+    for path in ship(args.run, args.to, args.data, contacts=tuple(args.contacts) if args.contacts else None,
+                     models=tuple(args.models)):
         print(f"wrote {path}")
     return 0
