@@ -3,8 +3,9 @@
 A policy trained from scratch on co-lift learns to hold the object but not to follow it (docs/experiments.md,
 rl_colift_ppo); the servo controller does both. Here PPO's actor starts as a clone of the servo controller:
 
-1. **Teacher**: the servo controller's PI law (:data:`~simshear_gym.control.servo.SERVO_GAINS`, holding the first
-   estimate's shear where the env carries a load, as :class:`~simshear_gym.control.servo.ServoController`) on the
+1. **Teacher**: the servo controller's PI law (gains, load hold and margin as
+   :class:`~simshear_gym.control.servo.ServoController` takes them from the env:
+   :func:`~simshear_gym.control.servo.servo_law_for_env`) on the
    filter mean that the estimate observation itself carries (:func:`~simshear_gym.contract.filter_mean_from_estimate`):
    the teacher needs nothing the robot lacks. With the ``estimate+action`` observation the teacher is the same law
    in velocity form (:meth:`~simshear_gym.control.pi_law.PILaw.velocity_form`: the last action taken plus the
