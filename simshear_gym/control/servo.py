@@ -33,6 +33,11 @@ SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 """Default gains of :class:`ServoController` (see the module docstring)."""
 
 
+def with_shear_gains(gains: PIGains, kp: float, ki: float) -> PIGains:
+    """``gains`` with (kp, ki) on shear x and y (depth and Rz kept)."""
+    return PIGains(kp=(kp, kp, *gains.kp[2:]), ki=(ki, ki, *gains.ki[2:]), integral_limit=gains.integral_limit)
+
+
 def servo_law_for_env(env, gains: PIGains | None = None, hold_load: bool | None = None
                       ) -> tuple[PIGains, bool, np.ndarray]:
     """(gains, hold_load, load margin (x, y) mm) of the servo law for an env (wrappers looked through): the env's
@@ -48,9 +53,7 @@ def servo_law_for_env(env, gains: PIGains | None = None, hold_load: bool | None 
         margin = np.asarray(getattr(base, "servo_load_margin_mm", (0.0, 0.0)), dtype=np.float64).reshape(2)
         shear_gains = getattr(base, "servo_shear_gains", None)
         if shear_gains is not None and not explicit:
-            kp, ki = shear_gains
-            gains = PIGains(kp=(kp, kp, *gains.kp[2:]), ki=(ki, ki, *gains.ki[2:]),
-                            integral_limit=gains.integral_limit)
+            gains = with_shear_gains(gains, *shear_gains)
     return gains, bool(hold_load), margin
 
 

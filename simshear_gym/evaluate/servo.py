@@ -35,9 +35,8 @@ import numpy as np
 
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
-from simshear_gym.control.pi_law import PIGains
 from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
-from simshear_gym.control.servo import SERVO_GAINS, ServoController
+from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
 from simshear_gym.io import write_json
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -57,11 +56,7 @@ def make_controller(variant: str, env, posenets: dict[str, str | None], policy: 
         return OracleController.for_env(env)
     if variant in POLICY_VARIANTS:
         return SB3Controller.for_env(policy, env)
-    gains = None  # the env's
-    if shear_gains is not None:
-        kp, ki = shear_gains
-        gains = PIGains(kp=(kp, kp, *SERVO_GAINS.kp[2:]), ki=(ki, ki, *SERVO_GAINS.ki[2:]),
-                        integral_limit=SERVO_GAINS.integral_limit)
+    gains = with_shear_gains(SERVO_GAINS, *shear_gains) if shear_gains is not None else None  # None: the env's
     return ServoController.for_env(env, gains=gains, estimator=EstimatorConfig(posenet=posenets.get(variant)),
                                    hold_load=hold_load, load_margin_mm=load_margin_mm)
 
