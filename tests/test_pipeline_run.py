@@ -161,6 +161,19 @@ def test_pool_generators_may_differ_in_architecture_and_keep_the_others_settings
         PoolGenerator("bad", lr_schedule="linear")
 
 
+def test_a_contact_types_gdnns_may_train_longer_at_one_budget():
+    from simshear_gym.pipelines.config import PosenetStage
+    from simshear_gym.train.posenet_config import PosenetTrainConfig
+
+    stage = PosenetStage(epochs=30, contact_epochs={"surface": 60}, threads=1)
+    surface, edge = stage.train_settings("surface"), stage.train_settings("edge")
+    assert (surface["epochs"], edge["epochs"]) == (60, 30)
+    assert edge == PosenetStage(epochs=30, threads=1).train_settings("edge")  # unnamed types keep their cache keys
+    PosenetTrainConfig(source="real", contact="surface", paired_dirs=("set",), **surface)  # a valid trainer config
+    with pytest.raises(ValueError, match="contact_epochs must give contact types of .* got \\{'hand': 5\\}"):
+        PosenetStage(contact_epochs={"hand": 5})
+
+
 def test_a_pool_generator_may_be_read_by_a_second_real_gdnn(tmp_path):
     from simshear_gym.pipelines.config import PoolGenerator
     from simshear_gym.pipelines.run import training_steps

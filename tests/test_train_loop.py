@@ -219,7 +219,7 @@ COMMAND_FLAGS = {
                  "--image-size", "--base-channels", "--max-channels", "--decoder-scale", "--epochs", "--batch-size",
                  "--lr", "--l1-weight", "--density-weight", "--gan-weight", "--holdout", "--patience-epochs", "--seed",
                  "--threads", "--max-minutes", "--cap-minutes", "--pose-net", "--pose-weight", "--pose-variables",
-                 "--no-template", "--resume", "--export", "--device", "--no-amp"},
+                 "--teacher", "--no-template", "--resume", "--export", "--device", "--no-amp"},
     rl: {"--algo", "--out", "--timesteps", "--obs-mode", "--image-size", "--n-envs", "--n-steps", "--batch-size",
          "--learning-rate", "--checkpoint-steps", "--seed", "--threads", "--resume", "--quiet", "--device", "--task",
          "--minutes", "--observation", "--history", "--no-randomise", "--vec", "--n-epochs", "--gamma", "--net-arch",

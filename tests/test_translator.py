@@ -293,3 +293,34 @@ def test_pose_consistency_compares_only_the_chosen_variables(tmp_path):
         assert PoseConsistency(tmp_path / "reader.pt").loss(images, wrong_shear).item() == pytest.approx(3 / 7)
     with pytest.raises(ValueError, match=r"variables \['rx_deg'\] are not outputs"):
         PoseConsistency(tmp_path / "reader.pt", ("rx_deg",))
+
+
+def test_a_distilled_student_learns_the_teachers_images_not_the_real_ones(tmp_path):
+    """The teacher draws the square where the shear says; the 'real' images are blank. The student trained with
+    --teacher learns the teacher's squares, so its output moves with the shear as the teacher's does."""
+    from simshear_gym.train.translator_trainer import teacher_targets
+
+    teacher_run = TranslatorTrainer(tiny_config(epochs=10), tmp_path / "teacher", toy_pairs(n=192))
+    teacher_run.fit(progress=False)
+    save_generator(tmp_path / "teacher.pt", teacher_run.generator.eval())
+    blank = toy_pairs(n=192)
+    blank = PairedTensors(blank.sim, blank.shear, torch.zeros_like(blank.real))
+    targets = teacher_targets(blank, tmp_path / "teacher.pt", "shpix2pix")
+    teacher = Translator.load(tmp_path / "teacher.pt")
+    np.testing.assert_array_equal(targets.real.numpy()[:5], teacher(blank.sim.numpy()[:5], blank.shear.numpy()[:5]))
+    student_run = TranslatorTrainer(tiny_config(epochs=10, base_channels=2, max_channels=8,
+                                                teacher=str(tmp_path / "teacher.pt")), tmp_path / "student", blank)
+    student_run.fit(progress=False)
+    student = Translator(student_run.generator)
+    sim = toy_pairs(n=2).sim.numpy()
+    shear = np.array([[-4.0, 0, 0, 0, 0, 0], [4.0, 0, 0, 0, 0, 0]], np.float32)
+    out = student(sim, shear).astype(float)
+    assert out.mean() > 5  # not the blank 'real' images
+    centres = (out.sum(axis=1) * np.arange(32)).sum(axis=1) / out.sum(axis=(1, 2))
+    assert centres[1] - centres[0] > 2.0  # the square moved right with +x shear, as the teacher's
+    with pytest.raises(ValueError, match="teacher .* is a shpix2pix of 32 px; the student is a pix2pix"):
+        teacher_targets(blank, tmp_path / "teacher.pt", "pix2pix")
+    with pytest.raises(ValueError, match="L1 alone"):
+        tiny_config(teacher="t.pt", density_weight=1.0)
+    with pytest.raises(FileNotFoundError, match="teacher translator .*missing.pt not found"):
+        teacher_targets(blank, tmp_path / "missing.pt", "shpix2pix")

@@ -113,7 +113,9 @@ BASELINES = ("pix2pix", "sim")
 class PosenetStage:
     """The GDNNs' training (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields of the same
     names): per contact type one on the real images (the reference) and one on the shPix2pix translations of the
-    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`. The translated-image
+    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`: ``epochs``, or
+    ``contact_epochs[contact]`` for every GDNN of a contact type it names (the reference, the one that ships and
+    the baselines alike, so that they compare at one budget). The translated-image
     GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws`` times) and the
     profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
     label ranges in the training data (no real image needed: they are translated like the replays). ``baselines``
@@ -135,10 +137,16 @@ class PosenetStage:
     translator_draws: int = 1
     random_contacts: Mapping[str, int] = field(default_factory=dict)
     baselines: tuple[str, ...] = ()
+    contact_epochs: Mapping[str, int] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if self.epochs < 1:
             raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        bad = {contact: n for contact, n in self.contact_epochs.items()
+               if contact not in CONTACTS or not isinstance(n, int) or n < 1}
+        if bad:
+            raise ValueError(f"contact_epochs must give contact types of {list(CONTACTS)} a number of epochs >= 1, "
+                             f"got {bad}")
         if set(self.baselines) - set(BASELINES) or len(set(self.baselines)) != len(self.baselines):
             raise ValueError(f"baselines must name distinct ones of {list(BASELINES)}, got {list(self.baselines)}")
         if self.cap_minutes is not None and self.cap_minutes <= 0:
@@ -150,12 +158,17 @@ class PosenetStage:
         if bad:
             raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
 
-    def train_settings(self) -> dict:
-        """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of the stage's GDNNs (its
-        fields but those that say which GDNNs train on what: ``translator_draws``, ``random_contacts``,
-        ``baselines``)."""
-        return {name: value for name, value in asdict(self).items()
-                if name not in ("translator_draws", "random_contacts", "baselines")}
+    def epochs_for(self, contact: str) -> int:
+        """The epochs of a contact type's GDNNs."""
+        return self.contact_epochs.get(contact, self.epochs)
+
+    def train_settings(self, contact: str) -> dict:
+        """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of a contact type's GDNNs
+        (the stage's fields but those that say which GDNNs train on what: ``translator_draws``,
+        ``random_contacts``, ``baselines``; ``contact_epochs`` resolved into ``epochs``)."""
+        settings = {name: value for name, value in asdict(self).items()
+                    if name not in ("translator_draws", "random_contacts", "baselines", "contact_epochs")}
+        return settings | {"epochs": self.epochs_for(contact)}
 
 
 @dataclass(frozen=True)

@@ -242,7 +242,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
     draws), trained on ``device``; ``seed`` (not None) replaces the stage's seed and names the step
     ``<source>_s<seed>`` (a further pose-consistency reader)."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = stage.train_settings() | ({"seed": seed} if seed is not None else {})
+    settings = stage.train_settings(contact) | ({"seed": seed} if seed is not None else {})
     step_source = f"{source}_s{seed}" if seed is not None else source
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
@@ -345,9 +345,9 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
     """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`); the
     training steps train on ``device`` (None: the profile's)."""
     device = device or profile.device
-    posenet_cost = POSENET_EPOCH_COST * profile.posenet.epochs
     steps = []
     for contact, names in contacts_of(config).items():
+        posenet_cost = POSENET_EPOCH_COST * profile.posenet.epochs_for(contact)
         train_sets = [paired[name]["train"] for name in names]
         if "translator" in stages:
             for arch in profile.translator.archs:

@@ -50,6 +50,7 @@ class TranslatorTrainConfig:
     pose_weight: float = 0.0
     pose_net: str = ""
     pose_variables: tuple[str, ...] = ()
+    teacher: str = ""
     device: str = "auto"
     amp: bool = True
 
@@ -68,6 +69,10 @@ class TranslatorTrainConfig:
             raise ValueError(f"holdout must be in (0, 0.5), got {self.holdout}")
         if self.lr <= 0 or self.l1_weight < 0 or self.gan_weight < 0 or self.density_weight < 0:
             raise ValueError("lr must be > 0 and the loss weights >= 0")
+        if self.teacher and (self.pose_weight > 0 or self.density_weight > 0 or self.gan_weight > 0):
+            raise ValueError("a distilled generator (teacher) learns the teacher's images with L1 alone: it takes no "
+                             f"pose, density or GAN loss, got pose_weight {self.pose_weight}, density_weight "
+                             f"{self.density_weight}, gan_weight {self.gan_weight}")
         if self.pose_weight < 0 or (self.pose_weight > 0) != bool(self.pose_net):
             raise ValueError(f"pose_weight {self.pose_weight} must be >= 0, and above 0 exactly when a pose_net "
                              f"(real-image GDNN) is given, got pose_net {self.pose_net!r}")

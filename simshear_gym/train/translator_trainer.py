@@ -73,6 +73,28 @@ def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None
                          torch.from_numpy(np.concatenate(reals)), torch.cat(labels) if pose is not None else None)
 
 
+def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch: int = 64) -> PairedTensors:
+    """``pairs`` with the real images replaced by a teacher translator's uint8 images of the same rows (sim
+    render and shear, through the translator's contract as the envs run it), for distillation. The teacher must
+    be of the student's architecture kind (shPix2pix or pix2pix) and image size."""
+    from simshear_gym.models.translator import Translator
+
+    teacher = Path(teacher)
+    if not teacher.is_file():
+        raise FileNotFoundError(f"teacher translator {teacher} not found (expected a .pt of simshear train "
+                                f"export-translator)")
+    generator, card = load_generator(teacher)
+    teacher_arch = "shpix2pix" if generator.config.shear_dim else "pix2pix"
+    if teacher_arch != arch or generator.config.image_size_px != pairs.sim.shape[-1]:
+        raise ValueError(f"teacher {teacher} is a {teacher_arch} of {generator.config.image_size_px} px; the student "
+                         f"is a {arch} of {pairs.sim.shape[-1]} px: they must agree")
+    translator = Translator(generator.float().eval(), card)
+    sims, shears = pairs.sim.numpy(), pairs.shear.numpy()
+    images = np.concatenate([translator(sims[start:start + batch], shears[start:start + batch])
+                             for start in range(0, len(pairs), batch)])
+    return PairedTensors(pairs.sim, pairs.shear, torch.from_numpy(images), pairs.pose_labels)
+
+
 class TranslatorTrainer(EpochTrainer):
     """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it.
 
@@ -93,6 +115,8 @@ class TranslatorTrainer(EpochTrainer):
         self.precision = MixedPrecision(self.device, autocast_dtype(self.device, config.amp))
         self.pose = pose.to(self.device) if pose is not None else None
         torch.manual_seed(config.seed)
+        if config.teacher:  # distillation: the teacher's images are the targets (and the holdout's)
+            pairs = teacher_targets(pairs, config.teacher, config.arch)
         train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
         self.train_pairs, self.holdout_pairs = pairs.subset(train_rows), pairs.subset(holdout_rows)
         self.generator = UNetGenerator(config.generator_config())
@@ -139,7 +163,8 @@ class TranslatorTrainer(EpochTrainer):
         return sim, shear.to(self.device, non_blocking=True) if self.generator.config.shear_dim else None
 
     def holdout_l1(self) -> float:
-        """Mean absolute error (images in [0, 1]) of the generated held-out images against the real ones."""
+        """Mean absolute error (images in [0, 1]) of the generated held-out images against the real ones (the
+        teacher's, when distilling)."""
         self.generator.eval()
         total = 0.0
         with torch.inference_mode():
