@@ -255,6 +255,33 @@ def choose_translator_runtime(runtime: str | None = None) -> str:
     return chosen
 
 
+TRANSLATORS: tuple[str, ...] = ("full", "student")
+TRANSLATOR_ENV = "SIMSHEAR_TRANSLATOR"
+
+
+def choose_translator(translator: str | None = None) -> str:
+    """Which shipped translator makes the envs' images: ``translator`` if given, else ``$SIMSHEAR_TRANSLATOR``, else
+    ``"full"`` (the shipped shPix2pix); ``"student"`` is its distilled student (``weights/student/``, a smaller
+    generator that learned the full one's images: the fast path; see its card for its quality on the real
+    validation images). The environment variable reaches every process of a vector env."""
+    chosen = translator if translator is not None else os.environ.get(TRANSLATOR_ENV) or "full"
+    if chosen not in TRANSLATORS:
+        source = "translator" if translator is not None else f"${TRANSLATOR_ENV}"
+        raise ValueError(f"{source} must be one of {TRANSLATORS}, got {chosen!r}")
+    return chosen
+
+
+def shipped_student_weights(contact: str, arch: str = "shpix2pix") -> str:
+    """The shipped student translator's weights for a contact type (FileNotFoundError naming what ships)."""
+    from simshear_gym.models.translator import STUDENT_DIR, shipped_models
+
+    models = shipped_models(student=True)
+    if (arch, contact) not in models:
+        raise FileNotFoundError(f"no shipped student {arch} translator for {contact!r} contacts in {STUDENT_DIR}; "
+                                f"shipped students: {sorted(models)}")
+    return str(models[(arch, contact)])
+
+
 TRANSLATOR_DEVICE_ENV = "SIMSHEAR_TRANSLATOR_DEVICE"
 
 

@@ -139,6 +139,36 @@ def test_contract_runtime_option_and_environment_variable(monkeypatch):
         contract.shipped_translator("surface", runtime="fast")
 
 
+def test_the_translator_choice_puts_the_student_in_the_envs(tmp_path, monkeypatch):
+    """translator='student' (or $SIMSHEAR_TRANSLATOR) makes the env translate with the weights in
+    weights/student/: here a copy of the shipped generator, so the images are the full env's."""
+    from simshear_gym.models import translator as translator_module
+
+    monkeypatch.delenv(contract.TRANSLATOR_ENV, raising=False)
+    monkeypatch.setenv(contract.TRANSLATOR_RUNTIME_ENV, "torch")
+    assert contract.choose_translator() == "full" and contract.choose_translator("student") == "student"
+    monkeypatch.setattr(translator_module, "STUDENT_DIR", tmp_path)
+    with pytest.raises(FileNotFoundError, match="no shipped student shpix2pix translator for 'surface'"):
+        gym.make("SimShearTracking-v0", translator="student")
+    shutil.copy(SHIPPED["surface"], tmp_path / "shpix2pix_surface.pt")
+    observations = {}
+    for choice in ("full", "student"):
+        monkeypatch.setenv(contract.TRANSLATOR_ENV, choice)
+        env = gym.make("SimShearTracking-v0", obs_mode="real", image_size_px=64)
+        assert env.unwrapped.translator == choice
+        assert (env.unwrapped.translator_weights == str(tmp_path / "shpix2pix_surface.pt")) == (choice == "student")
+        obs, _ = env.reset(seed=3)
+        obs, *_ = env.step(np.array([0.3, -0.2, 0.1, 0.0], dtype=np.float32))
+        observations[choice] = obs["tactile"]
+        env.close()
+    np.testing.assert_array_equal(observations["student"], observations["full"])
+    monkeypatch.setenv(contract.TRANSLATOR_ENV, "fast")
+    with pytest.raises(ValueError, match=r"\$SIMSHEAR_TRANSLATOR must be one of \('full', 'student'\), got 'fast'"):
+        gym.make("SimShearTracking-v0")
+    with pytest.raises(ValueError, match="sensor 'configs/x.toml' brings its own translator"):
+        gym.make("SimShearTracking-v0", translator="student", sensor="configs/x.toml")
+
+
 def test_onnx_translator_rejects_bad_input(tmp_path):
     translator = OnnxTranslator(onnx_path_for(SHIPPED["surface"]))
     sim, shear = _inputs(2)

@@ -56,10 +56,12 @@ from simshear_gym.contract import (
     action_to_move,
     check_image_size,
     check_observation,
+    choose_translator,
     choose_translator_device,
     finish_tactile,
     load_sensor,
     observation_space,
+    shipped_student_weights,
 )
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.observation import Estimator, PolicyObservation
@@ -182,6 +184,9 @@ class SimShearEnv(gym.Env, EzPickle):
             controllers (same floor), so it is passed in; it is called once, at construction.
         device: where the translator runs (``"cpu"``, ``"cuda"``, ``"auto"``; default ``$SIMSHEAR_TRANSLATOR_DEVICE``
             or ``"cpu"``: :func:`~simshear_gym.contract.choose_translator_device`); the physics runs on the CPU.
+        translator: which shipped translator makes the images: ``"full"`` (the shipped shPix2pix) or
+            ``"student"`` (its distilled student, the fast path); default ``$SIMSHEAR_TRANSLATOR`` or ``"full"``
+            (:func:`~simshear_gym.contract.choose_translator`). A ``sensor``'s own translator takes no student.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
@@ -195,7 +200,8 @@ class SimShearEnv(gym.Env, EzPickle):
                  arm_config: MG400ArmConfig = MG400ArmConfig(),
                  shear_config: ShearTrackerConfig = ShearTrackerConfig(), raw_tactile: bool = False,
                  sensor: str | None = None, observation: str = "tactile", history: int = 1,
-                 estimator: Estimator | Callable[[Any], Estimator] | None = None, device: str | None = None) -> None:
+                 estimator: Estimator | Callable[[Any], Estimator] | None = None, device: str | None = None,
+                 translator: str | None = None) -> None:
         if obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be one of {OBS_MODES}, got {obs_mode!r}")
         check_observation(observation, history)
@@ -230,6 +236,12 @@ class SimShearEnv(gym.Env, EzPickle):
         self.world = World()
         tactip_config = TacTipConfig(image_size_px=RENDER_SIZE_PX)
         self.translator_weights: str | None = None
+        self.translator = choose_translator(translator) if obs_mode in TRANSLATED_MODES else "full"
+        if self.translator == "student":
+            if sensor is not None:
+                raise ValueError(f"translator 'student' is the shipped translator's student; sensor {sensor!r} "
+                                 "brings its own translator: leave translator (and $SIMSHEAR_TRANSLATOR) unset")
+            self.translator_weights = shipped_student_weights(self.translator_contact)
         if sensor is not None:
             models = load_sensor(sensor)
             tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})

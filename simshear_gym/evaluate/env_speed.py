@@ -100,28 +100,43 @@ def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmu
 
 
 @contextlib.contextmanager
-def translator_runtime(runtime: str):
-    """The envs built (and the vector env workers started) inside run their translator on ``runtime``."""
-    from simshear_gym.contract import TRANSLATOR_RUNTIME_ENV
-
-    previous = os.environ.get(TRANSLATOR_RUNTIME_ENV)
-    os.environ[TRANSLATOR_RUNTIME_ENV] = runtime
+def _environment(name: str, value: str):
+    """``$name`` set to ``value`` inside (the envs built and the vector env workers started there read it)."""
+    previous = os.environ.get(name)
+    os.environ[name] = value
     try:
         yield
     finally:
         if previous is None:
-            os.environ.pop(TRANSLATOR_RUNTIME_ENV, None)
+            os.environ.pop(name, None)
         else:
-            os.environ[TRANSLATOR_RUNTIME_ENV] = previous
+            os.environ[name] = previous
 
 
-def translator_batch1_ms(runtime: str = "torch", repeats: int = 200) -> float:
-    """Median batch-1 latency (ms) of the shipped surface translator on ``runtime``."""
-    from simshear_gym.contract import shipped_translator
+@contextlib.contextmanager
+def translator_runtime(runtime: str, translator: str = "full"):
+    """The envs built (and the vector env workers started) inside run the shipped ``translator`` ("full" or
+    "student") on ``runtime``."""
+    from simshear_gym.contract import TRANSLATOR_ENV, TRANSLATOR_RUNTIME_ENV
+
+    with _environment(TRANSLATOR_RUNTIME_ENV, runtime), _environment(TRANSLATOR_ENV, translator):
+        yield
+
+
+def surface_translator(runtime: str, translator: str = "full"):
+    """The shipped surface translator ("full", or its "student") on ``runtime``, as the envs load it."""
+    from simshear_gym.contract import shipped_student_weights, shipped_translator, translator_from
+
+    if translator == "student":
+        return translator_from(shipped_student_weights("surface"), runtime)
+    return shipped_translator("surface", runtime=runtime)
+
+
+def translator_batch1_ms(runtime: str = "torch", repeats: int = 200, translator: str = "full") -> float:
+    """Median batch-1 latency (ms) of the shipped surface translator (or its student) on ``runtime``."""
     from simshear_gym.evaluate.translator_speed import latency_ms
 
-    translator = shipped_translator("surface", runtime=runtime)
-    return round(latency_ms(translator, 1, repeats, np.random.default_rng(0)), 3)
+    return round(latency_ms(surface_translator(runtime, translator), 1, repeats, np.random.default_rng(0)), 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -137,13 +152,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vector-runtimes", nargs="+", choices=("auto", "torch", "onnx"), default=["auto"],
                         help="translator runtimes of the vectorised runs (default auto: the envs' default, ONNX "
                              "Runtime where it can)")
+    parser.add_argument("--translators", nargs="+", choices=("full", "student"), default=["full"],
+                        help="shipped translators measured: full (the shPix2pix) and/or student (its distilled "
+                             "student, weights/student/; the envs' translator='student')")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
 
 
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from simshear_gym.contract import shipped_translator
     from simshear_gym.models.translator_runtime import runtime_of
 
     for name in ("steps", "vector_steps", "workers"):
@@ -153,54 +170,50 @@ def run(args: argparse.Namespace) -> int:
         if min(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     runtimes = list(dict.fromkeys(args.runtimes))
+    translators = list(dict.fromkeys(args.translators))
     single = {"sim": single_process("sim", args.steps), "real": []}
     sim_row = single["sim"]
     print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")
     # (runtime, torch threads of the main process): ONNX Runtime runs on its own single thread
-    settings = [(runtime, threads) for runtime in runtimes
+    settings = [(translator, runtime, threads) for translator in translators for runtime in runtimes
                 for threads in (args.threads if runtime == "torch" else [1])]
-    for runtime, threads in settings:
+    for translator, runtime, threads in settings:
         torch.set_num_threads(threads)
-        with translator_runtime(runtime):
-            row = {"torch_threads": threads, "translator_runtime": runtime,
+        with translator_runtime(runtime, translator):
+            row = {"translator": translator, "torch_threads": threads, "translator_runtime": runtime,
                    **({"onnx_threads": 1} if runtime == "onnx" else {}), **single_process("real", args.steps),
-                   "translator_ms_batch1": translator_batch1_ms(runtime)}
+                   "translator_ms_batch1": translator_batch1_ms(runtime, translator=translator)}
         row["translator_share_of_step"] = round(row["translator_ms_batch1"] / row["ms_per_step"], 3)
         row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_row["ms_per_step"], 3)
         row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_row["steps_per_s"], 3)
         single["real"].append(row)
-        print(f"one process, real 128 px, {runtime}"
+        print(f"one process, real 128 px, {translator} translator, {runtime}"
               f"{f' (torch threads {threads})' if runtime == 'torch' else ' (1 thread)'}: "
               f"{row['steps_per_s']:.0f} steps/s ({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} "
               f"CPU ms/step, {row['steps_per_s_over_sim']:.2f} x sim's rate); translator at batch 1 "
               f"{row['translator_ms_batch1']:.2f} ms = {100 * row['translator_share_of_step']:.0f} % of a step")
     vector = []
-    vector_runtimes = {runtime: runtime_of(shipped_translator("surface", runtime=runtime))  # auto -> its choice
+    vector_runtimes = {runtime: runtime_of(surface_translator(runtime))  # auto -> its choice
                        for runtime in dict.fromkeys(args.vector_runtimes)}
-    for num_envs in args.num_envs:
-        for requested, runtime in vector_runtimes.items():
-            main_threads = args.threads if runtime == "torch" else [1]
-            for translate_in, threads in [("workers", 1)] + [("main", threads) for threads in main_threads]:
-                torch.set_num_threads(threads)  # the main process's (workers use one thread each)
-                with translator_runtime(requested):
-                    row = {"torch_threads_main": threads, "translator_runtime": runtime,
-                           **vectorised(num_envs, args.workers, translate_in, args.vector_steps)}
-                vector.append(row)
-                print(f"make_vec {num_envs} envs, {args.workers} workers, {runtime}, translating in {translate_in}"
-                      f"{f' ({threads} threads)' if translate_in == 'main' and runtime == 'torch' else ''}: "
-                      f"{row['steps_per_s']:.0f} steps/s")
+    for translator in translators:
+        for num_envs in args.num_envs:
+            for requested, runtime in vector_runtimes.items():
+                vector += _vector_rows(args, translator, num_envs, requested, runtime)
     best_single = max(row["steps_per_s"] for row in single["real"])
     best_vector = max(row["steps_per_s"] for row in vector)
-    best_by_runtime = {runtime: max(row["steps_per_s"] for row in single["real"] if row["translator_runtime"] ==
-                                    runtime) for runtime in runtimes}
+    best_by_runtime = {f"{translator}/{runtime}": max(
+        row["steps_per_s"] for row in single["real"]
+        if (row["translator"], row["translator_runtime"]) == (translator, runtime))
+        for translator in translators for runtime in runtimes}
     payload = {
         "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
                     f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
                     f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
-                    f"--vector-runtimes {' '.join(vector_runtimes)}"),
+                    f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"),
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
-        "env": ("SimShearTracking-v0, obs_mode='real' (shPix2pix surface translator; runtime per row: torch, or "
-                "ONNX Runtime on shpix2pix_surface.onnx), 128 px, oracle actions"),
+        "env": ("SimShearTracking-v0, obs_mode='real' (the shipped shPix2pix surface translator, 'full', or its "
+                "distilled 'student'; runtime per row: torch, or ONNX Runtime on the .onnx beside the weights), "
+                "128 px, oracle actions"),
         "single_process": single, "vectorised": vector,
         "goals": {"single_steps_per_s": GOAL_SINGLE_STEPS_PER_S, "vector_steps_per_s": GOAL_VECTOR_STEPS_PER_S,
                   "best_single_steps_per_s": best_single, "best_vector_steps_per_s": best_vector,
@@ -216,3 +229,23 @@ def run(args: argparse.Namespace) -> int:
     write_json(args.out / "env_speed.json", payload)
     print(f"wrote {args.out / 'env_speed.json'}")
     return 0
+
+
+def _vector_rows(args: argparse.Namespace, translator: str, num_envs: int, requested: str, runtime: str) -> list:
+    """The vectorised rows of one translator, sub-env count and runtime: translating in the workers, and in the
+    main process on each thread setting."""
+    import torch
+
+    rows = []
+    main_threads = args.threads if runtime == "torch" else [1]
+    for translate_in, threads in [("workers", 1)] + [("main", threads) for threads in main_threads]:
+        torch.set_num_threads(threads)  # the main process's (workers use one thread each)
+        with translator_runtime(requested, translator):
+            row = {"translator": translator, "torch_threads_main": threads, "translator_runtime": runtime,
+                   **vectorised(num_envs, args.workers, translate_in, args.vector_steps)}
+        rows.append(row)
+        print(f"make_vec {num_envs} envs, {args.workers} workers, {translator} translator, {runtime}, translating in "
+              f"{translate_in}"
+              f"{f' ({threads} threads)' if translate_in == 'main' and runtime == 'torch' else ''}: "
+              f"{row['steps_per_s']:.0f} steps/s")
+    return rows

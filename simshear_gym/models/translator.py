@@ -24,6 +24,9 @@ SHEAR_SCALE = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)  # mm, 
 # in the sim image itself), so a tracker's z component (a sensor pressed in while sheared) is not shown to it.
 SHEAR_INPUT_MASK = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0], dtype=np.float32)
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+STUDENT_DIR = WEIGHTS_DIR / "student"
+"""Distilled students of the shipped translators (``simshear train translator --teacher``): smaller generators
+that learned the shipped ones' images, for the envs' fast path (``translator="student"``)."""
 
 
 def normalise_sim(sim_uint8: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -91,15 +94,16 @@ class Translator:
         return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
 
 
-def shipped_models() -> dict[tuple[str, str], Path]:
-    """Shipped weights: ``weights/<arch>_<contact>.pt`` (one per contact type) or ``weights/<arch>.pt`` (both).
+def shipped_models(student: bool = False) -> dict[tuple[str, str], Path]:
+    """Shipped weights: ``weights/<arch>_<contact>.pt`` (one per contact type) or ``weights/<arch>.pt`` (both);
+    with ``student``, the distilled students in ``weights/student/`` (:data:`STUDENT_DIR`), named the same.
 
     Returns ``{(arch, contact): path}``.
     """
     from simshear_gym.data.labels import CONTACT_TYPES
 
     found: dict[tuple[str, str], Path] = {}
-    for path in sorted(WEIGHTS_DIR.glob("*.pt")):
+    for path in sorted((STUDENT_DIR if student else WEIGHTS_DIR).glob("*.pt")):
         arch, _, contact = path.stem.partition("_")
         for each in ([contact] if contact in CONTACT_TYPES else CONTACT_TYPES if not contact else []):
             found[(arch, each)] = path
