@@ -156,6 +156,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="shipped translators measured: full (the shPix2pix) and/or student (its distilled "
                              "student, weights/student/; the envs' translator='student')")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
+    parser.add_argument("--name", default="env_speed", help="base name of the json written")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -209,7 +210,8 @@ def run(args: argparse.Namespace) -> int:
         "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
                     f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
                     f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
-                    f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"),
+                    f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
+                    + (f" --out {args.out.as_posix()} --name {args.name}" if args.name != "env_speed" else "")),
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
         "env": ("SimShearTracking-v0, obs_mode='real' (the shipped shPix2pix surface translator, 'full', or its "
                 "distilled 'student'; runtime per row: torch, or ONNX Runtime on the .onnx beside the weights), "
@@ -226,8 +228,8 @@ def run(args: argparse.Namespace) -> int:
                   "translated_over_sim_met": max(best_by_runtime.values()) >= (
                       GOAL_TRANSLATED_SHARE_OF_SIM_RATE * sim_row["steps_per_s"])},
     }
-    write_json(args.out / "env_speed.json", payload)
-    print(f"wrote {args.out / 'env_speed.json'}")
+    write_json(args.out / f"{args.name}.json", payload)
+    print(f"wrote {args.out / f'{args.name}.json'}")
     return 0
 
 
