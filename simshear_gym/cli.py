@@ -33,6 +33,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "MAPE / SSIM of translators on the real validation images, with reference rows"),
     (("evaluate", "translator-speed"), "simshear_gym.evaluate.translator_speed",
      "translator latency per image at batch 1 and 32"),
+    (("evaluate", "train-speed"), "simshear_gym.evaluate.train_speed",
+     "training step time of the GDNN and translator trainers, default layout against channels_last"),
     (("evaluate", "training-curve"), "simshear_gym.evaluate.training_curve",
      "quality against training time of translator runs"),
     (("mg400-emulator",), "simshear_gym.real.mg400_emulator",

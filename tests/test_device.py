@@ -4,6 +4,7 @@ trainers (mixed precision, channels_last) exercised on the CPU."""
 from __future__ import annotations
 
 import argparse
+import json
 
 import numpy as np
 import pytest
@@ -124,8 +125,7 @@ def test_a_translator_on_device_keeps_its_uint8_call():
 def test_mixed_precision_acts_on_cuda_only_and_is_the_plain_step_elsewhere():
     assert autocast_dtype(torch.device("cpu"), amp=True) is None
     assert autocast_dtype(torch.device("cuda"), amp=False) is None
-    assert memory_format(torch.device("cpu")) == torch.preserve_format
-    assert memory_format(torch.device("cuda")) == torch.channels_last
+    assert memory_format(torch.device("cpu")) == memory_format(torch.device("cuda")) == torch.channels_last
     plain = MixedPrecision(torch.device("cpu"), None)
     assert not plain.enabled and not plain.scaler.is_enabled()
 
@@ -278,3 +278,18 @@ def test_a_gpu_translator_is_torchs_and_vector_workers_leave_the_gpu_to_the_main
     monkeypatch.setattr(base, "choose_translator_device", lambda device=None: "cuda:0" if device else "cpu")
     with pytest.raises(ValueError, match="worker processes cannot share the GPU.*translate_in='main'"):
         gym.make_vec("SimShearTracking-v0", num_envs=2, workers=2, device="cuda")
+
+
+def test_train_speed_times_both_layouts_of_each_trainer(tmp_path):
+    """`simshear evaluate train-speed` times a step of each trainer in both layouts and records the command."""
+    from simshear_gym.cli import main
+
+    assert main(["evaluate", "train-speed", "--models", "gdnn", "translator_decoder0.5", "--steps", "1",
+                 "--processes", "1", "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "train_speed.json").read_text())
+    assert record["command"].startswith("simshear evaluate train-speed --models gdnn translator_decoder0.5")
+    assert [row["model"] for row in record["models"]] == ["gdnn", "translator_decoder0.5"]
+    for row in record["models"]:
+        assert row["ms_per_step_default"] > 0 and row["ms_per_step_channels_last"] > 0
+        assert row["speedup"] == pytest.approx(row["ms_per_step_default"] / row["ms_per_step_channels_last"],
+                                               rel=0.01)

@@ -1,4 +1,4 @@
-"""Mixed precision and memory layout of a training step on CUDA; on the CPU a step runs exactly as written.
+"""Mixed precision of a training step on CUDA, and its memory layout (``channels_last``) on every device.
 
 :class:`MixedPrecision` wraps a step's forward passes in ``torch.autocast`` (bf16 where the GPU has it, else fp16
 with a ``GradScaler`` against underflowing gradients) and its backward and optimiser steps in the scaler's calls;
@@ -22,9 +22,12 @@ def autocast_dtype(device: torch.device, amp: bool) -> torch.dtype | None:
 
 
 def memory_format(device: torch.device) -> torch.memory_format:
-    """``channels_last`` on CUDA (its convolutions, tensor cores above all, run faster in it), else
-    ``preserve_format`` (tensors left as they are)."""
-    return torch.channels_last if device.type == "cuda" else torch.preserve_format
+    """``channels_last`` on every device: CUDA's convolutions (tensor cores above all) run faster in it, and so do
+    the CPU's, max pooling above all (one thread, two processes side by side as the pipeline runs them: a GDNN
+    step 1.3x, a translator step 1.25x faster than in the default layout; ``simshear evaluate train-speed``).
+    Saved weights are layout-free: they load into a model in either layout."""
+    del device  # the layout is the same everywhere; the argument keeps the call sites device-aware
+    return torch.channels_last
 
 
 class MixedPrecision:

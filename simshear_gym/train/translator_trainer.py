@@ -99,8 +99,8 @@ class TranslatorTrainer(EpochTrainer):
     """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it.
 
     The pairs stay on the CPU; each batch moves to ``config.device`` (under torchrun: the process's device, and
-    its share of the batch). On CUDA the networks run in ``channels_last`` and, with ``config.amp``, their forward
-    passes in mixed precision (the losses in float32)."""
+    its share of the batch). The networks run in ``channels_last`` (faster on the CPU too) and on CUDA, with
+    ``config.amp``, their forward passes in mixed precision (the losses in float32)."""
 
     metric = "l1"  # history: train_l1, holdout_l1 (mean absolute pixel error, images in [0, 1])
 
