@@ -124,10 +124,13 @@ def test_evaluate_env_speed_writes_results_with_the_command(tmp_path):
     threads = torch.get_num_threads()
     try:
         assert cli.main(["evaluate", "env-speed", "--steps", "5", "--vector-steps", "2", "--num-envs", "2",
-                         "--workers", "2", "--threads", "1", "--out", str(tmp_path)]) == 0
+                         "--workers", "2", "--threads", "1", "--onnx-threads", "1", "2", "--out", str(tmp_path)]) == 0
     finally:
         torch.set_num_threads(threads)
     result = json.loads((tmp_path / "env_speed.json").read_text())
     assert result["command"].startswith("simshear evaluate env-speed --steps 5")
+    assert "--onnx-threads 1 2" in result["command"]
+    onnx_rows = [row for row in result["single_process"]["real"] if row["translator_runtime"] == "onnx"]
+    assert [row["onnx_threads"] for row in onnx_rows] == [1, 2]
     assert result["single_process"]["real"][0]["steps_per_s"] > 0 and result["single_process"]["sim"]["steps"] == 5
     assert [row["translate_in"] for row in result["vectorised"]] == ["workers", "main"]

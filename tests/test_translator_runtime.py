@@ -139,6 +139,25 @@ def test_contract_runtime_option_and_environment_variable(monkeypatch):
         contract.shipped_translator("surface", runtime="fast")
 
 
+def test_contract_onnx_threads_option_and_environment_variable(monkeypatch):
+    """ONNX Runtime's intra-op threads: 1 by default, else the argument or $SIMSHEAR_TRANSLATOR_THREADS; the
+    translators of two settings are two sessions that agree on the images."""
+    monkeypatch.delenv(contract.TRANSLATOR_THREADS_ENV, raising=False)
+    assert contract.choose_translator_threads() == 1 and contract.choose_translator_threads(2) == 2
+    one = contract.shipped_translator("surface", runtime="onnx")
+    monkeypatch.setenv(contract.TRANSLATOR_THREADS_ENV, "2")
+    two = contract.shipped_translator("surface", runtime="onnx")
+    assert (one.threads, two.threads) == (1, 2)
+    sim, shear = _inputs(2)
+    _assert_agree(one(sim, shear), two(sim, shear))
+    for bad in ("0", "two", "1.5"):
+        monkeypatch.setenv(contract.TRANSLATOR_THREADS_ENV, bad)
+        with pytest.raises(ValueError, match=rf"\$SIMSHEAR_TRANSLATOR_THREADS must be a whole number .*'{bad}'"):
+            contract.shipped_translator("surface")
+    with pytest.raises(ValueError, match="translator threads must be a whole number"):
+        contract.choose_translator_threads(0)
+
+
 def test_the_translator_choice_puts_the_student_in_the_envs(tmp_path, monkeypatch):
     """translator='student' (or $SIMSHEAR_TRANSLATOR) makes the env translate with the weights in
     weights/student/: here a copy of the shipped generator, so the images are the full env's."""

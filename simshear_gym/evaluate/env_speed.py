@@ -4,7 +4,8 @@
 in ``obs_mode="real"``, translating every image) and writes ``results/env_speed.json``:
 
 - single process: ``gymnasium.make`` and a loop, per translator runtime of ``--runtimes``: torch on each of the
-  ``--threads`` settings, ONNX Runtime (:mod:`simshear_gym.models.translator_runtime`) on one intra-op thread;
+  ``--threads`` settings, ONNX Runtime (:mod:`simshear_gym.models.translator_runtime`) on each of the
+  ``--onnx-threads`` settings (intra-op threads; default one);
   the same loop in ``"sim"`` mode and the translator alone at batch 1 show where the time goes (each row's
   ``translator_share_of_step``: the translator's batch-1 time over the step's; ``translation_ms_in_step``: the
   step's time over the sim-mode step's);
@@ -114,29 +115,34 @@ def _environment(name: str, value: str):
 
 
 @contextlib.contextmanager
-def translator_runtime(runtime: str, translator: str = "full"):
+def translator_runtime(runtime: str, translator: str = "full", threads: int = 1):
     """The envs built (and the vector env workers started) inside run the shipped ``translator`` ("full" or
-    "student") on ``runtime``."""
-    from simshear_gym.contract import TRANSLATOR_ENV, TRANSLATOR_RUNTIME_ENV
+    "student") on ``runtime`` (ONNX Runtime on ``threads`` intra-op threads)."""
+    from simshear_gym.contract import TRANSLATOR_ENV, TRANSLATOR_RUNTIME_ENV, TRANSLATOR_THREADS_ENV
 
-    with _environment(TRANSLATOR_RUNTIME_ENV, runtime), _environment(TRANSLATOR_ENV, translator):
+    with (_environment(TRANSLATOR_RUNTIME_ENV, runtime), _environment(TRANSLATOR_ENV, translator),
+          _environment(TRANSLATOR_THREADS_ENV, str(threads))):
         yield
 
 
-def surface_translator(runtime: str, translator: str = "full"):
-    """The shipped surface translator ("full", or its "student") on ``runtime``, as the envs load it."""
+def surface_translator(runtime: str, translator: str = "full", threads: int = 1):
+    """The shipped surface translator ("full", or its "student") on ``runtime`` (ONNX Runtime on ``threads``
+    threads), as the envs load it."""
     from simshear_gym.contract import shipped_student_weights, shipped_translator, translator_from
 
     if translator == "student":
-        return translator_from(shipped_student_weights("surface"), runtime)
-    return shipped_translator("surface", runtime=runtime)
+        return translator_from(shipped_student_weights("surface"), runtime, threads=threads)
+    return shipped_translator("surface", runtime=runtime, threads=threads)
 
 
-def translator_batch1_ms(runtime: str = "torch", repeats: int = 200, translator: str = "full") -> float:
-    """Median batch-1 latency (ms) of the shipped surface translator (or its student) on ``runtime``."""
+def translator_batch1_ms(runtime: str = "torch", repeats: int = 200, translator: str = "full",
+                         threads: int = 1) -> float:
+    """Median batch-1 latency (ms) of the shipped surface translator (or its student) on ``runtime`` (ONNX Runtime
+    on ``threads`` threads)."""
     from simshear_gym.evaluate.translator_speed import latency_ms
 
-    return round(latency_ms(surface_translator(runtime, translator), 1, repeats, np.random.default_rng(0)), 3)
+    return round(latency_ms(surface_translator(runtime, translator, threads), 1, repeats,
+                            np.random.default_rng(0)), 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -147,8 +153,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2],
                         help="torch threads of the main process: each setting is measured (torch runtime)")
     parser.add_argument("--runtimes", nargs="+", choices=("torch", "onnx"), default=["torch", "onnx"],
-                        help="translator runtimes of the single-process runs (onnx: ONNX Runtime on one thread, "
-                             "needs onnxruntime and the shipped .onnx; default both)")
+                        help="translator runtimes of the single-process runs (onnx: ONNX Runtime on each "
+                             "--onnx-threads setting, needs onnxruntime and the shipped .onnx; default both)")
+    parser.add_argument("--onnx-threads", type=int, nargs="+", default=[1],
+                        help="ONNX Runtime intra-op threads of the single-process runs: each setting is measured "
+                             "(default 1; the vectorised runs' workers use one each)")
     parser.add_argument("--vector-runtimes", nargs="+", choices=("auto", "torch", "onnx"), default=["auto"],
                         help="translator runtimes of the vectorised runs (default auto: the envs' default, ONNX "
                              "Runtime where it can)")
@@ -167,7 +176,7 @@ def run(args: argparse.Namespace) -> int:
     for name in ("steps", "vector_steps", "workers"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
-    for name in ("num_envs", "threads"):
+    for name in ("num_envs", "threads", "onnx_threads"):
         if min(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     runtimes = list(dict.fromkeys(args.runtimes))
@@ -175,21 +184,24 @@ def run(args: argparse.Namespace) -> int:
     single = {"sim": single_process("sim", args.steps), "real": []}
     sim_row = single["sim"]
     print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")
-    # (runtime, torch threads of the main process): ONNX Runtime runs on its own single thread
-    settings = [(translator, runtime, threads) for translator in translators for runtime in runtimes
-                for threads in (args.threads if runtime == "torch" else [1])]
-    for translator, runtime, threads in settings:
+    # (translator, runtime, torch threads of the main process, ONNX Runtime's intra-op threads)
+    settings = [(translator, runtime, threads, 1) if runtime == "torch" else (translator, runtime, 1, threads)
+                for translator in translators for runtime in runtimes
+                for threads in (args.threads if runtime == "torch" else args.onnx_threads)]
+    for translator, runtime, threads, onnx_threads in settings:
         torch.set_num_threads(threads)
-        with translator_runtime(runtime, translator):
+        with translator_runtime(runtime, translator, onnx_threads):
             row = {"translator": translator, "torch_threads": threads, "translator_runtime": runtime,
-                   **({"onnx_threads": 1} if runtime == "onnx" else {}), **single_process("real", args.steps),
-                   "translator_ms_batch1": translator_batch1_ms(runtime, translator=translator)}
+                   **({"onnx_threads": onnx_threads} if runtime == "onnx" else {}),
+                   **single_process("real", args.steps),
+                   "translator_ms_batch1": translator_batch1_ms(runtime, translator=translator,
+                                                                threads=onnx_threads)}
         row["translator_share_of_step"] = round(row["translator_ms_batch1"] / row["ms_per_step"], 3)
         row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_row["ms_per_step"], 3)
         row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_row["steps_per_s"], 3)
         single["real"].append(row)
         print(f"one process, real 128 px, {translator} translator, {runtime}"
-              f"{f' (torch threads {threads})' if runtime == 'torch' else ' (1 thread)'}: "
+              f"{f' (torch threads {threads})' if runtime == 'torch' else f' ({onnx_threads} threads)'}: "
               f"{row['steps_per_s']:.0f} steps/s ({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} "
               f"CPU ms/step, {row['steps_per_s_over_sim']:.2f} x sim's rate); translator at batch 1 "
               f"{row['translator_ms_batch1']:.2f} ms = {100 * row['translator_share_of_step']:.0f} % of a step")
@@ -210,7 +222,8 @@ def run(args: argparse.Namespace) -> int:
         "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
                     f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
                     f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
-                    f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
+                    + (f"--onnx-threads {' '.join(map(str, args.onnx_threads))} " if args.onnx_threads != [1] else "")
+                    + f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
                     + (f" --out {args.out.as_posix()} --name {args.name}" if args.name != "env_speed" else "")),
         "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
         "env": ("SimShearTracking-v0, obs_mode='real' (the shipped shPix2pix surface translator, 'full', or its "
