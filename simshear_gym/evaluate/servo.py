@@ -304,11 +304,18 @@ def run(args: argparse.Namespace) -> int:
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
                    "filter + law per step (ms, median); env step = one env.step including rendering/translation; "
                    "object slip max = the co-lift object's largest drift from its place on the plate (mm)",
-        "translator_runtime": _translator_runtime(),
+        "translator_runtime": _translator_runtime(), "translator_threads": _translator_threads(),
         "results": results, "figures": figures, "seconds": round(time.perf_counter() - start, 1),
     })
     print(f"wrote {args.out / (args.name + '.json')}")
     return 0
+
+
+def _translator_threads() -> int:
+    """ONNX Runtime's intra-op threads of the envs' translators (``$SIMSHEAR_TRANSLATOR_THREADS``, default 1)."""
+    from simshear_gym.contract import choose_translator_threads
+
+    return choose_translator_threads()
 
 
 def _translator_runtime() -> str:

@@ -24,7 +24,8 @@ def autocast_dtype(device: torch.device, amp: bool) -> torch.dtype | None:
 def memory_format(device: torch.device) -> torch.memory_format:
     """``channels_last`` on every device: CUDA's convolutions (tensor cores above all) run faster in it, and so do
     the CPU's, max pooling above all (one thread, two processes side by side as the pipeline runs them: a GDNN
-    step 1.3x, a translator step 1.25x faster than in the default layout; ``simshear evaluate train-speed``).
+    step 1.6x, a translator step 1.06-1.26x faster than in the default layout; ``simshear evaluate train-speed``,
+    ``results/ablations/train_speed.json``).
     Saved weights are layout-free: they load into a model in either layout."""
     del device  # the layout is the same everywhere; the argument keeps the call sites device-aware
     return torch.channels_last
