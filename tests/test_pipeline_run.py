@@ -172,6 +172,12 @@ def test_a_contact_types_gdnns_may_train_longer_at_one_budget():
     PosenetTrainConfig(source="real", contact="surface", paired_dirs=("set",), **surface)  # a valid trainer config
     with pytest.raises(ValueError, match="contact_epochs must give contact types of .* got \\{'hand': 5\\}"):
         PosenetStage(contact_epochs={"hand": 5})
+    cheaper = PosenetStage(epochs=30, contact_epochs={"surface": 60}, baseline_epochs=30, threads=1)
+    assert cheaper.train_settings("surface") == surface  # the reference and the shipped GDNN keep their key
+    assert cheaper.train_settings("surface", baseline=True) == surface | {"epochs": 30}
+    assert stage.train_settings("surface", baseline=True) == surface  # absent: the contact type's epochs
+    with pytest.raises(ValueError, match="baseline_epochs must be a number of epochs >= 1 or absent, got 0"):
+        PosenetStage(baseline_epochs=0)
 
 
 def test_a_pool_generator_may_be_read_by_a_second_real_gdnn(tmp_path):

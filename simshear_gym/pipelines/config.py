@@ -120,7 +120,8 @@ class PosenetStage:
     profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
     label ranges in the training data (no real image needed: they are translated like the replays). ``baselines``
     adds the paper's comparison GDNNs, scored beside the others on the real validation images: ``pix2pix`` (on
-    the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim renders)."""
+    the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim renders);
+    ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
 
     epochs: int = 30
     batch_size: int = 64
@@ -138,10 +139,15 @@ class PosenetStage:
     random_contacts: Mapping[str, int] = field(default_factory=dict)
     baselines: tuple[str, ...] = ()
     contact_epochs: Mapping[str, int] = field(default_factory=dict)
+    baseline_epochs: int | None = None
 
     def __post_init__(self) -> None:
         if self.epochs < 1:
             raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        if self.baseline_epochs is not None and (not isinstance(self.baseline_epochs, int)
+                                                 or self.baseline_epochs < 1):
+            raise ValueError(f"baseline_epochs must be a number of epochs >= 1 or absent, got "
+                             f"{self.baseline_epochs!r}")
         bad = {contact: n for contact, n in self.contact_epochs.items()
                if contact not in CONTACTS or not isinstance(n, int) or n < 1}
         if bad:
@@ -158,17 +164,21 @@ class PosenetStage:
         if bad:
             raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
 
-    def epochs_for(self, contact: str) -> int:
-        """The epochs of a contact type's GDNNs."""
+    def epochs_for(self, contact: str, baseline: bool = False) -> int:
+        """The epochs of a contact type's GDNNs (``baseline``: of its baseline GDNNs)."""
+        if baseline and self.baseline_epochs is not None:
+            return self.baseline_epochs
         return self.contact_epochs.get(contact, self.epochs)
 
-    def train_settings(self, contact: str) -> dict:
+    def train_settings(self, contact: str, baseline: bool = False) -> dict:
         """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of a contact type's GDNNs
-        (the stage's fields but those that say which GDNNs train on what: ``translator_draws``,
-        ``random_contacts``, ``baselines``; ``contact_epochs`` resolved into ``epochs``)."""
+        (``baseline``: of its baseline GDNNs): the stage's fields but those that say which GDNNs train on what
+        (``translator_draws``, ``random_contacts``, ``baselines``), with ``contact_epochs`` and
+        ``baseline_epochs`` resolved into ``epochs``."""
         settings = {name: value for name, value in asdict(self).items()
-                    if name not in ("translator_draws", "random_contacts", "baselines", "contact_epochs")}
-        return settings | {"epochs": self.epochs_for(contact)}
+                    if name not in ("translator_draws", "random_contacts", "baselines", "contact_epochs",
+                                    "baseline_epochs")}
+        return settings | {"epochs": self.epochs_for(contact, baseline)}
 
 
 @dataclass(frozen=True)

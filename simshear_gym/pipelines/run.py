@@ -242,7 +242,9 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
     draws), trained on ``device``; ``seed`` (not None) replaces the stage's seed and names the step
     ``<source>_s<seed>`` (a further pose-consistency reader)."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = stage.train_settings(contact) | ({"seed": seed} if seed is not None else {})
+    settings = stage.train_settings(contact, baseline=source not in ("real", "shpix2pix"))  # pix2pix, sim
+    if seed is not None:
+        settings |= {"seed": seed}
     step_source = f"{source}_s{seed}" if seed is not None else source
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
@@ -381,7 +383,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                 steps.append(Step(f"posenet/{contact}_{source}", partial(
                     posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
                     device=device), needs=tuple(name for name, _ in drawn),
-                    cost=posenet_cost))
+                    cost=POSENET_EPOCH_COST * profile.posenet.epochs_for(contact, baseline=True)))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
