@@ -133,7 +133,8 @@ def test_a_run_restricted_to_some_contact_types_keeps_their_settings():
     assert sorted(contacts_of(surface)) == ["surface"] and sorted(surface.datasets) == ["surface_shear", "surface_tap"]
     full, restricted = config.profile("full"), surface.profile("full")
     assert [g.name for g in restricted.pool] == [g.name for g in full.pool if g.contact == "surface"]
-    assert restricted.posenet.random_contacts == {} and full.posenet.random_contacts == {"edge": 10000}
+    assert full.posenet.random_contacts == {"edge": 10000, "surface": 10000}
+    assert restricted.posenet.random_contacts == {"surface": 10000}  # the other types' are dropped
     assert (restricted.translator, restricted.jobs) == (full.translator, full.jobs)  # the cache keys' settings
     assert only_contacts(config, None) is config
     with pytest.raises(ValueError, match="no 'hand' datasets; its contact types: \\['edge', 'surface'\\]"):
