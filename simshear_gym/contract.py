@@ -29,6 +29,7 @@ import numpy as np
 from gymnasium import spaces
 
 from simshear_gym.models.device import DEVICES, check_device_name
+from simshear_gym.models.translator_runtime import DEFAULT_THREADS as DEFAULT_TRANSLATOR_THREADS
 from simshear_gym.models.translator_runtime import RUNTIMES as TRANSLATOR_RUNTIMES
 from simshear_gym.tables import read_toml
 from simshear_gym.transforms import pose_to_matrix
@@ -264,7 +265,7 @@ def choose_translator_threads(threads: int | None = None) -> int:
     one-process loop and in each vector-env worker). Two threads translate one env's images about 1.5x faster where
     the second core is free (``results/env_speed.json``); where other work holds the cores they cost more than
     they gain. The torch runtime keeps torch's own setting."""
-    chosen = threads if threads is not None else os.environ.get(TRANSLATOR_THREADS_ENV) or "1"
+    chosen = threads if threads is not None else os.environ.get(TRANSLATOR_THREADS_ENV) or DEFAULT_TRANSLATOR_THREADS
     if not str(chosen).isdigit() or int(chosen) < 1 or isinstance(chosen, bool):
         source = "translator threads" if threads is not None else f"${TRANSLATOR_THREADS_ENV}"
         raise ValueError(f"{source} must be a whole number of threads >= 1, got {chosen!r}")
@@ -320,7 +321,7 @@ def choose_translator_device(device: str | None = None) -> str:
 
 
 @functools.cache
-def _cached_translator(weights: str, runtime: str, device: str = "cpu", threads: int = 1):
+def _cached_translator(weights: str, runtime: str, device: str, threads: int):
     from simshear_gym.models.translator_runtime import load_translator
 
     return load_translator(weights, runtime, threads=threads, device=device)

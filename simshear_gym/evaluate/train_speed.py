@@ -79,10 +79,6 @@ def step_ms(model: str, layout: str, steps: int, threads: int) -> float:
     return 1000.0 * float(np.median(times))
 
 
-def _step_ms(job: tuple[str, str, int, int]) -> float:
-    return step_ms(*job)
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--models", nargs="+", choices=sorted(MODELS), default=list(MODELS),
                         help="trainer steps to time (default all)")
@@ -107,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         for model in args.models:
             row = {"model": model}
             for layout in LAYOUTS:  # every process times the same step at the same time
-                times = pool.map(_step_ms, [(model, layout, args.steps, args.threads)] * args.processes)
+                times = pool.starmap(step_ms, [(model, layout, args.steps, args.threads)] * args.processes)
                 row[f"ms_per_step_{layout}"] = round(float(np.mean(times)), 2)
             row["speedup"] = round(row["ms_per_step_default"] / row["ms_per_step_channels_last"], 3)
             rows.append(row)

@@ -236,13 +236,15 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
 
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
-                 done: dict, *, device: str = "auto", seed: int | None = None) -> StageResult:
+                 done: dict, *, device: str = "auto", seed: int | None = None,
+                 baseline: bool = False) -> StageResult:
     """A GDNN of a contact type on the real images (``source`` "real"), on the raw sim renders ("sim") or on
     translations of them (``translator_steps``: the translator steps it draws from, each with its number of
     draws), trained on ``device``; ``seed`` (not None) replaces the stage's seed and names the step
-    ``<source>_s<seed>`` (a further pose-consistency reader)."""
+    ``<source>_s<seed>`` (a further pose-consistency reader); ``baseline``: one of the profile's comparison GDNNs
+    (trained ``baseline_epochs``)."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = stage.train_settings(contact, baseline=source not in ("real", "shpix2pix"))  # pix2pix, sim
+    settings = stage.train_settings(contact, baseline)
     if seed is not None:
         settings |= {"seed": seed}
     step_source = f"{source}_s{seed}" if seed is not None else source
@@ -382,7 +384,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                 drawn = ((f"translator/{contact}_pix2pix", 1),) if source == "pix2pix" else ()
                 steps.append(Step(f"posenet/{contact}_{source}", partial(
                     posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
-                    device=device), needs=tuple(name for name, _ in drawn),
+                    device=device, baseline=True), needs=tuple(name for name, _ in drawn),
                     cost=POSENET_EPOCH_COST * profile.posenet.epochs_for(contact, baseline=True)))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
