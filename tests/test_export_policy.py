@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import warnings
 
 import gymnasium as gym
 import numpy as np
@@ -15,7 +16,7 @@ import torch
 
 from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
-from simshear_gym.control.policy import PolicySettings, SB3Controller
+from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
 from simshear_gym.pipelines.export_policy import POLICY_WEIGHTS_DIR, export, source_files
 from simshear_gym.train.rl import RLTrainConfig, train
 
@@ -59,6 +60,27 @@ def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp
     assert COMMAND in card and "2026-01-02" in card and "Training evaluation (best model)" in card
     assert str(tmp_path) not in card and str(run_dir) not in card  # no absolute paths
 
+
+
+def test_a_policy_whose_estimator_models_were_replaced_warns_on_load(run_dir, tmp_path):
+    """A shipped policy records the sha256 of the translator and GDNN that made its observations; once either
+    shipped file changes, loading it warns (it sees other observations than in training) and names the model."""
+    to = tmp_path / "policy"
+    export(run_dir, to, COMMAND, date="2026-01-02")
+    assert stale_estimator_models(to / "model.zip") == []
+    assert stale_estimator_models(run_dir / "best_model.zip") == []  # a run folder records no provenance
+    settings = PolicySettings.of_model(to / "model.zip")
+    env = gym.make("SimShearTracking-v0", trajectory="circle", **env_kwargs(settings))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SB3Controller.for_env(to / "model.zip", env)
+    config = json.loads((to / "config.json").read_text())
+    config["provenance"]["estimator_models_sha256"]["translator_shpix2pix_surface"] = "0" * 64
+    (to / "config.json").write_text(json.dumps(config))
+    assert stale_estimator_models(to / "model.zip") == ["translator_shpix2pix_surface"]
+    with pytest.warns(UserWarning, match=r"translator_shpix2pix_surface.*train it again"):
+        SB3Controller.for_env(to / "model.zip", env)
+    env.close()
 
 def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_dir):
     (tmp_path / "config.json").write_text((run_dir / "config.json").read_text())

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 import pickle
 import re
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -236,6 +237,38 @@ def load_normalizer(path: str | Path):
     return normalizer
 
 
+def shipped_estimator_file(name: str) -> Path:
+    """The shipped weights file a policy's provenance names (``translator_<arch>_<contact>``: the translator,
+    ``posenet_<name>``: the GDNN), whose sha256 :mod:`~simshear_gym.pipelines.export_policy` records at export."""
+    if name.startswith("translator_"):
+        from simshear_gym.models.translator import WEIGHTS_DIR
+
+        return WEIGHTS_DIR / f"{name.removeprefix('translator_')}.pt"
+    if name.startswith("posenet_"):
+        from simshear_gym.models.posenet_io import POSENET_WEIGHTS_DIR
+
+        return POSENET_WEIGHTS_DIR / f"{name.removeprefix('posenet_')}.pt"
+    raise ValueError(f"estimator model name must start with 'translator_' or 'posenet_', got {name!r}")
+
+
+def stale_estimator_models(path: str | Path) -> list[str]:
+    """The models that made a shipped policy's observations at export (its ``config.json`` provenance) and have
+    been replaced since (another sha256 now, or gone): the policy sees other observations than it was trained on.
+    [] for a run folder without that record."""
+    from simshear_gym.models.translator_runtime import file_sha256
+
+    config = Path(path).parent / RUN_CONFIG
+    if not config.is_file():
+        return []
+    recorded = (json.loads(config.read_text()).get("provenance") or {}).get("estimator_models_sha256") or {}
+    stale = []
+    for name, digest in recorded.items():
+        current = shipped_estimator_file(name)
+        if not current.is_file() or file_sha256(current) != digest:
+            stale.append(name)
+    return stale
+
+
 def sb3_class(algorithm: str):
     """The SB3 class of ``"ppo"``, ``"sac"`` or ``"tqc"`` (from sb3-contrib: an optional dependency)."""
     if algorithm == "tqc":
@@ -310,6 +343,11 @@ class SB3Controller:
         residual = None
         if settings is not None and settings.residual is not None:
             residual = ResidualServo(settings.residual, reference_depth_mm, action_scale)
+        stale = stale_estimator_models(path)
+        if stale:
+            warnings.warn(f"{path} was trained on observations made by other weights than the shipped {stale} "
+                          "(their sha256 at export, in its config.json, differs): it sees other images or "
+                          "estimates than in training; train it again", UserWarning, stacklevel=2)
         return cls(model, f"{type(model).__name__.lower()}:{path}", normalizer, residual, settings)
 
     @classmethod
@@ -335,4 +373,5 @@ class SB3Controller:
 
 
 __all__ = ["Controller", "EstimatingController", "PolicySettings", "ResidualServo", "ResidualSettings", "SB3Controller",
-           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "vecnormalize_path"]
+           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "shipped_estimator_file",
+           "stale_estimator_models", "vecnormalize_path"]

@@ -55,12 +55,11 @@ def source_files(run: Path, model: str) -> tuple[Path, Path | None]:
 
 def model_hashes(task: str) -> dict[str, str]:
     """sha256 of the shipped translator and GDNN that make a task's estimate observation now."""
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.control.policy import shipped_estimator_file
     from simshear_gym.models.translator_runtime import file_sha256
 
-    posenet = ENV_MODELS[task][1]
-    return {"translator_shpix2pix_surface": file_sha256(WEIGHTS_DIR / "shpix2pix_surface.pt"),
-            f"posenet_{posenet}": file_sha256(shipped_posenet_path(posenet))}
+    names = ("translator_shpix2pix_surface", f"posenet_{ENV_MODELS[task][1]}")
+    return {name: file_sha256(shipped_estimator_file(name)) for name in names}
 
 
 def export(run: Path, to: Path, train_command: str, model: str = "best", results: Path | None = None,
