@@ -408,7 +408,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
     device = check_device_name(device or profile_settings.device)
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out)
-    start = time.perf_counter()
+    start, commit = time.perf_counter(), git_commit()  # the code the run starts on (a commit during it is not)
     adapted = stage_adapt(runner, config, root, rows_per_split)
     paired = stage_collect(runner, config, adapted, workers) if "collect" in stages else None
     results = list(runner.results)
@@ -436,7 +436,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             "variables": posenets["variables"]})
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile, "stages": list(stages),
-        "package_version": _version(), "git_commit": git_commit(),
+        "package_version": _version(), "git_commit": commit,
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
         "jobs": jobs, "device": device, "contacts": sorted(contacts_of(config)),
