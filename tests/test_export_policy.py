@@ -91,11 +91,14 @@ def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_di
 
 
 def test_shipped_policies_load_in_their_env():
-    """Every folder under models/weights/policies is a complete policy that loads against its own env."""
+    """Every folder under models/weights/policies is a complete policy that loads against its own env, trained on
+    the observations of the shipped translator and GDNN."""
     folders = sorted(p for p in POLICY_WEIGHTS_DIR.glob("*") if p.is_dir()) if POLICY_WEIGHTS_DIR.is_dir() else []
     for folder in folders:
         assert (folder / "model.md").is_file(), folder
         assert (folder / "model.zip").stat().st_size <= 10 * 2**20, folder
+        # a new shipped translator or GDNN ships with the policies retrained on its observations
+        assert stale_estimator_models(folder / "model.zip") == [], folder
         settings = PolicySettings.of_model(folder / "model.zip")
         env_id = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}[settings.task]
         env = gym.make(env_id, **env_kwargs(settings))
