@@ -61,7 +61,6 @@ def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp
     assert str(tmp_path) not in card and str(run_dir) not in card  # no absolute paths
 
 
-
 def test_a_policy_whose_estimator_models_were_replaced_warns_on_load(run_dir, tmp_path):
     """A shipped policy records the sha256 of the translator and GDNN that made its observations; once either
     shipped file changes, loading it warns (it sees other observations than in training) and names the model."""
@@ -81,6 +80,7 @@ def test_a_policy_whose_estimator_models_were_replaced_warns_on_load(run_dir, tm
     with pytest.warns(UserWarning, match=r"translator_shpix2pix_surface.*train it again"):
         SB3Controller.for_env(to / "model.zip", env)
     env.close()
+
 
 def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_dir):
     (tmp_path / "config.json").write_text((run_dir / "config.json").read_text())
