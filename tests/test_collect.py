@@ -60,6 +60,23 @@ def test_random_set_covers_ranges(tmp_path):
     np.testing.assert_array_equal(load_paired(tmp_path / "again")[0].load_images(), images)
 
 
+def test_random_set_may_draw_a_share_of_taps(tmp_path):
+    config = CollectConfig(workers=1)
+    random_set("surface", 10, seed=4, out_dir=tmp_path / "all", config=config)
+    random_set("surface", 10, seed=4, out_dir=tmp_path / "half", config=config, tap_share=0.5)
+    every, half = load_paired(tmp_path / "all")[0], load_paired(tmp_path / "half")[0]
+    moves = [f"move_{i}" for i in range(1, 7)]
+    taps = (half.targets[moves] == 0).all(axis=1)
+    assert taps.sum() == 5 and not (every.targets[moves] == 0).all(axis=1).any()
+    assert (half.targets.loc[taps, list(SHEAR_COLUMNS)] == 0).all().all()
+    poses = [f"pose_{i}" for i in range(1, 7)]
+    np.testing.assert_array_equal(half.targets[poses], every.targets[poses])  # the poses do not change with it
+    np.testing.assert_array_equal(half.targets.loc[~taps, moves], every.targets.loc[~taps, moves])
+    assert half.meta["tap_share"] == 0.5
+    with pytest.raises(ValueError, match="tap_share must be a share in \\[0, 1\\], got 2"):
+        random_set("surface", 2, seed=4, out_dir=tmp_path / "bad", config=config, tap_share=2)
+
+
 def test_collect_command_line(tmp_path, capsys):
     assert main(["collect", "--task", "surface", "--n", "6", "--seed", "1", "--out", str(tmp_path / "cli"),
                  "--image-size", "64", "--workers", "1"]) == 0

@@ -181,6 +181,21 @@ def test_a_contact_types_gdnns_may_train_longer_at_one_budget():
         PosenetStage(baseline_epochs=0)
 
 
+def test_a_share_of_the_random_contacts_may_be_taps(tmp_path):
+    from simshear_gym.pipelines.config import ConfigError, PosenetStage
+
+    stage = PosenetStage(random_contacts={"surface": 100}, random_tap_share={"surface": 0.5})
+    assert stage.train_settings("surface") == PosenetStage().train_settings("surface")  # the GDNN's key keeps
+    for share in (1.5, -0.1, "half"):
+        with pytest.raises(ValueError, match="random_tap_share must give contact types of .* a share in \\[0, 1\\]"):
+            PosenetStage(random_tap_share={"surface": share})
+    full = load_config(ROOT / "configs" / "tactip331.toml")
+    assert set(only_contacts(full, ["edge"]).profile("full").posenet.random_tap_share) <= {"edge"}
+    untapped = POOLED.replace("random_contacts = { surface = 12 }", "random_tap_share = { surface = 0.5 }")
+    with pytest.raises(ConfigError, match="random_tap_share gives 'surface' a share, but random_contacts draws none"):
+        load_config(write_lab(tmp_path, rows=3, config=untapped))
+
+
 def test_a_pool_generator_may_be_read_by_a_second_real_gdnn(tmp_path):
     from simshear_gym.pipelines.config import PoolGenerator
     from simshear_gym.pipelines.run import training_steps

@@ -118,7 +118,9 @@ class PosenetStage:
     the baselines alike, so that they compare at one budget). The translated-image
     GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws`` times) and the
     profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
-    label ranges in the training data (no real image needed: they are translated like the replays). ``baselines``
+    label ranges in the training data (no real image needed: they are translated like the replays), and
+    ``random_tap_share`` ({contact: share}) draws that share of them without shear (taps: the move columns 0), so
+    that the rows without shear keep about the share they have in the real sets. ``baselines``
     adds the paper's comparison GDNNs, scored beside the others on the real validation images: ``pix2pix`` (on
     the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim renders);
     ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
@@ -137,6 +139,7 @@ class PosenetStage:
     cap_minutes: float | None = None
     translator_draws: int = 1
     random_contacts: Mapping[str, int] = field(default_factory=dict)
+    random_tap_share: Mapping[str, float] = field(default_factory=dict)
     baselines: tuple[str, ...] = ()
     contact_epochs: Mapping[str, int] = field(default_factory=dict)
     baseline_epochs: int | None = None
@@ -163,6 +166,12 @@ class PosenetStage:
                if contact not in CONTACTS or not isinstance(n, int) or n < 0}
         if bad:
             raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
+        bad = {contact: share for contact, share in self.random_tap_share.items()
+               if contact not in CONTACTS or isinstance(share, bool) or not isinstance(share, (int, float))
+               or not 0.0 <= share <= 1.0}
+        if bad:
+            raise ValueError(f"random_tap_share must give contact types of {list(CONTACTS)} a share in [0, 1], "
+                             f"got {bad}")
 
     def epochs_for(self, contact: str, baseline: bool = False) -> int:
         """The epochs of a contact type's GDNNs (``baseline``: of its baseline GDNNs)."""
@@ -173,11 +182,11 @@ class PosenetStage:
     def train_settings(self, contact: str, baseline: bool = False) -> dict:
         """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of a contact type's GDNNs
         (``baseline``: of its baseline GDNNs): the stage's fields but those that say which GDNNs train on what
-        (``translator_draws``, ``random_contacts``, ``baselines``), with ``contact_epochs`` and
-        ``baseline_epochs`` resolved into ``epochs``."""
+        (``translator_draws``, ``random_contacts``, ``random_tap_share``, ``baselines``), with ``contact_epochs``
+        and ``baseline_epochs`` resolved into ``epochs``."""
         settings = {name: value for name, value in asdict(self).items()
-                    if name not in ("translator_draws", "random_contacts", "baselines", "contact_epochs",
-                                    "baseline_epochs")}
+                    if name not in ("translator_draws", "random_contacts", "random_tap_share", "baselines",
+                                    "contact_epochs", "baseline_epochs")}
         return settings | {"epochs": self.epochs_for(contact, baseline)}
 
 
@@ -369,10 +378,16 @@ class ExperimentConfig:
         contacts = {dataset.contact for dataset in self.datasets.values()}
         for name, profile in self.profiles.items():
             unused = sorted(({g.contact for g in profile.pool if g.contact}
-                             | {c for c, n in profile.posenet.random_contacts.items() if n}) - contacts)
+                             | {c for c, n in profile.posenet.random_contacts.items() if n}
+                             | {c for c, share in profile.posenet.random_tap_share.items() if share}) - contacts)
             if unused:
-                raise ValueError(f"profiles.{name}: contact type {unused[0]!r} in pool or random_contacts, but the "
-                                 f"datasets have only {sorted(contacts)}")
+                raise ValueError(f"profiles.{name}: contact type {unused[0]!r} in pool, random_contacts or "
+                                 f"random_tap_share, but the datasets have only {sorted(contacts)}")
+            untapped = sorted(c for c, share in profile.posenet.random_tap_share.items()
+                              if share and not profile.posenet.random_contacts.get(c))
+            if untapped:
+                raise ValueError(f"profiles.{name}: random_tap_share gives {untapped[0]!r} a share, but "
+                                 f"random_contacts draws none for it")
 
     def profile(self, name: str) -> Profile:
         try:

@@ -130,7 +130,9 @@ def only_contacts(config: ExperimentConfig, contacts: list[str] | None) -> Exper
     keep = set(contacts)
     profiles = {name: replace(profile, pool=tuple(g for g in profile.pool if not g.contact or g.contact in keep),
                               posenet=replace(profile.posenet, random_contacts={
-                                  c: n for c, n in profile.posenet.random_contacts.items() if c in keep}))
+                                  c: n for c, n in profile.posenet.random_contacts.items() if c in keep},
+                                  random_tap_share={c: share for c, share in profile.posenet.random_tap_share.items()
+                                                    if c in keep}))
                 for name, profile in config.profiles.items()}
     return replace(config, datasets={name: dataset for name, dataset in config.datasets.items()
                                      if dataset.contact in keep}, profiles=profiles)
@@ -318,11 +320,14 @@ def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted
         if not n:
             continue
         ranges = label_ranges(config, names, adapted, runner.root)
+        tap_share = float(profile.posenet.random_tap_share.get(contact, 0.0))
         key = {"contact": contact, "n": n, "seed": profile.posenet.seed, "ranges": ranges, "tactip": config.sensor,
                "geometry": config.replay, "shear": collect_config.shear}
+        if tap_share:  # a set without taps keeps the key it had before there could be any
+            key["tap_share"] = tap_share
 
-        def work(folder: Path, contact=contact, n=n, ranges=ranges) -> dict:
-            rows = random_set(contact, n, profile.posenet.seed, folder / "set", collect_config, ranges)
+        def work(folder: Path, contact=contact, n=n, ranges=ranges, tap_share=tap_share) -> dict:
+            rows = random_set(contact, n, profile.posenet.seed, folder / "set", collect_config, ranges, tap_share)
             return {"outputs": {"set": runner.relative(folder / "set")}, "metrics": {"rows": rows}}
 
         out[contact] = runner.run(f"collect/random_{contact}", key, work).outputs["set"]

@@ -114,10 +114,13 @@ def replay_set(real_dir: Path, out_dir: Path, config: CollectConfig, root: Path 
 
 
 def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectConfig,
-               ranges: dict[str, tuple[float, float]] | None = None) -> int:
+               ranges: dict[str, tuple[float, float]] | None = None, tap_share: float = 0.0) -> int:
     """Render ``n`` random contacts drawn uniformly over label ranges: ``ranges`` ({``pose_1..6`` / ``move_1..6``
     column: (low, high)}; the columns it leaves out stay 0), by default the tactip331 shear sets' ranges of the
-    contact type."""
+    contact type. ``tap_share`` of the rows (drawn at random, after the labels, so that the poses do not change
+    with it) are taps: their move columns 0, so no shear."""
+    if not 0.0 <= tap_share <= 1.0:
+        raise ValueError(f"random contacts: tap_share must be a share in [0, 1], got {tap_share!r}")
     rng = np.random.default_rng(seed)
     labels = np.zeros((n, 12))
     columns = list(POSE_COLUMNS + MOVE_COLUMNS)
@@ -128,6 +131,8 @@ def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectCo
         raise ValueError(f"random contacts: unknown label column {unknown[0]!r}; expected some of {columns}")
     for column, (low, high) in ranges.items():
         labels[:, columns.index(column)] = rng.uniform(low, high, n)
+    taps = rng.permutation(n)[:round(tap_share * n)] if tap_share else []
+    labels[taps, 6:] = 0.0
     poses, moves = labels[:, :6], labels[:, 6:]
     targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)], REAL_IMAGE_COLUMN: [""] * n})
     for column, values in zip(columns, labels.T):
@@ -136,6 +141,8 @@ def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectCo
         targets[column] = values
     meta = _meta(config, contact, source="random")
     meta["seed"] = seed
+    if tap_share:
+        meta["tap_share"] = tap_share
     write_paired_set(out_dir, contact, poses, targets, meta, config)
     return n
 
