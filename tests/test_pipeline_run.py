@@ -181,11 +181,15 @@ def test_a_contact_types_gdnns_may_train_longer_at_one_budget():
         PosenetStage(baseline_epochs=0)
 
 
-def test_a_share_of_the_random_contacts_may_be_taps(tmp_path):
+def test_a_share_of_the_random_contacts_may_be_taps_and_the_shpix2pix_drawn_per_contact(tmp_path):
     from simshear_gym.pipelines.config import ConfigError, PosenetStage
 
-    stage = PosenetStage(random_contacts={"surface": 100}, random_tap_share={"surface": 0.5})
+    stage = PosenetStage(random_contacts={"surface": 100}, random_tap_share={"surface": 0.5},
+                         translator_draws=2, contact_translator_draws={"surface": 3})
     assert stage.train_settings("surface") == PosenetStage().train_settings("surface")  # the GDNN's key keeps
+    assert (stage.translator_draws_for("surface"), stage.translator_draws_for("edge")) == (3, 2)
+    with pytest.raises(ValueError, match="contact_translator_draws must give contact types of .* got \\{'edge': 0\\}"):
+        PosenetStage(contact_translator_draws={"edge": 0})
     for share in (1.5, -0.1, "half"):
         with pytest.raises(ValueError, match="random_tap_share must give contact types of .* a share in \\[0, 1\\]"):
             PosenetStage(random_tap_share={"surface": share})

@@ -115,14 +115,15 @@ class PosenetStage:
     names): per contact type one on the real images (the reference) and one on the shPix2pix translations of the
     sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`: ``epochs``, or
     ``contact_epochs[contact]`` for every GDNN of a contact type it names (the reference, the one that ships and
-    the baselines alike, so that they compare at one budget). The translated-image
-    GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws`` times) and the
-    profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's
-    label ranges in the training data (no real image needed: they are translated like the replays), and
-    ``random_tap_share`` ({contact: share}) draws that share of them without shear (taps: the move columns 0), so
-    that the rows without shear keep about the share they have in the real sets. ``baselines``
-    adds the paper's comparison GDNNs, scored beside the others on the real validation images: ``pix2pix`` (on
-    the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim renders);
+    the baselines alike, so that they compare at one budget). The translated-image GDNN draws each row's generator
+    from the contact's shPix2pix (listed ``translator_draws`` times, or ``contact_translator_draws[contact]`` times
+    for a contact type it names) and the profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts
+    drawn uniformly over the contact's label ranges in the training data (no real image needed: they are
+    translated like the replays), and ``random_tap_share`` ({contact: share}) draws that share of them without
+    shear (taps: the move columns 0), so that the rows without shear keep about the share they have in the real
+    sets. ``baselines`` adds the paper's comparison GDNNs, scored beside the others on the real validation images:
+    ``pix2pix`` (on the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim
+    renders);
     ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
 
     epochs: int = 30
@@ -138,6 +139,7 @@ class PosenetStage:
     threads: int = 2
     cap_minutes: float | None = None
     translator_draws: int = 1
+    contact_translator_draws: Mapping[str, int] = field(default_factory=dict)
     random_contacts: Mapping[str, int] = field(default_factory=dict)
     random_tap_share: Mapping[str, float] = field(default_factory=dict)
     baselines: tuple[str, ...] = ()
@@ -162,6 +164,11 @@ class PosenetStage:
             raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
         if self.translator_draws < 1:
             raise ValueError(f"translator_draws must be >= 1, got {self.translator_draws!r}")
+        bad = {contact: n for contact, n in self.contact_translator_draws.items()
+               if contact not in CONTACTS or isinstance(n, bool) or not isinstance(n, int) or n < 1}
+        if bad:
+            raise ValueError(f"contact_translator_draws must give contact types of {list(CONTACTS)} a number of "
+                             f"draws >= 1, got {bad}")
         bad = {contact: n for contact, n in self.random_contacts.items()
                if contact not in CONTACTS or not isinstance(n, int) or n < 0}
         if bad:
@@ -173,6 +180,10 @@ class PosenetStage:
             raise ValueError(f"random_tap_share must give contact types of {list(CONTACTS)} a share in [0, 1], "
                              f"got {bad}")
 
+    def translator_draws_for(self, contact: str) -> int:
+        """How often a contact type's shPix2pix is listed among the generators its GDNN draws from."""
+        return self.contact_translator_draws.get(contact, self.translator_draws)
+
     def epochs_for(self, contact: str, baseline: bool = False) -> int:
         """The epochs of a contact type's GDNNs (``baseline``: of its baseline GDNNs)."""
         if baseline and self.baseline_epochs is not None:
@@ -182,11 +193,11 @@ class PosenetStage:
     def train_settings(self, contact: str, baseline: bool = False) -> dict:
         """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of a contact type's GDNNs
         (``baseline``: of its baseline GDNNs): the stage's fields but those that say which GDNNs train on what
-        (``translator_draws``, ``random_contacts``, ``random_tap_share``, ``baselines``), with ``contact_epochs``
-        and ``baseline_epochs`` resolved into ``epochs``."""
+        (``translator_draws``, ``contact_translator_draws``, ``random_contacts``, ``random_tap_share``,
+        ``baselines``), with ``contact_epochs`` and ``baseline_epochs`` resolved into ``epochs``."""
         settings = {name: value for name, value in asdict(self).items()
-                    if name not in ("translator_draws", "random_contacts", "random_tap_share", "baselines",
-                                    "contact_epochs", "baseline_epochs")}
+                    if name not in ("translator_draws", "contact_translator_draws", "random_contacts",
+                                    "random_tap_share", "baselines", "contact_epochs", "baseline_epochs")}
         return settings | {"epochs": self.epochs_for(contact, baseline)}
 
 

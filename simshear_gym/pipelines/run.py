@@ -378,7 +378,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                 steps.append(Step(f"posenet/{contact}_real_s{reader_seed}", partial(
                     posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
                     device=device, seed=reader_seed), cost=posenet_cost))
-            drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws),
+            drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws_for(contact)),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
             steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
