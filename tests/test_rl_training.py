@@ -229,17 +229,21 @@ def test_with_the_last_action_the_teacher_is_the_servo_law_in_velocity_form():
     base = env.unwrapped
     law = PILaw(base.reference_depth_mm, base.action_scale.as_array(), SERVO_GAINS)
     observation, _ = env.reset(seed=3)
+    unclipped = np.ones(4, dtype=bool)  # a clip ends the agreement of that variable: its carried integral differs
+    compared = 0
     for step in range(6):
         action = teacher(observation)
         expected = law(filter_mean_from_estimate(observation["estimate"], base.reference_depth_mm))
-        if np.all(np.abs(expected) < 1.0):
-            np.testing.assert_allclose(action, expected, atol=1e-5)
+        unclipped &= np.abs(expected) < 1.0
+        np.testing.assert_allclose(action[unclipped], expected[unclipped], atol=1e-5)
+        compared += int(unclipped.sum())
         if step:  # past the first step the label is a function of the observation: a fresh teacher agrees
             again = ServoTeacher(env)
             again._first = False
             np.testing.assert_allclose(again(observation), action, atol=1e-6)
         observation, *_ = env.step(action)
     env.close()
+    assert compared >= 12  # most of the variables agreed over most of the steps
 
 
 def test_the_servo_law_is_cloned_into_the_policy_before_rl(tmp_path):
