@@ -39,6 +39,13 @@ from simshear_gym.tables import ConfigError, from_table, read_toml
 from simshear_gym.train.runs import LR_SCHEDULES
 
 
+def _check_per_contact(name: str, mapping: Mapping, valid, expected: str) -> None:
+    """Raise unless every key of a {contact type: value} setting is a contact type and ``valid(value)``."""
+    bad = {contact: value for contact, value in mapping.items() if contact not in CONTACTS or not valid(value)}
+    if bad:
+        raise ValueError(f"{name} must give contact types of {list(CONTACTS)} {expected}, got {bad}")
+
+
 @dataclass(frozen=True)
 class CheckConfig:
     """``simshear pipeline check``'s replay test: ``replay_rows`` rows per dataset (spread over its train split)
@@ -82,11 +89,8 @@ class TranslatorStage:
     def __post_init__(self) -> None:
         if self.cap_minutes is not None and self.cap_minutes <= 0:
             raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
-        bad = {contact: n for contact, n in self.contact_epochs.items()
-               if contact not in CONTACTS or not isinstance(n, int) or n < 1}
-        if bad:
-            raise ValueError(f"contact_epochs must give contact types of {list(CONTACTS)} a number of epochs >= 1, "
-                             f"got {bad}")
+        _check_per_contact("contact_epochs", self.contact_epochs, lambda n: isinstance(n, int) and n >= 1,
+                           "a number of epochs >= 1")
         if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
             raise ValueError(f"archs must name shpix2pix and/or pix2pix, got {list(self.archs)}")
         if "shpix2pix" not in self.archs:
@@ -153,32 +157,22 @@ class PosenetStage:
                                                  or self.baseline_epochs < 1):
             raise ValueError(f"baseline_epochs must be a number of epochs >= 1 or absent, got "
                              f"{self.baseline_epochs!r}")
-        bad = {contact: n for contact, n in self.contact_epochs.items()
-               if contact not in CONTACTS or not isinstance(n, int) or n < 1}
-        if bad:
-            raise ValueError(f"contact_epochs must give contact types of {list(CONTACTS)} a number of epochs >= 1, "
-                             f"got {bad}")
+        _check_per_contact("contact_epochs", self.contact_epochs, lambda n: isinstance(n, int) and n >= 1,
+                           "a number of epochs >= 1")
         if set(self.baselines) - set(BASELINES) or len(set(self.baselines)) != len(self.baselines):
             raise ValueError(f"baselines must name distinct ones of {list(BASELINES)}, got {list(self.baselines)}")
         if self.cap_minutes is not None and self.cap_minutes <= 0:
             raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
         if self.translator_draws < 1:
             raise ValueError(f"translator_draws must be >= 1, got {self.translator_draws!r}")
-        bad = {contact: n for contact, n in self.contact_translator_draws.items()
-               if contact not in CONTACTS or isinstance(n, bool) or not isinstance(n, int) or n < 1}
-        if bad:
-            raise ValueError(f"contact_translator_draws must give contact types of {list(CONTACTS)} a number of "
-                             f"draws >= 1, got {bad}")
-        bad = {contact: n for contact, n in self.random_contacts.items()
-               if contact not in CONTACTS or not isinstance(n, int) or n < 0}
-        if bad:
-            raise ValueError(f"random_contacts must give contact types of {list(CONTACTS)} a count >= 0, got {bad}")
-        bad = {contact: share for contact, share in self.random_tap_share.items()
-               if contact not in CONTACTS or isinstance(share, bool) or not isinstance(share, (int, float))
-               or not 0.0 <= share <= 1.0}
-        if bad:
-            raise ValueError(f"random_tap_share must give contact types of {list(CONTACTS)} a share in [0, 1], "
-                             f"got {bad}")
+        _check_per_contact("contact_translator_draws", self.contact_translator_draws,
+                           lambda n: isinstance(n, int) and not isinstance(n, bool) and n >= 1,
+                           "a number of draws >= 1")
+        _check_per_contact("random_contacts", self.random_contacts, lambda n: isinstance(n, int) and n >= 0,
+                           "a count >= 0")
+        _check_per_contact("random_tap_share", self.random_tap_share,
+                           lambda share: isinstance(share, (int, float)) and not isinstance(share, bool)
+                           and 0.0 <= share <= 1.0, "a share in [0, 1]")
 
     def translator_draws_for(self, contact: str) -> int:
         """How often a contact type's shPix2pix is listed among the generators its GDNN draws from."""
