@@ -156,6 +156,7 @@ INPUT_ERRORS: tuple[tuple[str, str], ...] = (
     ("simshear_gym.real.mg400_client", "MG400Error"),
     ("simshear_gym.real.mg400_client", "FeedbackStaleError"),
     ("simshear_gym.sim.parallel", "ExecutorError"),
+    ("simshear_gym.pipelines.stages", "StageStopped"),
 )
 
 

@@ -1,5 +1,6 @@
 """The pipeline's step graph (:mod:`simshear_gym.pipelines.schedule`): priority by the longest chain, every step
-after the ones it needs, in this process or in worker processes; a failing step stops the run with its name."""
+after the ones it needs, in this process or in worker processes; a failing step stops the run with its name, and so
+does a training stopped by its wall-clock cap, unrecorded, so that the rerun continues it."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ from pathlib import Path
 
 import pytest
 
+from simshear_gym.cli import is_input_error
 from simshear_gym.pipelines.schedule import Step, order_steps, run_steps
-from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
+from simshear_gym.pipelines.stages import RECORD, StageResult, StageRunner, StageStopped, file_fingerprint
+from simshear_gym.train.runs import CAP_STOP
 
 
 def _write(value: str, runner: StageRunner, done: dict) -> StageResult:
@@ -29,10 +32,25 @@ def _fail(runner: StageRunner, done: dict) -> StageResult:
     raise ValueError("bad settings in step c")
 
 
-def graph(fail: bool = False) -> list[Step]:
+def _capped_once(runner: StageRunner, done: dict) -> StageResult:
+    """A training that its wall-clock cap stops on the first run (after 2 epochs) and that the rerun finishes."""
+
+    def work(folder: Path) -> dict:
+        runs = folder / "runs.txt"
+        runs.write_text(runs.read_text() + "x" if runs.exists() else "x")
+        first = runs.read_text() == "x"
+        metrics = {"epochs": 2, "elapsed_s": 60.0, "stopped_by": CAP_STOP} if first else {
+            "epochs": 5, "elapsed_s": 150.0, "stopped_by": "epochs"}
+        return {"outputs": {"value": "c"}, "metrics": metrics}
+
+    return runner.run("step/c", {"value": "c"}, work)
+
+
+def graph(fail: bool = False, capped: bool = False) -> list[Step]:
+    c = _fail if fail else _capped_once if capped else partial(_write, "c")
     return [Step("a", partial(_write, "a"), cost=1.0),
             Step("b", partial(_write, "b"), cost=3.0),
-            Step("c", _fail if fail else partial(_write, "c"), needs=("a",), cost=5.0),
+            Step("c", c, needs=("a",), cost=5.0),
             Step("d", partial(_write, "d"), needs=("b", "c"), cost=1.0)]
 
 
@@ -61,6 +79,19 @@ def test_a_failing_step_stops_the_run_and_says_which(tmp_path, jobs):
     with pytest.raises((RuntimeError, ValueError), match="bad settings in step c"):
         run_steps(graph(fail=True), tmp_path, jobs=jobs, log=lambda text: None)
     assert not (tmp_path / "step" / "d").exists()
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_training_stopped_by_its_cap_is_not_recorded_and_the_rerun_continues_it(tmp_path, jobs):
+    with pytest.raises(StageStopped, match=r"\[step/c\] stopped by its wall-clock safety cap .* after 2 finished "
+                                           r"epochs .* Rerun the same command to continue it") as stopped:
+        run_steps(graph(capped=True), tmp_path, jobs=jobs, log=lambda text: None)
+    assert is_input_error(stopped.value)  # the CLI prints it as one line, not a traceback
+    folder = next((tmp_path / "step" / "c").iterdir())
+    assert not (folder / RECORD).exists() and not (tmp_path / "step" / "d").exists()
+    done = run_steps(graph(capped=True), tmp_path, jobs=jobs, log=lambda text: None)
+    assert done["c"].ran and done["c"].record["resumed"] and done["c"].record["metrics"]["epochs"] == 5
+    assert (folder / "runs.txt").read_text() == "xx" and done["d"].record["metrics"]["seen"] == ["b", "c"]
 
 
 def test_a_data_sets_fingerprint_follows_its_contents_not_its_file_times(tmp_path):

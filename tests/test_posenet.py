@@ -1,6 +1,7 @@
 """Posenet: data loading from sets on disk, a tiny training run, resume, weights files, evaluation metrics."""
 
 import json
+import time
 from argparse import Namespace
 
 import numpy as np
@@ -72,6 +73,25 @@ def test_tiny_training_run_resume_and_weights(tmp_path):
     assert card["contact"] == "surface" and card["source"] == "real"
     mean, std = model(torch.rand(2, 1, SIZE, SIZE))
     assert mean.shape == std.shape == (2, 6) and (std > 0).all()
+
+
+def test_a_training_stopped_by_its_cap_resumes_to_the_straight_runs_weights(tmp_path):
+    """A slow machine: each run stops at its cap, back at its last finished epoch; the reruns end with the weights
+    of the straight run (the pipeline's stages rerun so, see tests/test_pipeline_schedule.py)."""
+    straight = PosenetTrainer(tiny_config(epochs=5), tmp_path / "straight", toy_labelled())
+    straight.fit(progress=False)
+    stops = []
+    for _ in range(15):
+        trainer = PosenetTrainer(tiny_config(epochs=5, cap_minutes=0.6 / 60), tmp_path / "capped", toy_labelled())
+        trainer.resume()
+        step = trainer.train_batch
+        trainer.train_batch = lambda index, step=step: (time.sleep(0.02), step(index))[1]  # a slower machine
+        stops.append(trainer.fit(progress=False)["stopped_by"])
+        if stops[-1] == "epochs":
+            break
+    assert stops[0] == "wall-clock cap" and stops[-1] == "epochs" and trainer.epoch == 5
+    for key, value in straight.model.state_dict().items():
+        torch.testing.assert_close(trainer.model.state_dict()[key], value, rtol=0, atol=0)
 
 
 def test_training_on_several_renditions_per_row(tmp_path):

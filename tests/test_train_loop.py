@@ -135,16 +135,44 @@ def test_time_budget_stops_inside_an_epoch_and_checkpoints_it(tmp_path):
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"] == summary["steps"]
 
 
-def test_wall_clock_cap_stops_the_run_but_leaves_the_schedule_on_the_steps(tmp_path):
-    config = FakeConfig(epochs=1000, rows=20, cap_minutes=0.05 / 60, step_sleep_s=0.01, lr_schedule="cosine")
+def test_wall_clock_cap_stops_at_the_last_finished_epoch_and_leaves_the_schedule_on_the_steps(tmp_path):
+    config = FakeConfig(epochs=1000, rows=20, cap_minutes=0.3 / 60, step_sleep_s=0.01, lr_schedule="cosine")
     trainer = FakeTrainer(config, tmp_path / "run")
     summary = trainer.fit(progress=False)
-    assert summary["stopped_by"] == "wall-clock cap" and trainer.history[-1]["partial_epoch"]
+    assert summary["stopped_by"] == "wall-clock cap" and summary["epochs"] >= 1
+    assert len(trainer.history) == summary["epochs"] and not any(r["partial_epoch"] for r in trainer.history)
+    assert summary["steps"] == summary["epochs"] * 10  # the unfinished epoch's steps were dropped
+    assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"] == summary["steps"]
+    assert len(trainer.lrs_seen) > summary["steps"]
     steps = 1000 * 10  # the schedule still spans every epoch's steps, not the cap's minutes
-    assert trainer.lrs_seen == pytest.approx([scheduled_lr(0.1, "cosine", i / steps) for i in range(summary["steps"])])
-    budgeted = FakeTrainer(FakeConfig(epochs=1000, max_minutes=1.0, cap_minutes=0.05 / 60, step_sleep_s=0.01),
+    assert trainer.lrs_seen == pytest.approx([scheduled_lr(0.1, "cosine", i / steps)
+                                              for i in range(len(trainer.lrs_seen))])
+    budgeted = FakeTrainer(FakeConfig(epochs=1000, max_minutes=1.0, cap_minutes=0.3 / 60, step_sleep_s=0.01),
                            tmp_path / "both").fit(progress=False)
     assert budgeted["stopped_by"] == "wall-clock cap"  # the cap comes first
+
+
+def test_a_run_stopped_by_its_cap_resumes_to_the_straight_runs_weights(tmp_path):
+    """The cap counts each run's own training time, so reruns of a slow machine finish the recipe's model."""
+    straight = FakeTrainer(FakeConfig(epochs=8, rows=20), tmp_path / "straight")
+    straight.fit(progress=False)
+    stops = []
+    for _ in range(12):
+        trainer = FakeTrainer(FakeConfig(epochs=8, rows=20, cap_minutes=0.3 / 60, step_sleep_s=0.01),
+                              tmp_path / "capped")
+        trainer.resume()
+        stops.append(trainer.fit(progress=False)["stopped_by"])
+        if stops[-1] == "epochs":
+            break
+    assert stops[0] == "wall-clock cap" and stops[-1] == "epochs"
+    assert without_times(trainer.history) == without_times(straight.history)
+    assert trainer.weight.item() == straight.weight.item() and trainer.best_holdout == straight.best_holdout
+
+
+def test_a_cap_inside_the_first_epoch_is_an_error(tmp_path):
+    trainer = FakeTrainer(FakeConfig(epochs=5, rows=40, cap_minutes=0.02 / 60, step_sleep_s=0.01), tmp_path / "run")
+    with pytest.raises(RuntimeError, match=r"inside its first epoch; give it a cap above one epoch's time"):
+        trainer.fit(progress=False)
 
 
 def test_resume_continues_to_the_same_history_and_weights(tmp_path):

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
 
-from simshear_gym.pipelines.stages import StageResult, StageRunner
+from simshear_gym.pipelines.stages import StageResult, StageRunner, StageStopped
 
 
 @dataclass(frozen=True)
@@ -57,8 +57,9 @@ def order_steps(steps: list[Step]) -> list[str]:
 
 def run_steps(steps: list[Step], root: Path, jobs: int = 1,
               log: Callable[[str], None] = print) -> dict[str, StageResult]:
-    """Run every step (see the module docstring); returns their results by name. A step that fails stops the run
-    (the other running steps are ended; their folders stay, so a rerun resumes them)."""
+    """Run every step (see the module docstring); returns their results by name. A step that fails or stops at its
+    wall-clock cap (:class:`~simshear_gym.pipelines.stages.StageStopped`, raised as it is) stops the run (the other
+    running steps are ended; their folders stay, so a rerun resumes them)."""
     priority = order_steps(steps)
     by_name = {step.name: step for step in steps}
     done: dict[str, StageResult] = {}
@@ -86,6 +87,8 @@ def run_steps(steps: list[Step], root: Path, jobs: int = 1,
                                          error_callback=lambda error, name=name: finished.put((name, None, error)))
                 name, result, error = finished.get()
                 running.discard(name)
+                if isinstance(error, StageStopped):
+                    raise error  # already says which step and what to do
                 if error is not None:
                     raise RuntimeError(f"pipeline step {name!r} failed: {error}") from error
                 done[name] = result

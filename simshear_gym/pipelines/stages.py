@@ -3,7 +3,9 @@ and counts as done only once its record (``stage.json``) is written, last and at
 
 So a rerun of a finished pipeline finds every record and does nothing; a run killed mid-stage finds that stage's
 folder without a record and runs the stage again in the same folder, where a resumable step (a trainer's
-checkpoint) picks up where it stopped; a change of settings or of an input's hash gives a new folder.
+checkpoint) picks up where it stopped; a change of settings or of an input's hash gives a new folder. A training
+stopped by its wall-clock safety cap (``stopped_by`` :data:`~simshear_gym.train.runs.CAP_STOP`) is not the recipe's
+model: its stage gets no record and :class:`StageStopped` says so; the rerun continues it from its last epoch.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from simshear_gym.io import write_json
+from simshear_gym.train.runs import CAP_STOP
 
 RECORD = "stage.json"
 
@@ -50,6 +53,10 @@ def file_fingerprint(paths: list[Path]) -> str:
                 digest.update(block)
         digest.update(b"\n")
     return digest.hexdigest()[:12]
+
+
+class StageStopped(RuntimeError):
+    """A stage's training stopped by its wall-clock safety cap: no record, so a rerun continues it."""
 
 
 @dataclass
@@ -92,6 +99,13 @@ class StageRunner:
             self.log(f"[{name}] {'resuming' if resumed else 'running'} in {folder.relative_to(self.root)}")
             start = time.perf_counter()
             produced = work(folder)
+            metrics = produced.get("metrics", {})
+            if metrics.get("stopped_by") == CAP_STOP:
+                raise StageStopped(
+                    f"[{name}] stopped by its wall-clock safety cap (cap_minutes) after {metrics.get('epochs')} "
+                    f"finished epochs ({metrics.get('elapsed_s')} s of training) in {folder}: not the recipe's model, "
+                    "so it is not recorded. Rerun the same command to continue it from that epoch: each run trains "
+                    "a stage for at most cap_minutes (a changed cap_minutes starts the stage afresh)")
             record = {"stage": name, "hash": stage_hash, "key": _plain(key),
                       "outputs": _plain(produced.get("outputs", {})), "metrics": _plain(produced.get("metrics", {})),
                       "wall_s": round(time.perf_counter() - start, 2), "resumed": resumed}

@@ -7,12 +7,14 @@ checkpoint holds besides the loop's counters (the hooks below). :meth:`EpochTrai
 the time budget ``config.max_minutes`` (training time, counted across resumes) runs out. Each step sets the
 learning rate of every optimiser to :func:`~simshear_gym.train.runs.scheduled_lr` of the share of the run done
 (of its time budget when it has one, else of its steps). A config may also hold ``cap_minutes``: a wall-clock
-safety cap that stops the run (``stopped_by`` "wall-clock cap") without shaping the schedule, so that a recipe
-counted in epochs trains the same model on any machine that finishes within the cap. After each epoch, and in
-the epoch where the time runs out (a partial epoch), it measures the holdout metric, appends a record to the
-history, saves ``best.pt`` when the metric improves and writes ``checkpoint.pt`` and ``history.json`` atomically,
-so ``resume`` continues from the last finished epoch with the same numbers a straight run would give (the random
-generators are in the checkpoint).
+safety cap on the training time of one ``fit`` call (``stopped_by`` "wall-clock cap",
+:data:`~simshear_gym.train.runs.CAP_STOP`) that does not shape the schedule. It stops at once and drops the
+unfinished epoch: the trainer goes back to its last finished epoch's checkpoint, so a resumed run (which gets its
+own cap) continues as a straight run would and a recipe counted in epochs trains the same model on any machine,
+however slow. After each epoch, and in the epoch where the time budget runs out (a partial epoch), it measures
+the holdout metric, appends a record to the history, saves ``best.pt`` when the metric improves and writes
+``checkpoint.pt`` and ``history.json`` atomically, so ``resume`` continues from the last finished epoch with the
+same numbers a straight run would give (the random generators are in the checkpoint).
 
 Run directory: ``config.json`` (written when ``fit`` starts), ``history.json`` (``{"config": ..., "epochs":
 [record, ...]}``; a record: ``epoch``, ``partial_epoch``, ``step``, ``elapsed_s``, ``train_<metric>`` (mean training
@@ -43,7 +45,7 @@ from tqdm import tqdm
 
 from simshear_gym.io import atomic_write, write_json
 from simshear_gym.train.distributed import Distributed
-from simshear_gym.train.runs import check_same_settings, run_progress, scheduled_lr
+from simshear_gym.train.runs import CAP_STOP, check_same_settings, run_progress, scheduled_lr
 
 LOG_EVERY_STEPS = 20  # training scalars to tensorboard
 
@@ -185,17 +187,22 @@ class EpochTrainer(ABC):
         writer = SummaryWriter(str(self.run_dir / "tb")) if self.is_main else _NoWriter()
         budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
         cap_minutes = getattr(config, "cap_minutes", None)
-        cap_s = cap_minutes * 60.0 if cap_minutes else math.inf
+        cap_s = self.elapsed_s + cap_minutes * 60.0 if cap_minutes else math.inf  # this call's training time
         stop_reason = "epochs"
         self.train_mode()
         try:
             while self.epoch < config.epochs:
                 started = time.perf_counter() - self.elapsed_s
-                out_of_time, train_losses = self._train_epoch(writer, started, min(budget_s, cap_s), progress)
+                stopped, train_losses = self._train_epoch(writer, started, budget_s, cap_s, progress)
+                if stopped == CAP_STOP:
+                    stop_reason = stopped
+                    self._back_to_last_epoch()
+                    break
+                out_of_time = stopped is not None
                 self.epoch += 0 if out_of_time else 1
                 self._end_epoch(writer, started, out_of_time, train_losses)
                 if out_of_time:
-                    stop_reason = "time budget" if budget_s <= cap_s else "wall-clock cap"
+                    stop_reason = stopped
                     break
                 if self.epochs_since_best >= config.patience_epochs:
                     stop_reason = "early stopping"
@@ -207,12 +214,12 @@ class EpochTrainer(ABC):
         return {"epochs": self.epoch, "steps": self.step, "elapsed_s": round(self.elapsed_s, 1),
                 f"best_holdout_{self.metric}": self.best_holdout, "stopped_by": stop_reason}
 
-    def _train_epoch(self, writer: SummaryWriter, started: float, stop_s: float,
-                     progress: bool) -> tuple[bool, list[float]]:
-        """One epoch's steps, or those done before ``stop_s`` of training time (the time budget or the wall-clock
-        cap); returns (out of time, the steps' training losses). The schedule follows the time budget only."""
+    def _train_epoch(self, writer: SummaryWriter, started: float, budget_s: float, cap_s: float,
+                     progress: bool) -> tuple[str | None, list[float]]:
+        """One epoch's steps, or those done before the training time reaches ``cap_s`` (the wall-clock cap) or
+        ``budget_s`` (the time budget); returns (what stopped it: :data:`CAP_STOP`, "time budget" or None, the
+        steps' training losses). The schedule follows the time budget only."""
         config = self.config
-        budget_s = config.max_minutes * 60.0 if config.max_minutes else math.inf
         batches = self.epoch_batches()
         losses_seen = []
         for index in tqdm(batches, desc=f"epoch {self.epoch + 1}/{config.epochs}",
@@ -234,9 +241,21 @@ class EpochTrainer(ABC):
                     writer.add_scalar(f"train/{name}", value, self.step)
                 writer.add_scalar("train/lr", lr, self.step)
             self.elapsed_s = self._shared(time.perf_counter() - started)  # every process stops at one step
-            if self.elapsed_s > stop_s:
-                return True, losses_seen
-        return False, losses_seen
+            if self.elapsed_s > cap_s:
+                return CAP_STOP, losses_seen
+            if self.elapsed_s > budget_s:
+                return "time budget", losses_seen
+        return None, losses_seen
+
+    def _back_to_last_epoch(self) -> None:
+        """After the wall-clock cap: drop the unfinished epoch (weights, optimisers, generators and counters back
+        to the last checkpoint, or to the start where there is none), so that a resumed run trains on as a
+        straight run would."""
+        if self.distributed is not None:
+            self.distributed.barrier()  # rank 0's checkpoint is whole before anyone reads it
+        if not self.resume():
+            raise RuntimeError(f"{self.run_dir}: the wall-clock cap (cap_minutes = {self.config.cap_minutes}) "
+                               "stopped the run inside its first epoch; give it a cap above one epoch's time")
 
     def _end_epoch(self, writer: SummaryWriter, started: float, partial: bool, train_losses: list[float]) -> None:
         """Holdout, history record, best model and checkpoint after an epoch (or the partial one at the budget)."""

@@ -69,8 +69,9 @@ FLAG_HELP = {
     "erase": "augmentation: black out a disc of radius up to ERASE (a share of the image size) in each training "
              "image",
     "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
-    "cap_minutes": "wall-clock safety cap: stop after this much training time without changing the schedule "
-                   "(which runs over the epochs unless --max-minutes is given)",
+    "cap_minutes": "wall-clock safety cap: stop after this much training time of this run, back at its last "
+                   "finished epoch (--resume continues it), without changing the schedule (which runs over the "
+                   "epochs unless --max-minutes is given)",
     "seed": "seed of the holdout split, the initial weights, the batch order and the augmentations",
     "threads": "torch CPU threads",
     "translators": "generator weights (.pt) to translate with instead of the shipped one; several: each row "

@@ -12,6 +12,10 @@ import numpy as np
 
 LR_SCHEDULES = ("constant", "cosine")
 
+CAP_STOP = "wall-clock cap"
+"""``stopped_by`` of a training stopped by its ``cap_minutes`` safety cap: not the recipe's model (it stopped at
+its last finished epoch; a resumed run continues it)."""
+
 
 def scheduled_lr(lr: float, schedule: str, progress: float) -> float:
     """Learning rate after ``progress`` (0..1) of a run: ``constant``, or ``cosine`` (decays to 0 at the end)."""

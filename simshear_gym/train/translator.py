@@ -57,8 +57,9 @@ FLAG_HELP = {
     "holdout": "share of the training rows held out for early stopping on L1",
     "patience_epochs": "stop after this many epochs in a row without a lower holdout L1",
     "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
-    "cap_minutes": "wall-clock safety cap: stop after this much training time without changing the schedule "
-                   "(which runs over the epochs unless --max-minutes is given)",
+    "cap_minutes": "wall-clock safety cap: stop after this much training time of this run, back at its last "
+                   "finished epoch (--resume continues it), without changing the schedule (which runs over the "
+                   "epochs unless --max-minutes is given)",
     "seed": "seed of the holdout split, the initial weights and the batch order",
     "threads": "torch CPU threads",
     "pose_net": "pose-consistency loss: a GDNN trained on the real images (best.pt of simshear train posenet "
