@@ -86,6 +86,42 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
     env.close()
 
 
+def test_a_stage_stopped_by_its_cap_stops_the_run_and_the_reruns_train_the_recipes_model(tmp_path, monkeypatch):
+    """A machine too slow for a translator's cap: each run stops there without a record; the reruns finish the
+    stage in its folder with the weights an uncapped run gives (so a recipe rebuilds on any machine)."""
+    import time
+
+    import torch
+
+    from simshear_gym.models.translator import load_generator
+    from simshear_gym.pipelines.stages import StageStopped
+    from simshear_gym.train.translator_trainer import TranslatorTrainer
+
+    profile = '\n[profiles.smoke.translator]\narchs = ["shpix2pix"]\nepochs = 6\n'
+    data = tmp_path / "data"
+    straight = run_pipeline(load_config(write_lab(data, rows=30, config=GOOD + profile)), tmp_path / "straight",
+                            data, "smoke", ("adapt", "collect", "translator"), workers=1)
+    step = TranslatorTrainer.train_batch
+    monkeypatch.setattr(TranslatorTrainer, "train_batch",
+                        lambda self, index: (time.sleep(0.06), step(self, index))[1])  # a slower machine
+    capped = load_config(write_lab(data, rows=30, config=GOOD + profile + "cap_minutes = 0.01\n"))
+    stops = 0
+    for _ in range(12):
+        try:
+            manifest = run_pipeline(capped, tmp_path / "capped", data, "smoke", ("adapt", "collect", "translator"),
+                                    workers=1)
+            break
+        except StageStopped as stopped:
+            assert "[translator/surface_shpix2pix] stopped by its wall-clock safety cap" in str(stopped)
+            stops += 1
+    assert stops >= 1 and manifest["results"][-1]["metrics"]["epochs"] == 6
+    record = manifest["results"][-1]
+    assert record["stage"] == "translator/surface_shpix2pix" and record["ran"]
+    weights = [load_generator(out / m["models"]["translators"]["surface"]["shpix2pix"])[0].state_dict()
+               for out, m in ((tmp_path / "straight", straight), (tmp_path / "capped", manifest))]
+    assert all(torch.equal(weights[0][key], weights[1][key]) for key in weights[0])
+
+
 POOLED = GOOD + """
 [profiles.smoke]
 jobs = 2

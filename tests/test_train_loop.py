@@ -171,7 +171,7 @@ def test_a_run_stopped_by_its_cap_resumes_to_the_straight_runs_weights(tmp_path)
 
 def test_a_cap_inside_the_first_epoch_is_an_error(tmp_path):
     trainer = FakeTrainer(FakeConfig(epochs=5, rows=40, cap_minutes=0.02 / 60, step_sleep_s=0.01), tmp_path / "run")
-    with pytest.raises(RuntimeError, match=r"inside its first epoch; give it a cap above one epoch's time"):
+    with pytest.raises(ValueError, match=r"inside its first epoch; give it a cap above one epoch's time"):
         trainer.fit(progress=False)
 
 

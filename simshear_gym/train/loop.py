@@ -254,7 +254,7 @@ class EpochTrainer(ABC):
         if self.distributed is not None:
             self.distributed.barrier()  # rank 0's checkpoint is whole before anyone reads it
         if not self.resume():
-            raise RuntimeError(f"{self.run_dir}: the wall-clock cap (cap_minutes = {self.config.cap_minutes}) "
+            raise ValueError(f"{self.run_dir}: the wall-clock cap (cap_minutes = {self.config.cap_minutes}) "
                                "stopped the run inside its first epoch; give it a cap above one epoch's time")
 
     def _end_epoch(self, writer: SummaryWriter, started: float, partial: bool, train_losses: list[float]) -> None:
