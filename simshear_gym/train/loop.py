@@ -249,13 +249,13 @@ class EpochTrainer(ABC):
 
     def _back_to_last_epoch(self) -> None:
         """After the wall-clock cap: drop the unfinished epoch (weights, optimisers, generators and counters back
-        to the last checkpoint, or to the start where there is none), so that a resumed run trains on as a
-        straight run would."""
+        to the last checkpoint), so that a resumed run trains on as a straight run would; with no checkpoint yet
+        (a cap below one epoch's time, which no rerun could pass) a ValueError."""
         if self.distributed is not None:
             self.distributed.barrier()  # rank 0's checkpoint is whole before anyone reads it
         if not self.resume():
             raise ValueError(f"{self.run_dir}: the wall-clock cap (cap_minutes = {self.config.cap_minutes}) "
-                               "stopped the run inside its first epoch; give it a cap above one epoch's time")
+                             "stopped the run inside its first epoch; give it a cap above one epoch's time")
 
     def _end_epoch(self, writer: SummaryWriter, started: float, partial: bool, train_losses: list[float]) -> None:
         """Holdout, history record, best model and checkpoint after an epoch (or the partial one at the budget)."""
