@@ -76,7 +76,7 @@ def test_every_step_sees_the_steps_it_needs(tmp_path, jobs):
 
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_a_failing_step_stops_the_run_and_says_which(tmp_path, jobs):
-    with pytest.raises((RuntimeError, ValueError), match="bad settings in step c"):
+    with pytest.raises(ValueError, match="bad settings in step c"):  # bad input stays a one-line CLI error
         run_steps(graph(fail=True), tmp_path, jobs=jobs, log=lambda text: None)
     assert not (tmp_path / "step" / "d").exists()
 
@@ -92,6 +92,16 @@ def test_a_training_stopped_by_its_cap_is_not_recorded_and_the_rerun_continues_i
     done = run_steps(graph(capped=True), tmp_path, jobs=jobs, log=lambda text: None)
     assert done["c"].ran and done["c"].record["resumed"] and done["c"].record["metrics"]["epochs"] == 5
     assert (folder / "runs.txt").read_text() == "xx" and done["d"].record["metrics"]["seen"] == ["b", "c"]
+
+
+def _crash(runner: StageRunner, done: dict) -> StageResult:
+    raise KeyError("z_mm")
+
+
+def test_a_workers_bug_is_named_by_its_step(tmp_path):
+    steps = [Step("a", partial(_write, "a")), Step("c", _crash, needs=("a",))]
+    with pytest.raises(RuntimeError, match=r"pipeline step 'c' failed: 'z_mm'"):
+        run_steps(steps, tmp_path, jobs=2, log=lambda text: None)
 
 
 def test_a_data_sets_fingerprint_follows_its_contents_not_its_file_times(tmp_path):

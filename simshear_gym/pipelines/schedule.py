@@ -58,8 +58,9 @@ def order_steps(steps: list[Step]) -> list[str]:
 def run_steps(steps: list[Step], root: Path, jobs: int = 1,
               log: Callable[[str], None] = print) -> dict[str, StageResult]:
     """Run every step (see the module docstring); returns their results by name. A step that fails or stops at its
-    wall-clock cap (:class:`~simshear_gym.pipelines.stages.StageStopped`, raised as it is) stops the run (the other
-    running steps are ended; their folders stay, so a rerun resumes them)."""
+    wall-clock cap stops the run (the other running steps are ended; their folders stay, so a rerun resumes them).
+    A worker's cap stop (:class:`~simshear_gym.pipelines.stages.StageStopped`) or bad-input error (ValueError,
+    OSError) is raised as it is, as in one process; anything else as a RuntimeError naming the step."""
     priority = order_steps(steps)
     by_name = {step.name: step for step in steps}
     done: dict[str, StageResult] = {}
@@ -87,8 +88,8 @@ def run_steps(steps: list[Step], root: Path, jobs: int = 1,
                                          error_callback=lambda error, name=name: finished.put((name, None, error)))
                 name, result, error = finished.get()
                 running.discard(name)
-                if isinstance(error, StageStopped):
-                    raise error  # already says which step and what to do
+                if isinstance(error, StageStopped | ValueError | OSError):
+                    raise error  # a cap stop or bad input: its message names the step, file or key (one CLI line)
                 if error is not None:
                     raise RuntimeError(f"pipeline step {name!r} failed: {error}") from error
                 done[name] = result
