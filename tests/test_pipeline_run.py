@@ -47,6 +47,8 @@ def test_rerun_is_cached_and_an_interrupted_stage_reruns_in_its_folder(tmp_path)
     assert fewer["results"][0]["ran"] and fewer["results"][0]["folder"] != first["results"][0]["folder"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["sensor"] == "lab" and manifest["git_commit"] and manifest["profile"] == "smoke"
+    machine = manifest["machine"]  # wall times of two machines can be told apart
+    assert machine["cpus"] >= 1 and machine["processor"] and machine["torch_cpu_capability"]
 
 
 def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):

@@ -17,13 +17,13 @@ from __future__ import annotations
 import argparse
 import hashlib
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
 
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 # pybullet (via simshear_gym.sim.collect) is imported inside run, so that --help stays light.
 
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
                   f"= {rows / seconds:.0f} tuples/s")
     payload = {
         "command": f"simshear evaluate collect-speed --workers {args.workers}",
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "machine": machine_info(),
         "goal_tuples_per_s": 500, "paper_reference": "5000 tuples in 60 s (83/s)", "runs": runs,
     }
     write_json(args.out / "collect_speed.json", payload)
@@ -103,7 +103,7 @@ def run_ray(args: argparse.Namespace) -> int:
                               f"= {rows / seconds:.0f} rows/s")
     payload = {
         "command": f"simshear evaluate collect-speed --ray {args.ray} --rows {args.rows} --workers {args.workers}",
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+        "machine": {**machine_info(),
                     "load_average_1_5_15_min_before": [round(x, 2) for x in load_before]},
         "ray_address": args.ray, "source": "random contacts over the tactip331 shear ranges, seed 0",
         **warmup, "runs": runs,

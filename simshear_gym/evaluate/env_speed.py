@@ -26,13 +26,13 @@ from __future__ import annotations
 import argparse
 import contextlib
 import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 GOAL_SINGLE_STEPS_PER_S = 100.0
 GOAL_VECTOR_STEPS_PER_S = 600.0  # issue 22 (the earlier goal was 200)
@@ -225,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
                     + (f"--onnx-threads {' '.join(map(str, args.onnx_threads))} " if args.onnx_threads != [1] else "")
                     + f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
                     + (f" --out {args.out.as_posix()} --name {args.name}" if args.name != "env_speed" else "")),
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "machine": machine_info(),
         "env": ("SimShearTracking-v0, obs_mode='real' (the shipped shPix2pix surface translator, 'full', or its "
                 "distilled 'student'; runtime per row: torch, or ONNX Runtime on the .onnx beside the weights), "
                 "128 px, oracle actions"),

@@ -21,14 +21,13 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 START_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
 
@@ -154,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
                + (f" --posenet {args.posenet}" if args.posenet else "") + (f" --data {args.data}" if args.data else ""))
     payload = {
         "command": command,
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+        "machine": {**machine_info(),
                     "torch_threads": args.threads},
         "frames": f"{len(frames)} raw 640x480 frames of tactip331_raw, cycled",
         "posenet": args.posenet or "shipped surface GDNN",

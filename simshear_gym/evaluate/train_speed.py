@@ -13,8 +13,6 @@ already ran in ``channels_last`` before it was the default everywhere.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -22,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 #: the measured trainer steps: name -> (trainer, the translator's decoder scale or None)
 MODELS = {"gdnn": ("posenet", None), "translator_decoder0.5": ("translator", 0.5),
@@ -117,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
         "command": " ".join(command),
         "what": "median wall time of one training step per process (mean over the processes running side by side)"
                 ", networks and batches in each memory layout; random rows (timing only)",
-        "machine": {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine()},
+        "machine": machine_info(),
         "torch": torch.__version__, "processes": args.processes, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / 'train_speed.json'}")

@@ -9,14 +9,13 @@ uint8 images in, the copy to the GPU, the generator, the copy back, uint8 images
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import time
 from pathlib import Path
 
 import numpy as np
 
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 
 def latency_ms(translator, batch: int, repeats: int, rng: np.random.Generator) -> float:
@@ -60,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--batch-sizes must be positive integers, got {bad}")
     torch.set_num_threads(args.threads)
     device = resolve_device(args.device)
-    machine = {"cpus": os.cpu_count(), "processor": platform.processor() or platform.machine(),
+    machine = {**machine_info(),
                "device": str(device)}
     if device.type == "cuda":
         machine["gpu"] = torch.cuda.get_device_name(device)

@@ -26,8 +26,9 @@ part of their cache keys.
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
 
-The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, per stage its
-folder, whether it ran or was cached, wall time and metrics.
+The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, the machine
+(:func:`simshear_gym.machine.machine_info`: wall times are that machine's), per stage its folder, whether it ran or
+was cached, wall time and metrics.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, resolve,
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
@@ -441,7 +443,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             "variables": posenets["variables"]})
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile, "stages": list(stages),
-        "package_version": _version(), "git_commit": commit,
+        "package_version": _version(), "git_commit": commit, "machine": machine_info(),
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
         "jobs": jobs, "device": device, "contacts": sorted(contacts_of(config)),
