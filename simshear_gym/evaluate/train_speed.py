@@ -92,8 +92,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import multiprocessing
 
-    import torch
-
     for name in ("steps", "processes", "threads"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name} must be a positive integer, got {getattr(args, name)!r}")
@@ -117,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         "what": "median wall time of one training step per process (mean over the processes running side by side)"
                 ", networks and batches in each memory layout; random rows (timing only)",
         "machine": machine_info(),
-        "torch": torch.__version__, "processes": args.processes, "torch_threads": args.threads, "models": rows,
+        "processes": args.processes, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / 'train_speed.json'}")
     return 0

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
                              f"--repeats {args.repeats}", f"--device {args.device}",
                              "--batch-sizes " + " ".join(map(str, args.batch_sizes)),
                              *([f"--out {args.out}"] if args.out != Path("results") else [])]),
-        "machine": machine, "torch_threads": args.threads, "torch": torch.__version__, "models": rows,
+        "machine": machine, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / name}")
     return 0

@@ -127,8 +127,7 @@ class PosenetStage:
     shear (taps: the move columns 0), so that the rows without shear keep about the share they have in the real
     sets. ``baselines`` adds the paper's comparison GDNNs, scored beside the others on the real validation images:
     ``pix2pix`` (on the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim
-    renders);
-    ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
+    renders); ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
 
     epochs: int = 30
     batch_size: int = 64

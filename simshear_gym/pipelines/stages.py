@@ -107,7 +107,7 @@ class StageRunner:
                     "so it is not recorded. Rerun the same command to continue it from that epoch: each run trains "
                     "a stage for at most cap_minutes (a changed cap_minutes starts the stage afresh)")
             record = {"stage": name, "hash": stage_hash, "key": _plain(key),
-                      "outputs": _plain(produced.get("outputs", {})), "metrics": _plain(produced.get("metrics", {})),
+                      "outputs": _plain(produced.get("outputs", {})), "metrics": _plain(metrics),
                       "wall_s": round(time.perf_counter() - start, 2), "resumed": resumed}
             write_json(record_path, record)
             self.log(f"[{name}] done in {record['wall_s']:.1f} s")
