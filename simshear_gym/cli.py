@@ -75,6 +75,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "fault soak of the real path: the servo controller on the MG400 emulator for 10,000 cycles, faults injected"),
     (("pipeline", "check"), "simshear_gym.pipelines.check",
      "validate a sensor's experiment config and its data before anything trains"),
+    (("pipeline", "estimate"), "simshear_gym.pipelines.estimate",
+     "how long a profile's training takes on this machine, from short probes of its trainers"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
     (("pipeline", "env-model"), "simshear_gym.pipelines.env_model",

@@ -399,6 +399,21 @@ def adapt_dataset(config: DatasetConfig, frame: FrameConfig, root: Path, name: s
     return adapted
 
 
+def split_sizes(config: DatasetConfig, root: Path, name: str = "",
+                max_rows_per_split: int | None = None) -> dict[str, int]:
+    """{split: rows} of a dataset, from its label files alone (no image is read): the sizes of
+    :func:`adapt_dataset`'s splits."""
+    where = f"dataset {name!r}: " if name else ""
+    sizes = dict.fromkeys(SPLITS, 0)
+    for data_file, csv_path, table in read_labels(config, root, where):
+        splits = split_rows(config, data_file, table, csv_path)
+        for split in SPLITS:
+            sizes[split] += int(np.count_nonzero(splits == split))
+    if max_rows_per_split is not None:
+        sizes = {split: min(rows, max_rows_per_split) for split, rows in sizes.items()}
+    return sizes
+
+
 def _read_images(paths: list[Path], adapter: ImageAdapter, where: str) -> tuple[np.ndarray, tuple[int, int]]:
     out = np.empty((len(paths), adapter.size_px, adapter.size_px), dtype=np.uint8)
     first_shape = None

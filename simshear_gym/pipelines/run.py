@@ -202,6 +202,14 @@ def _translator_settings(stage, contact: str, generator=None) -> dict:
     return {**stage.settings_for(contact), **(generator.overrides() if generator else {})}
 
 
+def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_rows: int = 0,
+               baseline: bool = False, seed: int | None = None) -> dict:
+    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
+    return {"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
+            "settings": settings, "translators": tuple(dict.fromkeys(name for name, _ in drawn))}
+
+
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
                     generator, runner: StageRunner, done: dict, *, device: str = "auto") -> StageResult:
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
@@ -362,37 +370,44 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
         train_sets = [paired[name]["train"] for name in names]
         if "translator" in stages:
             for arch in profile.translator.archs:
+                work = {"trainer": "translator", "contact": contact, "datasets": tuple(names),
+                        "settings": {**_translator_settings(profile.translator, contact), "arch": arch}}
                 steps.append(Step(f"translator/{contact}_{arch}", partial(
                     translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
-                    cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact)))
+                    cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact), work=work))
             for generator in profile.pool_for(contact):
                 needs = (f"posenet/{contact}_{generator.reader_step}",) if generator.pose_weight > 0 else ()
-                epochs = _translator_settings(profile.translator, contact, generator)["epochs"]
+                settings = _translator_settings(profile.translator, contact, generator)
+                work = {"trainer": "translator", "contact": contact, "datasets": tuple(names),
+                        "settings": {**settings, "arch": "shpix2pix", "pose_weight": generator.pose_weight}}
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
                     translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
                     device=device), needs=needs,
-                    cost=TRANSLATOR_EPOCH_COST * epochs * (POSE_CONSISTENCY_COST if needs else 1.0)))
+                    cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
+                    work=work))
         if "posenet" in stages:
+            gdnn_work = partial(_gdnn_work, profile.posenet, contact, names)
             steps.append(Step(f"posenet/{contact}_real", partial(
                 posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                device=device), cost=posenet_cost))
+                device=device), cost=posenet_cost, work=gdnn_work()))
             for reader_seed in sorted({g.reader_seed for g in profile.pool_for(contact) if g.reader_seed}):
                 steps.append(Step(f"posenet/{contact}_real_s{reader_seed}", partial(
                     posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                    device=device, seed=reader_seed), cost=posenet_cost))
+                    device=device, seed=reader_seed), cost=posenet_cost, work=gdnn_work(seed=reader_seed)))
             drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws_for(contact)),
                      *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
             sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
             steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
                 posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
                 device=device), needs=tuple(name for name, _ in drawn),
-                cost=posenet_cost))
+                cost=posenet_cost, work=gdnn_work(drawn, profile.posenet.random_contacts.get(contact, 0))))
             for source in profile.posenet.baselines:
                 drawn = ((f"translator/{contact}_pix2pix", 1),) if source == "pix2pix" else ()
                 steps.append(Step(f"posenet/{contact}_{source}", partial(
                     posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
                     device=device, baseline=True), needs=tuple(name for name, _ in drawn),
-                    cost=POSENET_EPOCH_COST * profile.posenet.epochs_for(contact, baseline=True)))
+                    cost=POSENET_EPOCH_COST * profile.posenet.epochs_for(contact, baseline=True),
+                    work=gdnn_work(drawn, baseline=True)))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))

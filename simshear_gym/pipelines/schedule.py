@@ -13,22 +13,28 @@ from __future__ import annotations
 
 import multiprocessing
 import queue
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 from simshear_gym.pipelines.stages import StageResult, StageRunner, StageStopped
 
 
 @dataclass(frozen=True)
 class Step:
-    """One training step of the graph (see the module docstring); ``cost`` is a rough relative duration."""
+    """One training step of the graph (see the module docstring); ``cost`` is a rough relative duration;
+    ``work`` says what it trains, for estimates made before the run (:mod:`simshear_gym.pipelines.estimate`):
+    ``trainer`` ("translator" or "posenet"), ``contact``, ``settings`` (its trainer config's fields),
+    ``datasets`` (whose training rows it trains on), ``random_rows`` (random sim contacts it adds) and
+    ``translators`` (the translator steps whose generators translate its rows, for a GDNN on translations)."""
 
     name: str
     action: Callable[[StageRunner, dict[str, StageResult]], StageResult]
     needs: tuple[str, ...] = ()
     cost: float = 1.0
+    work: Mapping[str, Any] | None = None
 
 
 def order_steps(steps: list[Step]) -> list[str]:

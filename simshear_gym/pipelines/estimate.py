@@ -1,0 +1,271 @@
+"""``simshear pipeline estimate CONFIG [--profile P]``: how long a profile's training takes on this machine, before
+anything trains.
+
+A profile's budgets are counted in epochs, so its work is fixed: per training step of the run's graph
+(:func:`simshear_gym.pipelines.run.training_steps`) the optimiser steps (epochs x batches of its training rows,
+from the datasets' label files: :func:`simshear_gym.data.adapter.split_sizes`), a holdout pass per epoch and,
+for a GDNN on translations, its rows translated once per generator. What one of each costs is measured here
+(:mod:`simshear_gym.train.step_timing`: the package's trainers with the step's settings on random rows of the
+real shapes), ``jobs`` probes side by side as the run trains them; steps with the same cost settings share a
+probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
+(:func:`simshear_gym.pipelines.schedule.order_steps`), which gives the training's wall time.
+
+Not included: the data stages (adapt, collect, random contacts) and the evaluation, about 2 minutes of the
+shipped recipe's 136 on the 2-core CPU it was first measured on; a GDNN stopped early by its ``patience_epochs``
+takes less. Probe times vary by some percent between runs on a shared machine. Prints a table; ``--json PATH``
+writes it with the command and the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import json
+import multiprocessing
+import time
+from dataclasses import asdict, dataclass, fields
+from functools import partial
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from simshear_gym.data.adapter import split_sizes
+from simshear_gym.data.paths import data_root
+from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
+from simshear_gym.pipelines.schedule import Step, order_steps
+
+if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
+    from simshear_gym.pipelines.config import ExperimentConfig
+
+#: settings that change what a trainer learns but not what a step costs (left out of a probe's key)
+FREE_SETTINGS = ("seed", "epochs", "lr", "lr_schedule", "cap_minutes", "max_minutes", "patience_epochs", "holdout",
+                 "pose_weight", "pose_variables", "device", "l1_weight", "beta", "dropout")
+
+
+@dataclass(frozen=True)
+class StepEstimate:
+    """One training step's work and its estimated seconds (``start_s``/``end_s``: on the run's lanes)."""
+
+    name: str
+    trainer: str
+    rows: int
+    epochs: int
+    steps_per_epoch: int
+    step_s: float
+    translate_s: float
+    seconds: float
+    start_s: float
+    end_s: float
+
+
+def _default(config_class, name: str):
+    return next(f.default for f in fields(config_class) if f.name == name)
+
+
+def planned_steps(config: ExperimentConfig, profile: str) -> list[Step]:
+    """The run's training steps (their ``work``; their actions are never called)."""
+    from simshear_gym.pipelines.run import contacts_of, training_steps
+
+    settings = config.profile(profile)
+    paired = {name: {"train": f"paired/{name}"} for name in config.datasets}
+    random_sets = {contact: f"random/{contact}" for contact in contacts_of(config)
+                   if settings.posenet.random_contacts.get(contact, 0)}
+    variables = {contact: contact for contact in contacts_of(config)}
+    return training_steps(config, settings, {}, paired, random_sets, variables,
+                          ("adapt", "collect", "translator", "posenet"))
+
+
+def _probe_key(work: dict, image_size_px: int, views: int = 1) -> tuple:
+    kept = tuple(sorted((k, v) for k, v in work["settings"].items() if k not in FREE_SETTINGS))
+    if work["trainer"] == "translator":
+        kept += (("pose", work["settings"].get("pose_weight", 0) > 0),)
+    return (work["trainer"], image_size_px, views, kept)
+
+
+def _translator_probe(settings: dict, image_size_px: int, steps: int):
+    from simshear_gym.train.step_timing import translation_s_per_row, translator_step_time
+
+    threads = settings.get("threads", 1)
+    return (translator_step_time(settings, image_size_px, steps=steps, threads=threads),
+            translation_s_per_row(settings, image_size_px, threads=threads))
+
+
+def _posenet_probe(settings: dict, variables: str, views: int, steps: int):
+    from simshear_gym.train.step_timing import posenet_step_time
+
+    return posenet_step_time(settings, variables, views=views, steps=steps, threads=settings.get("threads", 1)), 0.0
+
+
+def _side_by_side(pool, probe, jobs: int) -> tuple:
+    """A probe's (StepTime, translation s per row), averaged over ``jobs`` copies run at once."""
+    results = pool.map(_call, [probe] * jobs)
+    step_s = sum(r[0].step_s for r in results) / jobs
+    holdout = sum(r[0].holdout_s_per_row for r in results) / jobs
+    return step_s, holdout, sum(r[1] for r in results) / jobs
+
+
+def _call(probe):
+    return probe()
+
+
+def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, tuple[float, float]]:
+    """{step: (start_s, end_s)}: the steps on ``jobs`` lanes, each started as soon as a lane is free and its needs
+    are done, the ready ones in :func:`~simshear_gym.pipelines.schedule.order_steps`' order (as the run does)."""
+    priority = order_steps(steps)
+    by_name = {step.name: step for step in steps}
+    times: dict[str, tuple[float, float]] = {}
+    running: list[tuple[float, str]] = []
+    now = 0.0
+    while len(times) < len(steps):
+        for name in priority:
+            if (len(running) < jobs and name not in times
+                    and all(need in times and times[need][1] <= now for need in by_name[name].needs)):
+                times[name] = (now, now + seconds[name])
+                heapq.heappush(running, (now + seconds[name], name))
+        now, _ = heapq.heappop(running)
+    return times
+
+
+def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | None = None,
+             probe_steps: int = 20, log=print) -> dict:
+    """The profile's training steps with their estimated seconds, and the training's wall time on ``jobs`` lanes
+    (None: the profile's); see the module docstring."""
+    from simshear_gym.models.gdnn import VARIABLE_SETS
+    from simshear_gym.train.posenet_config import PosenetTrainConfig
+    from simshear_gym.train.translator_config import TranslatorTrainConfig
+
+    settings = config.profile(profile)
+    jobs = jobs or settings.jobs
+    train_rows = {name: split_sizes(dataset, root, name, settings.rows_per_split)["train"]
+                  for name, dataset in config.datasets.items()}
+    steps = planned_steps(config, profile)
+    by_name = {step.name: step for step in steps}
+    gdnn_size = settings.posenet.image_size_px
+    probes: dict[tuple, tuple] = {}
+    started = time.perf_counter()
+    with multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1) as pool:
+        for step in steps:
+            work = step.work
+            if work["trainer"] == "translator":
+                key = _probe_key(work, config.sensor.image_size_px)
+                probe = partial(_translator_probe, work["settings"], config.sensor.image_size_px, probe_steps)
+            else:
+                views = max(1, len(work["translators"]))
+                key = _probe_key(work, gdnn_size, views)
+                variables = work["contact"] if work["contact"] in VARIABLE_SETS else "surface"  # same cost
+                probe = partial(_posenet_probe, work["settings"], variables, views, probe_steps)
+            if key not in probes:
+                log(f"probing {step.name} ({work['trainer']}, {jobs} side by side)")
+                probes[key] = _side_by_side(pool, probe, jobs)
+    probe_s = time.perf_counter() - started
+
+    seconds, rows_of, plan = {}, {}, {}
+    for step in steps:
+        work = step.work
+        rows = sum(train_rows[name] for name in work["datasets"]) + work.get("random_rows", 0)
+        if work["trainer"] == "translator":
+            step_s, holdout_s, _ = probes[_probe_key(work, config.sensor.image_size_px)]
+            config_class, last_batch = TranslatorTrainConfig, 1  # no last batch of one row
+            translate_s = 0.0
+        else:
+            views = max(1, len(work["translators"]))
+            step_s, holdout_s, _ = probes[_probe_key(work, gdnn_size, views)]
+            config_class, last_batch = PosenetTrainConfig, 0
+            translate_s = sum(rows * probes[_probe_key(by_name[t].work, config.sensor.image_size_px)][2]
+                              for t in work["translators"])
+        batch = work["settings"].get("batch_size", _default(config_class, "batch_size"))
+        holdout = max(1, round(work["settings"].get("holdout", _default(config_class, "holdout")) * rows))
+        per_epoch = len(range(0, rows - holdout - last_batch, batch))
+        epochs = work["settings"]["epochs"]
+        seconds[step.name] = epochs * (per_epoch * step_s + holdout * holdout_s) + translate_s
+        rows_of[step.name] = rows
+        plan[step.name] = (work["trainer"], epochs, per_epoch, step_s, translate_s)
+    laid = lanes(steps, seconds, jobs)
+    estimates = [StepEstimate(name, plan[name][0], rows_of[name], plan[name][1], plan[name][2],
+                              round(plan[name][3], 4), round(plan[name][4], 1), round(seconds[name], 1),
+                              round(laid[name][0], 1), round(laid[name][1], 1))
+                 for name in sorted(laid, key=lambda n: laid[n])]
+    wall_s = max(end for _, end in laid.values())
+    return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs,
+            "probe_s": round(probe_s, 1), "training_wall_min": round(wall_s / 60, 1),
+            "lane_busy_min": round(sum(seconds.values()) / 60, 1),
+            "steps": [asdict(e) for e in estimates]}
+
+
+def measured_epochs(result: dict, run: Path) -> list[dict]:
+    """Each estimated step that ``run`` (a pipeline run folder) trained at least one epoch of, with the median
+    wall time of its epochs there (its ``run/history.json``; the median, so that an epoch slowed by other work
+    on the machine counts little) against the estimate's time per epoch."""
+    rows = []
+    for step in result["steps"]:
+        histories = sorted(run.glob(f"{step['name']}/*/run/history.json"), key=lambda p: p.stat().st_mtime)
+        if not histories:
+            continue
+        elapsed = [epoch["elapsed_s"] for epoch in json.loads(histories[-1].read_text())["epochs"]
+                   if not epoch.get("partial_epoch")]
+        if not elapsed:
+            continue
+        measured = float(np.median(np.diff([0.0, *elapsed])))
+        estimated = (step["seconds"] - step["translate_s"]) / step["epochs"]
+        rows.append({"name": step["name"], "epochs_measured": len(elapsed), "measured_epoch_s": round(measured, 1),
+                     "estimated_epoch_s": round(estimated, 1),
+                     "estimate_over_measured": round(estimated / measured, 3)})
+    return rows
+
+
+def format_estimate(result: dict) -> str:
+    lines = [f"{'step':32s} {'rows':>6s} {'epochs':>6s} {'steps/ep':>8s} {'s/step':>7s} {'min':>6s} "
+             f"{'start-end (min)':>16s}"]
+    for s in result["steps"]:
+        lines.append(f"{s['name']:32s} {s['rows']:6d} {s['epochs']:6d} {s['steps_per_epoch']:8d} "
+                     f"{s['step_s']:7.3f} {s['seconds'] / 60:6.1f} {s['start_s'] / 60:7.1f}-{s['end_s'] / 60:<8.1f}")
+    for row in result.get("measured", []):
+        lines.append(f"  {row['name']}: {row['estimated_epoch_s']} s per epoch estimated, {row['measured_epoch_s']} s "
+                     f"measured (median of {row['epochs_measured']} epochs): {row['estimate_over_measured']:.2f}x")
+    lines.append(f"{result['sensor']} profile {result['profile']}: training about {result['training_wall_min']} min "
+                 f"on {result['jobs']} lane(s) of this machine ({result['lane_busy_min']} lane-min of steps), plus "
+                 f"the data stages and the evaluation (a few minutes)")
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------------------------- command line
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    parser.add_argument("--profile", default="quick", help="the profile to estimate: smoke, quick or full")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
+    parser.add_argument("--jobs", type=int, default=None,
+                        help="training steps side by side (default: the profile's jobs)")
+    parser.add_argument("--probe-steps", type=int, default=20, help="timed optimiser steps per probe (default 20)")
+    parser.add_argument("--json", type=Path, default=None, help="also write the estimate to this JSON file")
+    parser.add_argument("--compare", type=Path, default=None, metavar="RUN",
+                        help="a pipeline run folder of this profile: its steps' epoch times against the estimate's")
+
+
+def run(args: argparse.Namespace) -> int:
+    from simshear_gym.pipelines.config import load_config
+
+    for name in ("jobs", "probe_steps"):
+        value = getattr(args, name)
+        if value is not None and value < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
+    config = load_config(args.config)
+    if args.compare is not None and not args.compare.is_dir():
+        raise FileNotFoundError(f"--compare {args.compare}: no such run folder")
+    result = estimate(config, data_root(args.data), args.profile, args.jobs, args.probe_steps)
+    if args.compare is not None:
+        result["compared_with"] = str(args.compare)
+        result["measured"] = measured_epochs(result, args.compare)
+    print(format_estimate(result))
+    if args.json is not None:
+        command = ["simshear pipeline estimate", str(args.config), f"--profile {args.profile}"]
+        command += [f"--jobs {args.jobs}"] if args.jobs else []
+        command += [f"--probe-steps {args.probe_steps}"] if args.probe_steps != 20 else []
+        command += [f"--compare {args.compare}"] if args.compare is not None else []
+        command += [f"--json {args.json}"]
+        write_json(args.json, {"command": " ".join(command), "machine": machine_info(), **result})
+        print(f"wrote {args.json}")
+    return 0
+

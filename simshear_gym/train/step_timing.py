@@ -1,0 +1,129 @@
+"""What a training run's work costs on this machine, measured on random rows of the real shapes before any data is
+loaded: the wall time of a trainer's optimiser step and of its holdout pass, and of a generator's translation of
+a batch (the GDNN on translated images translates its sets first). The trainers are the package's own
+(:class:`~simshear_gym.train.translator_trainer.TranslatorTrainer`,
+:class:`~simshear_gym.train.posenet_trainer.PosenetTrainer`), built with the run's settings, so a step is the
+step a run takes (layout, losses, augmentation); a pose-consistency translator reads its images with a GDNN of
+the real-image reference's architecture (random weights). Used by :mod:`simshear_gym.pipelines.estimate`.
+
+Times are per process: run the probes as many side by side as the run will train (its ``jobs``), since two
+trainers on a 2-core CPU each run slower than one alone.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PROBE_ROWS = 512
+"""Rows of the random set a probe trains on (the holdout pass is timed on its share of them and scaled)."""
+
+
+@dataclass(frozen=True)
+class StepTime:
+    """Seconds of one optimiser step, and of the holdout pass per holdout row."""
+
+    step_s: float
+    holdout_s_per_row: float
+
+
+def _median_s(action, repeats: int, warmup: int) -> float:
+    for _ in range(warmup):
+        action()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        action()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def _time_trainer(trainer, holdout_rows: int, steps: int) -> StepTime:
+    trainer.train_mode()
+    batches = trainer.epoch_batches()
+    cycle = iter(batches * (1 + (steps + 3) // max(1, len(batches))))
+    step_s = _median_s(lambda: trainer.train_batch(next(cycle)), steps, warmup=3)
+    start = time.perf_counter()
+    trainer.holdout_metric()
+    return StepTime(step_s, (time.perf_counter() - start) / holdout_rows)
+
+
+def translator_step_time(settings: dict, image_size_px: int, pose_variables: int = 0, steps: int = 10,
+                         threads: int = 1) -> StepTime:
+    """A translator run's step with ``settings`` (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig`
+    fields; ``pose_weight`` > 0: with the pose-consistency loss over ``pose_variables`` labels)."""
+    import torch
+
+    from simshear_gym.models.gdnn import GDNN
+    from simshear_gym.models.posenet_io import save_posenet
+    from simshear_gym.train.pose_consistency import PoseConsistency
+    from simshear_gym.train.posenet_config import PosenetTrainConfig
+    from simshear_gym.train.translator_config import TranslatorTrainConfig
+    from simshear_gym.train.translator_trainer import PairedTensors, TranslatorTrainer
+
+    torch.set_num_threads(threads)
+    generator = torch.Generator().manual_seed(0)
+    with tempfile.TemporaryDirectory() as folder:
+        pose, pose_settings = None, {}
+        if settings.get("pose_weight", 0) > 0:
+            reader = GDNN(PosenetTrainConfig(paired_dirs=("random",)).gdnn_config())
+            path = save_posenet(Path(folder) / "reader.pt", reader)
+            pose = PoseConsistency(path)
+            pose_settings = {"pose_net": str(path), "pose_variables": ()}
+        config = TranslatorTrainConfig(**{**settings, **pose_settings, "paired_dirs": ("random",),
+                                          "image_size_px": image_size_px, "device": "cpu", "threads": threads})
+        shape = (PROBE_ROWS, image_size_px, image_size_px)
+        pairs = PairedTensors(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator),
+                              torch.randn(PROBE_ROWS, 6, generator=generator),
+                              torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator),
+                              torch.rand(PROBE_ROWS, pose.variables.encoded_dim if pose else 1,
+                                         generator=generator) if pose else None)
+        trainer = TranslatorTrainer(config, Path(folder) / "run", pairs, pose=pose)
+        return _time_trainer(trainer, len(trainer.holdout_pairs), steps)
+
+
+def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int = 10, threads: int = 1) -> StepTime:
+    """A GDNN run's step with ``settings`` (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields)
+    reading ``variables`` (a variable set's name or inline spec), on rows of ``views`` renditions each."""
+    import torch
+
+    from simshear_gym.models.gdnn import variable_set
+    from simshear_gym.train.posenet_config import PosenetTrainConfig
+    from simshear_gym.train.posenet_trainer import LabelledImages, PosenetTrainer
+
+    torch.set_num_threads(threads)
+    generator = torch.Generator().manual_seed(0)
+    config = PosenetTrainConfig(**{**settings, "paired_dirs": ("random",), "variables": variables, "device": "cpu",
+                                   "threads": threads})
+    size = config.image_size_px
+    shape = (PROBE_ROWS, views, size, size) if views > 1 else (PROBE_ROWS, size, size)
+    low = torch.tensor([v.low for v in variable_set(variables).variables])
+    high = torch.tensor([v.high for v in variable_set(variables).variables])
+    labels = low + (high - low) * torch.rand(PROBE_ROWS, len(low), generator=generator)
+    data = LabelledImages(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator), labels)
+    with tempfile.TemporaryDirectory() as folder:
+        trainer = PosenetTrainer(config, Path(folder) / "run", data)
+        return _time_trainer(trainer, len(trainer.holdout_data), steps)
+
+
+def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, repeats: int = 3,
+                          threads: int = 1) -> float:
+    """Seconds per row of a generator with ``settings`` translating batches of ``batch`` sim renders."""
+    import torch
+
+    from simshear_gym.models.translator import Translator
+    from simshear_gym.models.unet import UNetGenerator
+    from simshear_gym.train.translator_config import TranslatorTrainConfig
+
+    torch.set_num_threads(threads)
+    config = TranslatorTrainConfig(**{**settings, "paired_dirs": ("random",), "image_size_px": image_size_px,
+                                      "pose_weight": 0.0, "pose_net": ""})
+    translator = Translator(UNetGenerator(config.generator_config()))
+    rng = np.random.default_rng(0)
+    sim = rng.integers(0, 256, (batch, image_size_px, image_size_px), dtype=np.uint8)
+    shear = rng.normal(size=(batch, 6)).astype(np.float32)
+    return _median_s(lambda: translator(sim, shear), repeats, warmup=1) / batch
