@@ -3,16 +3,21 @@ epoch, the order of the lanes) and timed by short probes of the package's traine
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import pytest
 
 from simshear_gym.data.adapter import adapt_dataset, split_sizes
 from simshear_gym.pipelines.config import load_config
-from simshear_gym.pipelines.estimate import estimate, format_estimate, lanes
+from simshear_gym.pipelines.estimate import estimate, format_estimate, lanes, planned_steps
 from simshear_gym.pipelines.run import run_pipeline
 from simshear_gym.pipelines.schedule import Step, order_steps
 from simshear_gym.train.step_timing import posenet_step_time, translation_s_per_row, translator_step_time
 from tests.test_pipeline_check import write_lab
 from tests.test_pipeline_run import POOLED
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _noop(runner, done):  # never called: the lanes only read names, needs and costs
@@ -72,3 +77,17 @@ def test_probes_time_the_trainers_with_the_runs_settings():
     assert min(plain.step_s, pose.step_s, gdnn.step_s) > 0
     assert min(plain.holdout_s_per_row, pose.holdout_s_per_row, gdnn.holdout_s_per_row) > 0
     assert translation_s_per_row({"arch": "shpix2pix", "base_channels": 4, "max_channels": 8}, 32, batch=4) > 0
+
+
+def test_the_lanes_give_the_measured_wall_time_of_the_shipped_recipe_from_its_steps_times():
+    """The empty-cache run of the full profile (results/ablations/pipeline_full_tactip331_empty_cache.json): its
+    steps' measured times, laid on two lanes as the estimate lays them, give its measured wall time."""
+    record = json.loads((ROOT / "results" / "ablations" / "pipeline_full_tactip331_empty_cache.json").read_text())
+    wall_s = {stage["stage"]: stage["wall_s"] for stage in record["stages"]}
+    steps = planned_steps(load_config(ROOT / "configs" / "tactip331.toml"), "full")
+    assert {step.name for step in steps} <= set(wall_s)
+    laid = lanes(steps, {step.name: wall_s[step.name] for step in steps}, jobs=2)
+    data_and_evaluation_s = sum(s for name, s in wall_s.items() if name.split("/")[0] in ("adapt", "collect",
+                                                                                           "evaluate"))
+    minutes = (max(end for _, end in laid.values()) + data_and_evaluation_s) / 60
+    assert minutes == pytest.approx(record["wall_min"], rel=0.02)  # 135.8 against 136.1

@@ -6,14 +6,15 @@ A profile's budgets are counted in epochs, so its work is fixed: per training st
 from the datasets' label files: :func:`simshear_gym.data.adapter.split_sizes`), a holdout pass per epoch and,
 for a GDNN on translations, its rows translated once per generator. What one of each costs is measured here
 (:mod:`simshear_gym.train.step_timing`: the package's trainers with the step's settings on random rows of the
-real shapes), ``jobs`` probes side by side as the run trains them; steps with the same cost settings share a
-probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
+real shapes), ``jobs`` probes side by side as the run trains them, started together; steps with the same cost
+settings share a probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
 (:func:`simshear_gym.pipelines.schedule.order_steps`), which gives the training's wall time.
 
 Not included: the data stages (adapt, collect, random contacts) and the evaluation, about 2 minutes of the
 shipped recipe's 136 on the 2-core CPU it was first measured on; a GDNN stopped early by its ``patience_epochs``
-takes less. Probe times vary by some percent between runs on a shared machine. Prints a table; ``--json PATH``
-writes it with the command and the machine.
+takes less. A probe of one setting varies by about 10 % between runs on a shared machine, and the probes read the
+epochs of a run at 0.85-1.03x (docs/experiments.md, pipeline_estimate_tactip331_full). Prints a table; ``--json
+PATH`` writes it with the command and the machine; ``--compare RUN`` adds a run folder's median epoch times.
 """
 
 from __future__ import annotations
@@ -84,30 +85,29 @@ def _probe_key(work: dict, image_size_px: int, views: int = 1) -> tuple:
     return (work["trainer"], image_size_px, views, kept)
 
 
-def _translator_probe(settings: dict, image_size_px: int, steps: int):
+def _translator_probe(settings: dict, image_size_px: int, steps: int, barrier):
     from simshear_gym.train.step_timing import translation_s_per_row, translator_step_time
 
     threads = settings.get("threads", 1)
-    return (translator_step_time(settings, image_size_px, steps=steps, threads=threads),
-            translation_s_per_row(settings, image_size_px, threads=threads))
+    timed = translator_step_time(settings, image_size_px, steps=steps, threads=threads, ready=barrier.wait)
+    barrier.wait()
+    return timed, translation_s_per_row(settings, image_size_px, threads=threads)
 
 
-def _posenet_probe(settings: dict, variables: str, views: int, steps: int):
+def _posenet_probe(settings: dict, variables: str, views: int, steps: int, barrier):
     from simshear_gym.train.step_timing import posenet_step_time
 
-    return posenet_step_time(settings, variables, views=views, steps=steps, threads=settings.get("threads", 1)), 0.0
+    threads = settings.get("threads", 1)
+    return posenet_step_time(settings, variables, views=views, steps=steps, threads=threads, ready=barrier.wait), 0.0
 
 
-def _side_by_side(pool, probe, jobs: int) -> tuple:
-    """A probe's (StepTime, translation s per row), averaged over ``jobs`` copies run at once."""
-    results = pool.map(_call, [probe] * jobs)
+def _side_by_side(pool, barrier, probe, jobs: int) -> tuple:
+    """A probe's (StepTime, translation s per row), averaged over ``jobs`` copies run at once (each starts its
+    timed steps, and its translation, when all are ready)."""
+    results = pool.map(probe, [barrier] * jobs)
     step_s = sum(r[0].step_s for r in results) / jobs
     holdout = sum(r[0].holdout_s_per_row for r in results) / jobs
     return step_s, holdout, sum(r[1] for r in results) / jobs
-
-
-def _call(probe):
-    return probe()
 
 
 def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, tuple[float, float]]:
@@ -129,7 +129,7 @@ def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, 
 
 
 def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | None = None,
-             probe_steps: int = 20, log=print) -> dict:
+             probe_steps: int = 50, log=print) -> dict:
     """The profile's training steps with their estimated seconds, and the training's wall time on ``jobs`` lanes
     (None: the profile's); see the module docstring."""
     from simshear_gym.models.gdnn import VARIABLE_SETS
@@ -145,7 +145,9 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     gdnn_size = settings.posenet.image_size_px
     probes: dict[tuple, tuple] = {}
     started = time.perf_counter()
-    with multiprocessing.get_context("spawn").Pool(jobs, maxtasksperchild=1) as pool:
+    context = multiprocessing.get_context("spawn")
+    with context.Manager() as manager, context.Pool(jobs, maxtasksperchild=1) as pool:
+        barrier = manager.Barrier(jobs, timeout=900.0)  # a probe that died breaks it: an error, not a hang
         for step in steps:
             work = step.work
             if work["trainer"] == "translator":
@@ -158,7 +160,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
                 probe = partial(_posenet_probe, work["settings"], variables, views, probe_steps)
             if key not in probes:
                 log(f"probing {step.name} ({work['trainer']}, {jobs} side by side)")
-                probes[key] = _side_by_side(pool, probe, jobs)
+                probes[key] = _side_by_side(pool, barrier, probe, jobs)
     probe_s = time.perf_counter() - started
 
     seconds, rows_of, plan = {}, {}, {}
@@ -238,7 +240,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--jobs", type=int, default=None,
                         help="training steps side by side (default: the profile's jobs)")
-    parser.add_argument("--probe-steps", type=int, default=20, help="timed optimiser steps per probe (default 20)")
+    parser.add_argument("--probe-steps", type=int, default=50, help="timed optimiser steps per probe (default 50)")
     parser.add_argument("--json", type=Path, default=None, help="also write the estimate to this JSON file")
     parser.add_argument("--compare", type=Path, default=None, metavar="RUN",
                         help="a pipeline run folder of this profile: its steps' epoch times against the estimate's")
@@ -262,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json is not None:
         command = ["simshear pipeline estimate", str(args.config), f"--profile {args.profile}"]
         command += [f"--jobs {args.jobs}"] if args.jobs else []
-        command += [f"--probe-steps {args.probe_steps}"] if args.probe_steps != 20 else []
+        command += [f"--probe-steps {args.probe_steps}"] if args.probe_steps != 50 else []
         command += [f"--compare {args.compare}"] if args.compare is not None else []
         command += [f"--json {args.json}"]
         write_json(args.json, {"command": " ".join(command), "machine": machine_info(), **result})

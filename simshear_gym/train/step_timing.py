@@ -42,7 +42,9 @@ def _median_s(action, repeats: int, warmup: int) -> float:
     return float(np.median(times))
 
 
-def _time_trainer(trainer, holdout_rows: int, steps: int) -> StepTime:
+def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None) -> StepTime:
+    if ready is not None:
+        ready()
     trainer.train_mode()
     batches = trainer.epoch_batches()
     cycle = iter(batches * (1 + (steps + 3) // max(1, len(batches))))
@@ -52,10 +54,11 @@ def _time_trainer(trainer, holdout_rows: int, steps: int) -> StepTime:
     return StepTime(step_s, (time.perf_counter() - start) / holdout_rows)
 
 
-def translator_step_time(settings: dict, image_size_px: int, pose_variables: int = 0, steps: int = 10,
-                         threads: int = 1) -> StepTime:
+def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, threads: int = 1,
+                         ready=None) -> StepTime:
     """A translator run's step with ``settings`` (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig`
-    fields; ``pose_weight`` > 0: with the pose-consistency loss over ``pose_variables`` labels)."""
+    fields; ``pose_weight`` > 0: with the pose-consistency loss); ``ready`` (if given) is called once the trainer
+    is built, before the first step (a barrier, so that probes side by side time their steps together)."""
     import torch
 
     from simshear_gym.models.gdnn import GDNN
@@ -83,12 +86,14 @@ def translator_step_time(settings: dict, image_size_px: int, pose_variables: int
                               torch.rand(PROBE_ROWS, pose.variables.encoded_dim if pose else 1,
                                          generator=generator) if pose else None)
         trainer = TranslatorTrainer(config, Path(folder) / "run", pairs, pose=pose)
-        return _time_trainer(trainer, len(trainer.holdout_pairs), steps)
+        return _time_trainer(trainer, len(trainer.holdout_pairs), steps, ready)
 
 
-def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int = 10, threads: int = 1) -> StepTime:
+def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int = 10, threads: int = 1,
+                      ready=None) -> StepTime:
     """A GDNN run's step with ``settings`` (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields)
-    reading ``variables`` (a variable set's name or inline spec), on rows of ``views`` renditions each."""
+    reading ``variables`` (a variable set's name or inline spec), on rows of ``views`` renditions each; ``ready``
+    as for :func:`translator_step_time`."""
     import torch
 
     from simshear_gym.models.gdnn import variable_set
@@ -107,7 +112,7 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
     data = LabelledImages(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator), labels)
     with tempfile.TemporaryDirectory() as folder:
         trainer = PosenetTrainer(config, Path(folder) / "run", data)
-        return _time_trainer(trainer, len(trainer.holdout_data), steps)
+        return _time_trainer(trainer, len(trainer.holdout_data), steps, ready)
 
 
 def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, repeats: int = 3,
