@@ -186,8 +186,8 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
         plan[step.name] = (work["trainer"], epochs, per_epoch, step_s, translate_s)
     laid = lanes(steps, seconds, jobs)
     estimates = [StepEstimate(name, plan[name][0], rows_of[name], plan[name][1], plan[name][2],
-                              round(plan[name][3], 4), round(plan[name][4], 1), round(seconds[name], 1),
-                              round(laid[name][0], 1), round(laid[name][1], 1))
+                              round(plan[name][3], 4), round(plan[name][4], 3), round(seconds[name], 3),
+                              round(laid[name][0], 3), round(laid[name][1], 3))
                  for name in sorted(laid, key=lambda n: laid[n])]
     wall_s = max(end for _, end in laid.values())
     return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs,
