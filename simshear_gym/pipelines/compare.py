@@ -94,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
                 "stages": [{"stage": r["stage"], "ran": r["ran"], "wall_s": r["wall_s"]}
                            for r in manifest["results"]]},
         "reference": str(args.reference), "comparison": figures, "evaluation": evaluation})
-    worst = max((row["relative"] for group in ("translation",) for figures_ in figures[group].values()
-                 for row in [figures_["mape"]] if row.get("relative") is not None), default=None)
+    worst = max((row["mape"]["relative"] for row in figures["translation"].values()
+                 if row["mape"].get("relative") is not None), default=None)
     print(f"{args.run}: {len(figures['translation'])} translator and {len(figures['posenet'])} GDNN figures against "
           f"{args.reference}" + (f"; translation MAPE at most {worst:+.1%} from the reference" if worst is not None
                                  else "") + f"; wrote {args.out}")

@@ -141,9 +141,8 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     train_rows = {name: split_sizes(dataset, root, name, settings.rows_per_split)["train"]
                   for name, dataset in config.datasets.items()}
     steps = planned_steps(config, profile)
-    by_name = {step.name: step for step in steps}
-    gdnn_size = settings.posenet.image_size_px
-    probes: dict[tuple, tuple] = {}
+    translator_px, gdnn_px = config.sensor.image_size_px, settings.posenet.image_size_px
+    key_of, probes = {}, {}
     started = time.perf_counter()
     context = multiprocessing.get_context("spawn")
     with context.Manager() as manager, context.Pool(jobs, maxtasksperchild=1) as pool:
@@ -151,48 +150,44 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
         for step in steps:
             work = step.work
             if work["trainer"] == "translator":
-                key = _probe_key(work, config.sensor.image_size_px)
-                probe = partial(_translator_probe, work["settings"], config.sensor.image_size_px, probe_steps)
+                key_of[step.name] = _probe_key(work, translator_px)
+                probe = partial(_translator_probe, work["settings"], translator_px, probe_steps)
             else:
                 views = max(1, len(work["translators"]))
-                key = _probe_key(work, gdnn_size, views)
+                key_of[step.name] = _probe_key(work, gdnn_px, views)
                 variables = work["contact"] if work["contact"] in VARIABLE_SETS else "surface"  # same cost
                 probe = partial(_posenet_probe, work["settings"], variables, views, probe_steps)
-            if key not in probes:
+            if key_of[step.name] not in probes:
                 log(f"probing {step.name} ({work['trainer']}, {jobs} side by side)")
-                probes[key] = _side_by_side(pool, barrier, probe, jobs)
+                probes[key_of[step.name]] = _side_by_side(pool, barrier, probe, jobs)
     probe_s = time.perf_counter() - started
 
-    seconds, rows_of, plan = {}, {}, {}
+    planned = {}
     for step in steps:
         work = step.work
         rows = sum(train_rows[name] for name in work["datasets"]) + work.get("random_rows", 0)
+        step_s, holdout_s, _ = probes[key_of[step.name]]
         if work["trainer"] == "translator":
-            step_s, holdout_s, _ = probes[_probe_key(work, config.sensor.image_size_px)]
-            config_class, last_batch = TranslatorTrainConfig, 1  # no last batch of one row
-            translate_s = 0.0
+            config_class, last_batch, translate_s = TranslatorTrainConfig, 1, 0.0  # no last batch of one row
         else:
-            views = max(1, len(work["translators"]))
-            step_s, holdout_s, _ = probes[_probe_key(work, gdnn_size, views)]
             config_class, last_batch = PosenetTrainConfig, 0
-            translate_s = sum(rows * probes[_probe_key(by_name[t].work, config.sensor.image_size_px)][2]
-                              for t in work["translators"])
+            translate_s = sum(rows * probes[key_of[name]][2] for name in work["translators"])
         batch = work["settings"].get("batch_size", _default(config_class, "batch_size"))
         holdout = max(1, round(work["settings"].get("holdout", _default(config_class, "holdout")) * rows))
         per_epoch = len(range(0, rows - holdout - last_batch, batch))
         epochs = work["settings"]["epochs"]
-        seconds[step.name] = epochs * (per_epoch * step_s + holdout * holdout_s) + translate_s
-        rows_of[step.name] = rows
-        plan[step.name] = (work["trainer"], epochs, per_epoch, step_s, translate_s)
-    laid = lanes(steps, seconds, jobs)
-    estimates = [StepEstimate(name, plan[name][0], rows_of[name], plan[name][1], plan[name][2],
-                              round(plan[name][3], 4), round(plan[name][4], 3), round(seconds[name], 3),
-                              round(laid[name][0], 3), round(laid[name][1], 3))
+        planned[step.name] = {"name": step.name, "trainer": work["trainer"], "rows": rows, "epochs": epochs,
+                              "steps_per_epoch": per_epoch, "step_s": round(step_s, 4),
+                              "translate_s": round(translate_s, 3),
+                              "seconds": epochs * (per_epoch * step_s + holdout * holdout_s) + translate_s}
+    laid = lanes(steps, {name: plan["seconds"] for name, plan in planned.items()}, jobs)
+    estimates = [StepEstimate(**(planned[name] | {"seconds": round(planned[name]["seconds"], 3)}),
+                              start_s=round(laid[name][0], 3), end_s=round(laid[name][1], 3))
                  for name in sorted(laid, key=lambda n: laid[n])]
     wall_s = max(end for _, end in laid.values())
     return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs,
             "probe_s": round(probe_s, 1), "training_wall_min": round(wall_s / 60, 1),
-            "lane_busy_min": round(sum(seconds.values()) / 60, 1),
+            "lane_busy_min": round(sum(plan["seconds"] for plan in planned.values()) / 60, 1),
             "steps": [asdict(e) for e in estimates]}
 
 

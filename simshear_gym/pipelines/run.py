@@ -202,6 +202,12 @@ def _translator_settings(stage, contact: str, generator=None) -> dict:
     return {**stage.settings_for(contact), **(generator.overrides() if generator else {})}
 
 
+def _translator_work(settings: dict, contact: str, names: list[str], arch: str = "shpix2pix") -> dict:
+    """A translator step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    return {"trainer": "translator", "contact": contact, "datasets": tuple(names),
+            "settings": settings | {"arch": arch}}
+
+
 def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_rows: int = 0,
                baseline: bool = False, seed: int | None = None) -> dict:
     """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
@@ -370,16 +376,14 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
         train_sets = [paired[name]["train"] for name in names]
         if "translator" in stages:
             for arch in profile.translator.archs:
-                work = {"trainer": "translator", "contact": contact, "datasets": tuple(names),
-                        "settings": {**_translator_settings(profile.translator, contact), "arch": arch}}
+                work = _translator_work(_translator_settings(profile.translator, contact), contact, names, arch)
                 steps.append(Step(f"translator/{contact}_{arch}", partial(
                     translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
                     cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact), work=work))
             for generator in profile.pool_for(contact):
                 needs = (f"posenet/{contact}_{generator.reader_step}",) if generator.pose_weight > 0 else ()
                 settings = _translator_settings(profile.translator, contact, generator)
-                work = {"trainer": "translator", "contact": contact, "datasets": tuple(names),
-                        "settings": {**settings, "arch": "shpix2pix", "pose_weight": generator.pose_weight}}
+                work = _translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names)
                 steps.append(Step(f"translator/{contact}_{generator.name}", partial(
                     translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
                     device=device), needs=needs,

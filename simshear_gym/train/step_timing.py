@@ -12,6 +12,7 @@ trainers on a 2-core CPU each run slower than one alone.
 
 from __future__ import annotations
 
+import itertools
 import tempfile
 import time
 from dataclasses import dataclass
@@ -46,9 +47,8 @@ def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None) -> StepTim
     if ready is not None:
         ready()
     trainer.train_mode()
-    batches = trainer.epoch_batches()
-    cycle = iter(batches * (1 + (steps + 3) // max(1, len(batches))))
-    step_s = _median_s(lambda: trainer.train_batch(next(cycle)), steps, warmup=3)
+    batches = itertools.cycle(trainer.epoch_batches())
+    step_s = _median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3)
     start = time.perf_counter()
     trainer.holdout_metric()
     return StepTime(step_s, (time.perf_counter() - start) / holdout_rows)
@@ -106,8 +106,8 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
                                    "threads": threads})
     size = config.image_size_px
     shape = (PROBE_ROWS, views, size, size) if views > 1 else (PROBE_ROWS, size, size)
-    low = torch.tensor([v.low for v in variable_set(variables).variables])
-    high = torch.tensor([v.high for v in variable_set(variables).variables])
+    specs = variable_set(variables).variables
+    low, high = torch.tensor([v.low for v in specs]), torch.tensor([v.high for v in specs])
     labels = low + (high - low) * torch.rand(PROBE_ROWS, len(low), generator=generator)
     data = LabelledImages(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator), labels)
     with tempfile.TemporaryDirectory() as folder:
