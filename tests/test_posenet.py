@@ -1,7 +1,6 @@
 """Posenet: data loading from sets on disk, a tiny training run, resume, weights files, evaluation metrics."""
 
 import json
-import time
 from argparse import Namespace
 
 import numpy as np
@@ -28,6 +27,7 @@ from simshear_gym.train.posenet_trainer import (
     random_erase,
     random_shift,
 )
+from tests.clocks import StepClock
 
 SIZE = 16
 
@@ -82,14 +82,15 @@ def test_a_training_stopped_by_its_cap_resumes_to_the_straight_runs_weights(tmp_
     straight.fit(progress=False)
     stops = []
     for _ in range(15):
-        trainer = PosenetTrainer(tiny_config(epochs=5, cap_minutes=0.6 / 60), tmp_path / "capped", toy_labelled())
+        trainer = PosenetTrainer(tiny_config(epochs=5, cap_minutes=1.0 / 60), tmp_path / "capped", toy_labelled())
         trainer.resume()
+        trainer.clock = clock = StepClock()  # a slower machine: 1/16 s a step, 5 steps an epoch, 1 s a run
         step = trainer.train_batch
-        trainer.train_batch = lambda index, step=step: (time.sleep(0.02), step(index))[1]  # a slower machine
+        trainer.train_batch = lambda index, step=step, clock=clock: (clock.advance(1 / 16), step(index))[1]
         stops.append(trainer.fit(progress=False)["stopped_by"])
         if stops[-1] == "epochs":
             break
-    assert stops[0] == "wall-clock cap" and stops[-1] == "epochs" and trainer.epoch == 5
+    assert stops == ["wall-clock cap", "epochs"] and trainer.epoch == 5
     for key, value in straight.model.state_dict().items():
         torch.testing.assert_close(trainer.model.state_dict()[key], value, rtol=0, atol=0)
 

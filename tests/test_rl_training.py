@@ -17,6 +17,8 @@ from simshear_gym.contract import filter_mean_from_estimate
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, vecnormalize_path
 from simshear_gym.train.rl import RLTrainConfig, latest_checkpoint, train
+from simshear_gym.train.rl_trainer import WallClockBudget
+from tests.clocks import TickClock
 
 torch.set_num_threads(1)
 
@@ -85,10 +87,11 @@ def test_residual_estimate_policy_trains_evaluates_resumes_and_loads_with_its_no
         train(tiny(residual_bound=0.2, timesteps=64, history=3), run_dir, resume=True, progress=False)
 
 
-def test_subproc_workers_with_the_wall_clock_budget(tmp_path):
+def test_subproc_workers_with_the_wall_clock_budget(tmp_path, monkeypatch):
+    monkeypatch.setattr(WallClockBudget, "clock", TickClock(1 / 16))  # 3 s: the 48th step's reading
     summary = train(tiny(n_envs=2, vec="subproc", timesteps=10_000, minutes=0.05, eval_steps=0, n_steps=8,
                          batch_size=16), tmp_path / "sub", progress=False)
-    assert summary["stopped_by"] == "minutes" and 16 <= summary["timesteps"] < 10_000
+    assert summary["stopped_by"] == "minutes" and summary["timesteps"] == 48 * 2
     assert (tmp_path / "sub" / "model.zip").is_file() and (tmp_path / "sub" / "vecnormalize.pkl").is_file()
 
 

@@ -4,7 +4,6 @@ import argparse
 import json
 import subprocess
 import sys
-import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -14,6 +13,7 @@ import torch
 from simshear_gym.train import flags, posenet, posenet_config, rl, translator, translator_config
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.runs import scheduled_lr
+from tests.clocks import StepClock
 
 
 @dataclass(frozen=True)
@@ -29,7 +29,7 @@ class FakeConfig:
     rows: int = 8
     batch_size: int = 2
     holdout_script: tuple[float, ...] = ()  # the holdout metric of each epoch; () -> measured on the weight
-    step_sleep_s: float = 0.0
+    step_s: float = 0.0  # the training time a step takes on the trainer's clock
 
 
 class FakeTrainer(EpochTrainer):
@@ -39,6 +39,7 @@ class FakeTrainer(EpochTrainer):
 
     def __init__(self, config: FakeConfig, run_dir) -> None:
         super().__init__(config, run_dir)
+        self.clock = StepClock()
         self.weight = torch.nn.Parameter(torch.zeros(()))
         self.optimiser = torch.optim.SGD([self.weight], lr=config.lr, momentum=0.5)
         self.rng = np.random.default_rng(config.seed)
@@ -60,7 +61,7 @@ class FakeTrainer(EpochTrainer):
     def train_batch(self, index):
         self.lrs_seen.append(self.optimiser.param_groups[0]["lr"])
         self.batch_sizes_seen.append(len(index))
-        time.sleep(self.config.step_sleep_s)
+        self.clock.advance(self.config.step_s)
         loss = (self.weight - float(self.rng.normal(1.0, 0.2))) ** 2
         self.optimiser.zero_grad()
         loss.backward()
@@ -126,20 +127,20 @@ def test_best_is_the_lowest_holdout_metric_and_patience_stops_early(tmp_path):
 
 
 def test_time_budget_stops_inside_an_epoch_and_checkpoints_it(tmp_path):
-    config = FakeConfig(epochs=1000, max_minutes=0.05 / 60, step_sleep_s=0.01)
+    config = FakeConfig(epochs=1000, max_minutes=0.5 / 60, step_s=1 / 16)  # 4 steps an epoch
     trainer = FakeTrainer(config, tmp_path / "run")
     summary = trainer.fit(progress=False)
-    assert summary["stopped_by"] == "time budget" and summary["elapsed_s"] < 5
+    assert summary["stopped_by"] == "time budget" and (summary["epochs"], summary["steps"]) == (2, 9)
     assert trainer.history[-1]["partial_epoch"] and not any(r["partial_epoch"] for r in trainer.history[:-1])
     assert summary["epochs"] == len(trainer.history) - 1  # the partial epoch does not count
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"] == summary["steps"]
 
 
 def test_wall_clock_cap_stops_at_the_last_finished_epoch_and_leaves_the_schedule_on_the_steps(tmp_path):
-    config = FakeConfig(epochs=1000, rows=20, cap_minutes=0.3 / 60, step_sleep_s=0.01, lr_schedule="cosine")
+    config = FakeConfig(epochs=1000, rows=20, cap_minutes=2.0 / 60, step_s=1 / 16, lr_schedule="cosine")
     trainer = FakeTrainer(config, tmp_path / "run")
     summary = trainer.fit(progress=False)
-    assert summary["stopped_by"] == "wall-clock cap" and summary["epochs"] >= 1
+    assert summary["stopped_by"] == "wall-clock cap" and summary["epochs"] == 3  # 2 s: 32 steps of 10 an epoch
     assert len(trainer.history) == summary["epochs"] and not any(r["partial_epoch"] for r in trainer.history)
     assert summary["steps"] == summary["epochs"] * 10  # the unfinished epoch's steps were dropped
     assert torch.load(tmp_path / "run" / "checkpoint.pt", weights_only=False)["step"] == summary["steps"]
@@ -147,7 +148,7 @@ def test_wall_clock_cap_stops_at_the_last_finished_epoch_and_leaves_the_schedule
     steps = 1000 * 10  # the schedule still spans every epoch's steps, not the cap's minutes
     assert trainer.lrs_seen == pytest.approx([scheduled_lr(0.1, "cosine", i / steps)
                                               for i in range(len(trainer.lrs_seen))])
-    budgeted = FakeTrainer(FakeConfig(epochs=1000, max_minutes=1.0, cap_minutes=0.3 / 60, step_sleep_s=0.01),
+    budgeted = FakeTrainer(FakeConfig(epochs=1000, max_minutes=1.0, cap_minutes=2.0 / 60, step_s=1 / 16),
                            tmp_path / "both").fit(progress=False)
     assert budgeted["stopped_by"] == "wall-clock cap"  # the cap comes first
 
@@ -158,19 +159,19 @@ def test_a_run_stopped_by_its_cap_resumes_to_the_straight_runs_weights(tmp_path)
     straight.fit(progress=False)
     stops = []
     for _ in range(12):
-        trainer = FakeTrainer(FakeConfig(epochs=8, rows=20, cap_minutes=0.3 / 60, step_sleep_s=0.01),
+        trainer = FakeTrainer(FakeConfig(epochs=8, rows=20, cap_minutes=2.0 / 60, step_s=1 / 16),
                               tmp_path / "capped")
         trainer.resume()
         stops.append(trainer.fit(progress=False)["stopped_by"])
         if stops[-1] == "epochs":
             break
-    assert stops[0] == "wall-clock cap" and stops[-1] == "epochs"
+    assert stops == ["wall-clock cap", "wall-clock cap", "epochs"]  # 3 epochs a run, 8 in all
     assert without_times(trainer.history) == without_times(straight.history)
     assert trainer.weight.item() == straight.weight.item() and trainer.best_holdout == straight.best_holdout
 
 
 def test_a_cap_inside_the_first_epoch_is_an_error(tmp_path):
-    trainer = FakeTrainer(FakeConfig(epochs=5, rows=40, cap_minutes=0.02 / 60, step_sleep_s=0.01), tmp_path / "run")
+    trainer = FakeTrainer(FakeConfig(epochs=5, rows=40, cap_minutes=0.5 / 60, step_s=1 / 16), tmp_path / "run")
     with pytest.raises(ValueError, match=r"inside its first epoch; give it a cap above one epoch's time"):
         trainer.fit(progress=False)
 

@@ -8,6 +8,7 @@ from simshear_gym.models.translator import Translator, load_generator, save_gene
 from simshear_gym.models.unet import PatchDiscriminator, UNetConfig, UNetGenerator
 from simshear_gym.train.translator_config import TranslatorTrainConfig
 from simshear_gym.train.translator_trainer import PairedTensors, TranslatorTrainer
+from tests.clocks import StepClock
 
 
 @pytest.mark.parametrize("size, depth", [(64, 6), (128, 7), (256, 8), (128, 5)])
@@ -165,9 +166,13 @@ def test_resume_refuses_other_settings(tmp_path):
 
 
 def test_time_budget_stops_and_checkpoints(tmp_path):
-    trainer = TranslatorTrainer(tiny_config(epochs=50, max_minutes=1e-4), tmp_path / "run", toy_pairs())
+    trainer = TranslatorTrainer(tiny_config(epochs=50, max_minutes=0.5 / 60), tmp_path / "run", toy_pairs())
+    trainer.clock = clock = StepClock()  # 1/16 s a step: the budget ends in the 9th step
+    step = trainer.train_batch
+    trainer.train_batch = lambda index: (clock.advance(1 / 16), step(index))[1]
     summary = trainer.fit(progress=False)
-    assert summary["stopped_by"] == "time budget" and (tmp_path / "run" / "checkpoint.pt").is_file()
+    assert summary["stopped_by"] == "time budget" and summary["steps"] == 9
+    assert (tmp_path / "run" / "checkpoint.pt").is_file()
 
 
 def test_fp16_weights_round_trip(tmp_path):

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -76,6 +77,9 @@ class EpochTrainer(ABC):
     checkpoint's and summary's ``best_holdout_<metric>``; ``train_batch`` reports the training loss under it."""
     resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes", "device", "amp")
     """Settings a resumed run may change."""
+    clock: Callable[[], float] = staticmethod(time.perf_counter)
+    """The clock (seconds) that the time budget and the wall-clock cap read; tests give a trainer a clock that
+    advances per step, so that budgets and caps are tested alike on a fast, slow or busy machine."""
 
     def __init__(self, config, run_dir: str | Path, distributed: Distributed | None = None) -> None:
         self.config = config
@@ -192,7 +196,7 @@ class EpochTrainer(ABC):
         self.train_mode()
         try:
             while self.epoch < config.epochs:
-                started = time.perf_counter() - self.elapsed_s
+                started = self.clock() - self.elapsed_s
                 stopped, train_losses = self._train_epoch(writer, started, budget_s, cap_s, progress)
                 if stopped == CAP_STOP:
                     stop_reason = stopped
@@ -240,7 +244,7 @@ class EpochTrainer(ABC):
                 for name, value in losses.items():
                     writer.add_scalar(f"train/{name}", value, self.step)
                 writer.add_scalar("train/lr", lr, self.step)
-            self.elapsed_s = self._shared(time.perf_counter() - started)  # every process stops at one step
+            self.elapsed_s = self._shared(self.clock() - started)  # every process stops at one step
             if self.elapsed_s > cap_s:
                 return CAP_STOP, losses_seen
             if self.elapsed_s > budget_s:
@@ -261,7 +265,7 @@ class EpochTrainer(ABC):
         """Holdout, history record, best model and checkpoint after an epoch (or the partial one at the budget)."""
         metric = self.metric
         holdout = self._shared(self.holdout_metric() if self.is_main else 0.0)
-        self.elapsed_s = self._shared(time.perf_counter() - started)
+        self.elapsed_s = self._shared(self.clock() - started)
         self.history.append({"epoch": self.epoch, "partial_epoch": partial, "step": self.step,
                              "elapsed_s": round(self.elapsed_s, 1),
                              f"train_{metric}": float(np.mean(train_losses)) if train_losses else None,

@@ -198,15 +198,23 @@ def _better(record: dict, history: list[dict]) -> bool:
 
 
 class WallClockBudget(BaseCallback):
-    """Stop training after ``minutes`` of wall-clock time (None: never)."""
+    """Stop training after ``minutes`` of wall-clock time from the training's start (None: never)."""
+
+    clock = staticmethod(time.monotonic)
+    """The clock (seconds) the budget reads; tests give it one that moves per reading, so that the budget stops
+    at the same step on any machine."""
 
     def __init__(self, minutes: float | None) -> None:
         super().__init__()
-        self.deadline = None if minutes is None else time.monotonic() + 60.0 * minutes
+        self.minutes = minutes
+        self.deadline: float | None = None
         self.stopped = False
 
+    def _on_training_start(self) -> None:
+        self.deadline = None if self.minutes is None else self.clock() + 60.0 * self.minutes
+
     def _on_step(self) -> bool:
-        if self.deadline is not None and time.monotonic() >= self.deadline:
+        if self.deadline is not None and self.clock() >= self.deadline:
             self.stopped = True
             return False
         return True
