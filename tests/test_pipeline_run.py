@@ -11,6 +11,7 @@ import gymnasium as gym
 import pytest
 
 import simshear_gym.envs  # noqa: F401  (registers the envs)
+from simshear_gym.control.pi_law import PIGains
 from simshear_gym.control.servo import ServoController
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.pipelines.config import load_config
@@ -74,8 +75,11 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
     base = env.unwrapped
     assert base.tactip.config.dome_radius_mm == config.sensor.dome_radius_mm
     assert base.translator_weights == str(out / manifest["models"]["translators"]["surface"]["shpix2pix"])
-    controller = ServoController.for_env(env)
-    assert controller.estimator.unread == ("shear_x_mm", "shear_y_mm", "shear_rz_deg")  # a tap-only sensor
+    with pytest.raises(ValueError, match=r"does not read \['shear_x_mm', 'shear_y_mm'\], which the servo law "
+                                         r"steers on"):
+        ServoController.for_env(env)  # a tap-only sensor: no shear to servo on
+    controller = ServoController.for_env(env, gains=PIGains(kp=(0.0, 0.0, 0.5, 0.0), ki=(0.0, 0.0, 0.1, 0.0)))
+    assert controller.estimator.unread == ("shear_x_mm", "shear_y_mm", "shear_rz_deg")
     observation, _ = env.reset(seed=0)
     controller.reset()
     for _ in range(5):

@@ -29,6 +29,8 @@ from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.policy import as_action_scale
 
+LAW_VARIABLES = ("shear_x_mm", "shear_y_mm", "z_mm", "shear_rz_deg")
+"""The estimated variable each of the law's components (x, y, depth, Rz) steers on."""
 SERVO_GAINS = PIGains(kp=(0.6, 0.6, 0.5, 0.0), ki=(0.2, 0.2, 0.1, 0.0))
 """Default gains of :class:`ServoController` (see the module docstring)."""
 
@@ -84,6 +86,13 @@ class ServoController:
             raise ValueError(f"load_margin_mm must be 2 finite values (x, y mm), got {load_margin_mm!r}")
         self._scale = self.action_scale.as_array()
         self.estimator = TactileEstimator(estimator)
+        steered = [name for name, on in zip(LAW_VARIABLES, gains.controlled) if on]
+        unread = [name for name in steered if name in self.estimator.unread]
+        if unread:
+            raise ValueError(
+                f"the GDNN {self.estimator.config.posenet or 'surface'} does not read {unread}, which the servo law "
+                f"steers on (gains kp={gains.kp}, ki={gains.ki} for x, y, depth, Rz): train the sensor on data "
+                f"that varies them (a shear set), or give gains of 0 for those components")
         self.law = PILaw(reference_depth_mm, self._scale, gains)
         self._last_move: np.ndarray | None = None
         self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None

@@ -9,9 +9,11 @@ Tables (``configs/tactip331.toml`` describes the shipped sensor; ``configs/READM
   (:class:`~simshear_gym.sim.replay.ReplayGeometry`: the surface's depth, the edge's offset).
 - ``[frame]``: the lab's work frame -> the simulation's (:class:`~simshear_gym.data.adapter.FrameConfig`).
 - ``[datasets.<name>]``: one per task: files, label columns, units, splits and the image adapter
-  (:class:`~simshear_gym.data.adapter.DatasetConfig`).
-- ``[check]``: how many rows per dataset ``simshear pipeline check`` replays in simulation, and the least share of
-  them that must make contact.
+  (:class:`~simshear_gym.data.adapter.DatasetConfig`); ``[datasets.<name>.frame]``: that dataset's own frame
+  (a set recorded with another mount), in place of ``[frame]``.
+- ``[check]``: how many rows per dataset ``simshear pipeline check`` replays in simulation, the least share of
+  them that must make contact, and how many rows check each label's sign, axis and the mount angle against the
+  real images.
 - ``[env_models.<name>]``: the recipe of a GDNN trained on an env's own translated images (the co-lift estimator;
   :class:`EnvModelRecipe`), run by ``simshear pipeline env-model CONFIG --model <name>``.
 - ``[profiles.<name>]``: the training stages' settings, budgets counted in epochs (:class:`Profile`,
@@ -48,16 +50,20 @@ def _check_per_contact(name: str, mapping: Mapping, valid, expected: str) -> Non
 
 @dataclass(frozen=True)
 class CheckConfig:
-    """``simshear pipeline check``'s replay test: ``replay_rows`` rows per dataset (spread over its train split)
+    """``simshear pipeline check``'s replay tests: ``replay_rows`` rows per dataset (spread over its train split)
     are rendered in simulation; fewer than ``min_contact_share`` of them with any contact means the frame or
-    depth mapping is wrong (blank renders)."""
+    depth mapping is wrong (blank renders). Then ``frame_rows`` rows (0: none) check that the real images change
+    with each label as the renders do (:mod:`simshear_gym.pipelines.frame_check`: signs, axes, mount angle)."""
 
     replay_rows: int = 64
     min_contact_share: float = 0.5
+    frame_rows: int = 480
 
     def __post_init__(self) -> None:
         if self.replay_rows < 1:
             raise ValueError(f"replay_rows must be >= 1, got {self.replay_rows!r}")
+        if self.frame_rows < 0 or 0 < self.frame_rows < 128:  # frame_check.MIN_FRAME_ROWS
+            raise ValueError(f"frame_rows must be 0 (no frame check) or >= 128, got {self.frame_rows!r}")
         if not 0.0 < self.min_contact_share <= 1.0:
             raise ValueError(f"min_contact_share must be in (0, 1], got {self.min_contact_share!r}")
 
@@ -369,6 +375,7 @@ class ExperimentConfig:
     check: CheckConfig = CheckConfig()
     profiles: Mapping[str, Profile] = field(default_factory=lambda: dict(DEFAULT_PROFILES))
     env_models: Mapping[str, EnvModelRecipe] = field(default_factory=dict)
+    dataset_frames: Mapping[str, FrameConfig] = field(default_factory=dict)
     path: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
@@ -376,6 +383,9 @@ class ExperimentConfig:
             raise ValueError(f"name must be letters, digits, '-' or '_' (it names folders), got {self.name!r}")
         if not self.datasets:
             raise ValueError("datasets must name at least one [datasets.<name>] table")
+        stray = sorted(set(self.dataset_frames) - set(self.datasets))
+        if stray:
+            raise ValueError(f"dataset_frames: {stray[0]!r} is no dataset; expected one of {sorted(self.datasets)}")
         bad = [name for name in self.env_models if not name or not name.replace("_", "").isalnum()]
         if bad:
             raise ValueError(f"env_models: a name must be letters, digits or '_' (it names a run), got {bad[0]!r}")
@@ -392,6 +402,11 @@ class ExperimentConfig:
             if untapped:
                 raise ValueError(f"profiles.{name}: random_tap_share gives {untapped[0]!r} a share, but "
                                  f"random_contacts draws none for it")
+
+    def frame_for(self, dataset: str) -> FrameConfig:
+        """The frame of a dataset's labels: its own ``[datasets.<name>.frame]`` table, else the config's
+        ``[frame]`` (data sets recorded with different mounts each give their own)."""
+        return self.dataset_frames.get(dataset, self.frame)
 
     def profile(self, name: str) -> Profile:
         try:
@@ -422,7 +437,10 @@ def load_config(path: str | Path) -> ExperimentConfig:
     datasets_table = table.get("datasets")
     if not isinstance(datasets_table, dict) or not datasets_table:
         raise ConfigError(f"{source}: missing [datasets.<name>] tables (one per task)")
-    datasets = {name: from_table(DatasetConfig, value, source, f"datasets.{name}")
+    dataset_frames = {name: from_table(FrameConfig, value["frame"], source, f"datasets.{name}.frame")
+                      for name, value in datasets_table.items() if isinstance(value, dict) and "frame" in value}
+    datasets = {name: from_table(DatasetConfig, {k: v for k, v in value.items() if k != "frame"}
+                                 if isinstance(value, dict) else value, source, f"datasets.{name}")
                 for name, value in datasets_table.items()}
     parts = {key: from_table(cls, table.get(key, {}), source, key)
              for key, cls in (("sensor", TacTipConfig), ("replay", ReplayGeometry), ("frame", FrameConfig),
@@ -440,7 +458,8 @@ def load_config(path: str | Path) -> ExperimentConfig:
             raise ConfigError(f"{source}: {key} = {table[key]!r}; expected a string")
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
-                                datasets=datasets, profiles=profiles, env_models=env_models, path=path, **parts)
+                                datasets=datasets, profiles=profiles, env_models=env_models,
+                                dataset_frames=dataset_frames, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
 

@@ -80,11 +80,11 @@ def stage_adapt(runner: StageRunner, config: ExperimentConfig, root: Path, rows_
     """{dataset: {split: path of its canonical set}}."""
     sets = {}
     for name, dataset in config.datasets.items():
-        key = {"dataset": dataset, "frame": config.frame, "rows_per_split": rows_per_split,
+        key = {"dataset": dataset, "frame": config.frame_for(name), "rows_per_split": rows_per_split,
                "files": file_fingerprint(_dataset_files(config, name, root))}
 
         def work(folder: Path, name=name, dataset=dataset) -> dict:
-            adapted = adapt_dataset(dataset, config.frame, root, name, rows_per_split)
+            adapted = adapt_dataset(dataset, config.frame_for(name), root, name, rows_per_split)
             outputs = {}
             for split, part in adapted.items():
                 meta = {"sensor": config.name, "dataset": name, "contact": dataset.contact, "kind": dataset.kind,
