@@ -28,6 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--replay-all", action="store_true",
                         help="replay the eight tactip331 sets under the data root into OUT/<contact>_<kind>/<split>")
     source.add_argument("--task", choices=("surface", "edge"), help="random contacts of this type")
+    source.add_argument("--protocol", type=Path, metavar="CONFIG",
+                        help="the rows of a sensor config's [collect] table, rendered with its [sensor] and [replay] "
+                        "(the same rows, in the same order, as `simshear collect-real CONFIG` records)")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--n", type=int, default=5000, help="number of random contacts (--task)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random contacts (--task)")
@@ -51,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers,
                            ray_address=args.ray)
     start = time.perf_counter()
+    if args.protocol:
+        return _run_protocol(args, start)
     if args.task:
         jobs = [(f"random {args.task}", lambda: random_set(args.task, args.n, args.seed, args.out, config))]
     else:
@@ -80,3 +85,21 @@ def _optional_root() -> Path | None:
         return data_root()
     except FileNotFoundError:
         return None
+
+
+def _run_protocol(args: argparse.Namespace, start: float) -> int:
+    """``--protocol CONFIG``: render the rows of its ``[collect]`` table into OUT."""
+    from simshear_gym.pipelines.config import load_config
+    from simshear_gym.sim.collect import CollectConfig, labelled_set
+
+    config = load_config(args.protocol)
+    if config.collect is None:
+        raise ValueError(f"{args.protocol}: no [collect] table (the data-collection protocol; configs/README.md)")
+    protocol = config.collect
+    rows = protocol.draw_rows()
+    labels = rows.drop(columns="kind").to_numpy()
+    collect_config = CollectConfig(tactip=config.sensor, geometry=config.replay, workers=args.workers)
+    n = labelled_set(protocol.stimulus, labels, args.out, collect_config, "protocol",
+                     {"config": str(args.protocol), "sensor": config.name, "seed": protocol.seed})
+    print(f"protocol of {args.protocol}: {n} rows -> {args.out} ({time.perf_counter() - start:.1f} s)")
+    return 0

@@ -11,6 +11,9 @@ Tables (``configs/tactip331.toml`` describes the shipped sensor; ``configs/READM
 - ``[datasets.<name>]``: one per task: files, label columns, units, splits and the image adapter
   (:class:`~simshear_gym.data.adapter.DatasetConfig`); ``[datasets.<name>.frame]``: that dataset's own frame
   (a set recorded with another mount), in place of ``[frame]``.
+- ``[collect]``: the data-collection protocol of ``simshear collect-real`` and ``simshear collect --protocol``
+  (:class:`~simshear_gym.lab.collect_protocol.CollectProtocol`: stimulus and where it lies, ranges, rows, seed,
+  tap share, hover, speeds, settle, frames per capture).
 - ``[check]``: how many rows per dataset ``simshear pipeline check`` replays in simulation, the least share of
   them that must make contact, and how many rows check each label's sign, axis and the mount angle against the
   real images.
@@ -32,6 +35,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from simshear_gym.data.adapter import CONTACTS, DatasetConfig, FrameConfig
+from simshear_gym.lab.collect_protocol import CollectProtocol
 from simshear_gym.models.device import check_device_name
 from simshear_gym.pipelines.env_collect import TASKS as ENV_TASKS
 from simshear_gym.sim.objects import PAYLOADS
@@ -376,6 +380,7 @@ class ExperimentConfig:
     profiles: Mapping[str, Profile] = field(default_factory=lambda: dict(DEFAULT_PROFILES))
     env_models: Mapping[str, EnvModelRecipe] = field(default_factory=dict)
     dataset_frames: Mapping[str, FrameConfig] = field(default_factory=dict)
+    collect: CollectProtocol | None = None
     path: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
@@ -421,7 +426,8 @@ class ExperimentConfig:
             raise ValueError(f"{self.path}: no [env_models.{name}] table; it has {sorted(self.env_models)}") from None
 
 
-_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check", "profiles", "env_models")
+_TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "check", "profiles", "env_models",
+              "collect")
 
 
 def load_config(path: str | Path) -> ExperimentConfig:
@@ -453,13 +459,22 @@ def load_config(path: str | Path) -> ExperimentConfig:
         raise ConfigError(f"{source}: env_models must be tables [env_models.<name>], got {env_table!r}")
     env_models = {name: from_table(EnvModelRecipe, value, source, f"env_models.{name}")
                   for name, value in env_table.items()}
+    collect = None
+    if "collect" in table:
+        collect_table = table["collect"]
+        if isinstance(collect_table, dict) and "surface_depth_mm" in collect_table:
+            raise ConfigError(f"{source}: [collect] surface_depth_mm: the stimulus's depth is [replay] "
+                              "surface_depth_mm's (one place for it)")
+        if isinstance(collect_table, dict):
+            collect_table = {**collect_table, "surface_depth_mm": parts["replay"].surface_depth_mm}
+        collect = from_table(CollectProtocol, collect_table, source, "collect")
     for key in ("name", "description"):
         if key in table and not isinstance(table[key], str):
             raise ConfigError(f"{source}: {key} = {table[key]!r}; expected a string")
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
                                 datasets=datasets, profiles=profiles, env_models=env_models,
-                                dataset_frames=dataset_frames, path=path, **parts)
+                                dataset_frames=dataset_frames, collect=collect, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
 

@@ -133,16 +133,25 @@ def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectCo
         labels[:, columns.index(column)] = rng.uniform(low, high, n)
     taps = rng.permutation(n)[:round(tap_share * n)] if tap_share else []
     labels[taps, 6:] = 0.0
+    extra = {"seed": seed, **({"tap_share": tap_share} if tap_share else {})}
+    return labelled_set(contact, labels, out_dir, config, "random", extra)
+
+
+def labelled_set(contact: str, labels: np.ndarray, out_dir: Path, config: CollectConfig, source: str,
+                 extra_meta: dict | None = None) -> int:
+    """Render the contacts of ``labels`` ((N, 12): ``pose_1..6``, ``move_1..6``) as a paired set without real
+    images; ``source`` and ``extra_meta`` go into its meta. Returns the number of rows."""
+    labels = np.asarray(labels, dtype=np.float64)
+    if labels.ndim != 2 or labels.shape[1] != 12:
+        raise ValueError(f"labels must be (N, 12) pose_1..6 and move_1..6, got shape {labels.shape}")
+    n = len(labels)
     poses, moves = labels[:, :6], labels[:, 6:]
     targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)], REAL_IMAGE_COLUMN: [""] * n})
-    for column, values in zip(columns, labels.T):
+    for column, values in zip(POSE_COLUMNS + MOVE_COLUMNS, labels.T):
         targets[column] = values
     for column, values in zip(SHEAR_COLUMNS, replay_shear(poses, moves, config.shear).T):
         targets[column] = values
-    meta = _meta(config, contact, source="random")
-    meta["seed"] = seed
-    if tap_share:
-        meta["tap_share"] = tap_share
+    meta = {**_meta(config, contact, source=source), **(extra_meta or {})}
     write_paired_set(out_dir, contact, poses, targets, meta, config)
     return n
 
