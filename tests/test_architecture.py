@@ -19,7 +19,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("contract",),
     ("envs", "control"),
     ("real",),
-    ("train",),
+    ("train", "lab"),
     ("evaluate",),
     ("pipelines",),
     ("demo", "cli"),
