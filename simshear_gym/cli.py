@@ -69,6 +69,12 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "steps per second of SimShearTracking-v0 (real images), one process and vectorised"),
     (("rollout",), "simshear_gym.real.rollout",
      "run the servo controller or an SB3 policy on the real (or emulated) MG400 with the TacTip, logging every step"),
+    (("experiment", "tracking"), "simshear_gym.lab.experiment",
+     "the paper's two-arm tracking experiment: a leader MG400 moves the plate, the follower servos on the TacTip"),
+    (("calibrate-arms",), "simshear_gym.lab.calibrate",
+     "the leader MG400's base in the follower's frame, by touching the leader's plate (or from a fixture)"),
+    (("evaluate", "experiment"), "simshear_gym.evaluate.experiment",
+     "the two-arm tracking experiment rehearsed on every trajectory: contact error, contact loss, loop rate"),
     (("evaluate", "real-cycle"), "simshear_gym.evaluate.real_cycle",
      "compute per control cycle of the real path: preprocess, estimator, filter, servo law, ServoP to the emulator"),
     (("evaluate", "soak"), "simshear_gym.evaluate.soak",
@@ -95,6 +101,7 @@ GROUPS: dict[str, str] = {
     "evaluate": "benchmarks and evaluations, each writing its record under results/",
     "train": "train the translator, the pose-and-shear GDNN and RL agents, and ship their weights",
     "pipeline": "a sensor's experiment config: check it, run its cached pipeline, ship its models",
+    "experiment": "the paper's two-arm experiments on two MG400s (or the rehearsal rig)",
 }
 
 _LEAVES: dict[tuple[str, ...], str] = {words: module for words, module, _ in COMMANDS}
@@ -159,6 +166,8 @@ INPUT_ERRORS: tuple[tuple[str, str], ...] = (
     ("simshear_gym.real.env", "RealEnvError"),
     ("simshear_gym.real.mg400_client", "MG400Error"),
     ("simshear_gym.real.mg400_client", "FeedbackStaleError"),
+    ("simshear_gym.lab.experiment", "ExperimentError"),
+    ("simshear_gym.lab.calibrate", "CalibrationError"),
     ("simshear_gym.sim.parallel", "ExecutorError"),
     ("simshear_gym.pipelines.stages", "StageStopped"),
 )
