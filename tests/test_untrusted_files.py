@@ -188,3 +188,32 @@ def test_a_crafted_checkpoint_is_refused_and_runs_nothing(tmp_path):
     (run / "checkpoint.pt").write_bytes(b"")
     with pytest.raises(CheckpointError, match=r"checkpoint\.pt: cannot be resumed from"):
         FakeTrainer(FakeConfig(epochs=3), run).resume()
+
+
+def test_an_older_shipped_policy_converts_in_place_only_when_trusted(agent, tmp_path, capsys):
+    """`export-policy --convert DIR` turns an older shipped folder (SB3 .zip + .pkl) into the pickle-free files,
+    only with --trust-pickle; the converted policy acts as the agent did and its card lists the new files."""
+    from simshear_gym.pipelines.export_policy import SHIPPED_FILES
+
+    model, venv = agent
+    folder = tmp_path / "policy"
+    folder.mkdir()
+    model.save(folder / "model.zip")
+    venv.save(str(folder / "vecnormalize.pkl"))
+    (folder / "config.json").write_text(json.dumps({"observation": "estimate", "task": "tracking"}))
+    (folder / "model.md").write_text("# PPO policy\n\n- Files: `model.zip`, `vecnormalize.pkl`\n- Date: 2026-01-02\n")
+    with pytest.raises(PolicyFileError, match="unpickles"):
+        load(folder / "model.zip")
+    code = cli.main(["train", "export-policy", "--convert", str(folder)])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("simshear: error:")]
+    assert code == 2 and len(lines) == 1 and "--trust-pickle" in lines[0]
+    assert cli.main(["train", "export-policy", "--convert", str(folder), "--trust-pickle"]) == 0
+    assert {p.name for p in folder.iterdir()} == set(SHIPPED_FILES)
+    card = (folder / "model.md").read_text()
+    assert "`model.pt`" in card and "Converted to pickle-free files" in card and "- Date: 2026-01-02" in card
+    controller = load(folder / "model.zip")  # the name a recorded command used still loads it, pickle-free
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        observation = {"estimate": rng.normal(0, 3, 6).astype(np.float32)}
+        expected, _ = model.predict(venv.normalize_obs(observation), deterministic=True)
+        np.testing.assert_array_equal(controller(observation), np.asarray(expected, np.float32))

@@ -33,6 +33,7 @@ POLICY_WEIGHTS_DIR = WEIGHTS_DIR / "policies"
 SHIPPED_FILES = ("model.pt", "model.json", "vecnormalize.json", "config.json", "model.md")
 """The files of a shipped policy."""
 PICKLES = ("model.zip", "vecnormalize.pkl")
+CONVERTED = "- Converted to pickle-free files"
 """The pickle-bearing files of older shipped policies (removed by a conversion)."""
 MODEL_CHOICES = ("best", "final")
 ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift")}
@@ -119,7 +120,11 @@ def convert_shipped(folder: Path, trust_pickle: bool = False) -> Path:
     stats = folder / "vecnormalize.pkl"
     write_policy_files(folder / "model.zip", stats if stats.is_file() else None, folder, trust_pickle)
     card = (folder / "model.md").read_text().splitlines()
-    card = [files_line(folder) if line.startswith("- Files:") else line for line in card]
+    card = [line for line in card if not line.startswith(CONVERTED)]
+    at = next((i for i, line in enumerate(card) if line.startswith("- Files:")), 1)
+    card[at:at + 1] = [files_line(folder), f"{CONVERTED} from the pickled SB3 `model.zip` and `vecnormalize.pkl` it "
+                       f"was trained as (`simshear train export-policy --convert {recorded_path(folder)} "
+                       "--trust-pickle`): the same network and statistics, so the same actions."]
     atomic_write(folder / "model.md", lambda tmp: Path(tmp).write_text("\n".join(card) + "\n"), suffix=".md")
     return folder / "model.md"
 
