@@ -433,7 +433,7 @@ def _read_images(paths: list[Path], adapter: ImageAdapter, where: str) -> tuple[
     out = np.empty((len(paths), adapter.size_px, adapter.size_px), dtype=np.uint8)
     first_shape = None
     for index, path in enumerate(paths):
-        image = decode_image(path, cv2.IMREAD_UNCHANGED, where)
+        image = decode_image(path, cv2.IMREAD_UNCHANGED, where, unreadable="not a readable image")
         if image.ndim == 3 and image.shape[2] == 4:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
         if image.dtype != np.uint8:

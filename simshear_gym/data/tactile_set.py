@@ -118,9 +118,11 @@ def _png_size(data: np.ndarray) -> tuple[int, int] | None:
     return None
 
 
-def decode_image(path: Path, flags: int = cv2.IMREAD_GRAYSCALE, where: str = "") -> np.ndarray:
+def decode_image(path: Path, flags: int = cv2.IMREAD_GRAYSCALE, where: str = "",
+                 unreadable: str = "cannot be read as an image") -> np.ndarray:
     """One image file decoded (``cv2.imdecode`` with ``flags``), checked before decoding: a header that claims more
-    than :data:`MAX_IMAGE_PIXELS` is refused unread.
+    than :data:`MAX_IMAGE_PIXELS` is refused unread. ``unreadable``: what the error says of a file that does not
+    decode.
 
     Raises:
         TactileDataError: ``where`` + the file, and what is wrong (missing, a decompression bomb, not decodable).
@@ -139,9 +141,9 @@ def decode_image(path: Path, flags: int = cv2.IMREAD_GRAYSCALE, where: str = "")
         image = cv2.imdecode(data, flags) if len(data) else None
     except cv2.error as error:
         reason = " ".join(str(error).split())[-160:]
-        raise TactileDataError(f"{where}{path}: cannot be read as an image ({reason})") from None
+        raise TactileDataError(f"{where}{path}: {unreadable} ({reason})") from None
     if image is None:
-        raise TactileDataError(f"{where}{path}: cannot be read as an image (missing or corrupt file)")
+        raise TactileDataError(f"{where}{path}: {unreadable} (missing or corrupt file)")
     if image.size > MAX_IMAGE_PIXELS * (image.shape[2] if image.ndim == 3 else 1):
         raise TactileDataError(f"{where}{path}: {image.shape[1]}x{image.shape[0]} px, more than the "
                                f"{MAX_IMAGE_PIXELS} px an image may have here")
