@@ -1,21 +1,28 @@
-"""Bad input never passes silently and never ends in a traceback (issue 24, bullet 4).
+"""Bad input never passes silently and never ends in a traceback (issue 24, bullet 4; issue 41, items 2-4).
 
 A sweep: every kind of malformed input, given to every command that reads it (``collect``, ``train translator``,
-``train posenet``, ``evaluate posenet``, ``pipeline check``, ``rollout``), must exit non-zero with exactly one
-``simshear: error:`` line naming the file, column, row or host and what was expected. The commands run in-process
-through :func:`simshear_gym.cli.main` (an exception escaping it is the traceback a user would see); two run as
-real processes too.
+``train posenet``, ``evaluate posenet``, ``pipeline check``, ``pipeline run``, ``rollout``), must exit non-zero with
+exactly one ``simshear: error:`` line naming the file, column, row or host and what was expected. The commands run
+in-process through :func:`simshear_gym.cli.main` (an exception escaping it is the traceback a user would see); two
+run as real processes too. Issue 41 adds: weights files that are truncated, random, empty, bit-flipped or of another
+model (.pt, .onnx); PNG decompression bombs; a column twice in a CSV header; labels far outside the format's declared
+range; a full disk on a write; a config name that would write outside its run folder; and the decoded-image cache,
+which must not serve old pixels for an image overwritten in place.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
+import os
 import shutil
 import socket
+import struct
 import subprocess
 import sys
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -108,12 +115,41 @@ CASES: dict[str, tuple[Callable[[Path], None], tuple[str, ...]]] = {
                                 ("meta.json: expected a JSON object",)),
     "missing_images_dir": (lambda d: shutil.rmtree(d / "images"), ("images: missing",)),
 }
+def _duplicate_column(directory: Path) -> None:
+    """pose_3 named twice (pandas would read the first and call the second 'pose_3.1')."""
+    lines = (directory / "targets.csv").read_text().splitlines()
+    lines = [lines[0] + ",pose_3"] + [line + ",0" for line in lines[1:]]
+    (directory / "targets.csv").write_text("\n".join(lines) + "\n")
+
+
+def png_bomb(width: int = 8000, height: int = 8000) -> bytes:
+    """A valid 8-bit grey PNG of ``width`` x ``height`` black pixels: 64 MB of pixels in about 60 KB."""
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    compressor = zlib.compressobj(9)
+    row = b"\x00" * (width + 1)
+    body = b"".join(compressor.compress(row) for _ in range(height)) + compressor.flush()
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0))
+            + chunk(b"IDAT", body) + chunk(b"IEND", b""))
+
+
+CASES.update({
+    "duplicate_column": (_duplicate_column, ("targets.csv: column 'pose_3' appears twice in the header",)),
+    "huge_value": (lambda d: _set_cell(d, 3, "pose_3", "1e300"),
+                   ("targets.csv: row 3, column 'pose_3': value 1e+300", "outside the declared range")),
+    "png_bomb": (lambda d: (d / "images" / "image_5.png").write_bytes(png_bomb()),
+                 ("image_5.png: its header claims 8000x8000 px", "decompression bomb")),
+    "truncated_png": (lambda d: (d / "images" / "image_6.png").write_bytes(
+        (d / "images" / "image_6.png").read_bytes()[:40]), ("image_6.png: cannot be read as an image",)),
+})
 PAIRED_ONLY: dict[str, tuple[Callable[[Path], None], tuple[str, ...]]] = {
     "missing_meta_json": (lambda d: (d / "meta.json").unlink(), ("meta.json: missing",)),
     "missing_real_image_column": (lambda d: pd.read_csv(d / "targets.csv").drop(columns=["real_image"]).to_csv(
         d / "targets.csv", index=False), ("targets.csv: column 'real_image' is missing",)),
 }
-IMAGE_CASES = {"missing_image", "wrong_image_size", "corrupt_png", "missing_images_dir"}  # collect reads no images
+IMAGE_CASES = {"missing_image", "wrong_image_size", "corrupt_png", "missing_images_dir", "png_bomb",
+               "truncated_png"}  # collect reads no images
 
 
 def run_cli(argv: list[str], capsys) -> tuple[int, str, str]:
@@ -151,7 +187,7 @@ TRAINERS = {
 @pytest.mark.parametrize("trainer", list(TRAINERS))
 @pytest.mark.parametrize("case", list(CASES) + list(PAIRED_ONLY))
 def test_trainers_on_a_malformed_paired_set(tmp_path, capsys, trainer, case):
-    if trainer == "train posenet real" and case in ("wrong_image_size", "corrupt_png"):
+    if trainer == "train posenet real" and case in ("wrong_image_size", "corrupt_png", "png_bomb", "truncated_png"):
         pytest.skip("--source real reads the paired set's labels, not its sim images")
     _, paired = write_sets(tmp_path / "data")
     malform, expected = {**CASES, **PAIRED_ONLY}[case]
@@ -318,3 +354,181 @@ def test_no_bad_input_run_exits_0_with_nan_or_inf_in_its_output(tmp_path, capsys
     assert code != 0 and "column 'move_1'" in err
     written = [json.loads(p.read_text()) for p in (tmp_path / "results").glob("*.json")]
     assert written == [] and "nan" not in out.lower() and "inf" not in out.lower()
+
+
+# -- weights files ---------------------------------------------------------------------------------------------
+
+
+def _weights_cases(good: Path) -> dict[str, tuple[Callable[[Path], None], tuple[str, ...]]]:
+    """name -> (write a bad weights file at the path, what the error line must say besides the file)."""
+    from simshear_gym.models.translator import shipped_models
+
+    def bit_flip(path: Path) -> None:
+        shutil.copyfile(good, path)
+        shutil.copyfile(str(good) + ".sha256", str(path) + ".sha256")
+        data = bytearray(path.read_bytes())
+        data[len(data) * 3 // 4] ^= 0x04  # in the tensors: torch itself would load it
+        path.write_bytes(bytes(data))
+
+    return {
+        "zero_bytes": (lambda path: path.write_bytes(b""), ("empty (0 bytes)",)),
+        "truncated": (lambda path: path.write_bytes(good.read_bytes()[:len(good.read_bytes()) // 2]),
+                      ("not a readable weights file",)),
+        "random_bytes": (lambda path: path.write_bytes(np.random.default_rng(0).bytes(4096)),
+                         ("not a readable weights file",)),
+        "wrong_architecture": (lambda path: shutil.copyfile(shipped_models()[("shpix2pix", "surface")], path),
+                               ("not a simshear posenet file",)),
+        "bit_flipped": (bit_flip, ("sha256", "differs", "corrupt")),
+    }
+
+
+@pytest.mark.parametrize("case", ["zero_bytes", "truncated", "random_bytes", "wrong_architecture", "bit_flipped"])
+def test_evaluate_posenet_with_bad_weights(tmp_path, capsys, case):
+    write_sets(tmp_path / "data")
+    bad = tmp_path / "bad.pt"
+    malform, expected = _weights_cases(Path(posenet_path()))[case]
+    malform(bad)
+    argv = ["evaluate", "posenet", "--model", f"real={bad}", "--contact", "surface", "--data", str(tmp_path / "data"),
+            "--out", str(tmp_path / "results"), "--threads", "1"]
+    line = assert_one_error_line(*run_cli(argv, capsys), ("bad.pt", *expected))
+    assert "Traceback" not in line
+    assert not (tmp_path / "results" / "posenet.json").exists()
+
+
+@pytest.mark.parametrize("case", ["zero_bytes", "truncated", "random_bytes", "bit_flipped"])
+def test_translator_weights_that_are_bad_are_one_error_naming_the_file(tmp_path, case):
+    from simshear_gym.models.translator import shipped_models
+    from simshear_gym.models.translator_runtime import load_translator
+
+    good = shipped_models()[("shpix2pix", "surface")]
+    bad = tmp_path / "shpix2pix_surface.pt"
+    _weights_cases(good)[case][0](bad)
+    with pytest.raises(ValueError, match=r"shpix2pix_surface\.pt: "):
+        load_translator(bad, runtime="torch")
+
+
+@pytest.mark.parametrize("case", ["zero_bytes", "random_bytes", "bit_flipped", "wrong_architecture"])
+def test_onnx_translators_that_are_bad_are_one_error_naming_the_file(tmp_path, case):
+    """A bit-flipped .onnx loads in ONNX Runtime and makes black images: its recorded sha256 refuses it."""
+    pytest.importorskip("onnxruntime")
+    from simshear_gym.models.translator import WEIGHTS_DIR
+    from simshear_gym.models.translator_runtime import OnnxTranslator
+
+    good = WEIGHTS_DIR / "shpix2pix_surface.onnx"
+    bad = tmp_path / "bad.onnx"
+    if case == "wrong_architecture":  # an ONNX graph of something else: a one-input identity
+        import onnx
+        from onnx import TensorProto, helper
+
+        graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], "other",
+                                  [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 4])],
+                                  [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 4])])
+        onnx.save_model(helper.make_model(graph), bad)
+        expected = r"bad\.onnx: not a simshear ONNX translator"
+    else:
+        _weights_cases(good)[case][0](bad)
+        expected = r"bad\.onnx: (sha256 .* differs|not an ONNX model)"
+    with pytest.raises(ValueError, match=expected):
+        OnnxTranslator(bad)
+
+
+def test_every_shipped_weights_file_carries_its_checksum():
+    """The shipped .pt and .onnx files each have a <file>.sha256 beside them, and it matches."""
+    from simshear_gym.io import checksum_path, verify_checksum
+    from simshear_gym.models.translator import WEIGHTS_DIR
+
+    files = sorted([*WEIGHTS_DIR.rglob("*.pt"), *WEIGHTS_DIR.rglob("*.onnx")])
+    files = [path for path in files if "policies" not in path.parts]  # a policy's sha256 is in its model.json
+    assert len(files) >= 10
+    for path in files:
+        assert checksum_path(path).is_file(), path
+        assert verify_checksum(path), path
+
+
+# -- images and the decoded-image cache ---------------------------------------------------------------------------
+
+
+def test_an_image_overwritten_in_place_is_not_served_from_the_cache(tmp_path):
+    """The cache is keyed on each image's size and modification time, not the folder's: an image replaced in place
+    (the folder's own time put back, as a copy tool may leave it) is decoded afresh."""
+    from simshear_gym.data.tactile_set import read_set
+
+    real, _ = write_sets(tmp_path / "data")
+    first = read_set(real).load_images()
+    assert read_set(real).load_images() is not None  # cached now
+    folder_times = os.stat(real / "images")
+    replaced = 255 - first[2]
+    write_image(real / "images", "image_3.png", replaced)
+    os.utime(real / "images", ns=(folder_times.st_atime_ns, folder_times.st_mtime_ns))
+    again = read_set(real).load_images()
+    np.testing.assert_array_equal(again[2], replaced)
+    np.testing.assert_array_equal(again[0], first[0])
+
+
+# -- a full disk -------------------------------------------------------------------------------------------------
+
+
+def test_a_full_disk_is_one_line_naming_the_file_and_the_free_space(tmp_path, capsys, monkeypatch):
+    """ENOSPC on a write (simulated: every text write fails as a full disk does)."""
+    write_sets(tmp_path / "data")
+
+    def no_space(self, *args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(self))
+
+    monkeypatch.setattr(Path, "write_text", no_space)
+    argv = ["evaluate", "posenet", "--model", f"real={posenet_path()}", "--contact", "surface", "--data",
+            str(tmp_path / "data"), "--out", str(tmp_path / "results"), "--threads", "1"]
+    line = assert_one_error_line(*run_cli(argv, capsys), ("cannot be written: the disk is full", "free in"))
+    assert str(tmp_path / "results") in line
+    assert not [p for p in (tmp_path / "results").glob(".*tmp*")]  # no half-written temporary file left
+
+
+def test_a_full_disk_under_torch_save_is_one_line(tmp_path, capsys, monkeypatch):
+    """torch's writer says only "file write failed" (a RuntimeError); with the disk (nearly) full it is the full
+    disk, named with the file and the free space, and the previous checkpoint is left whole."""
+    import torch
+
+    import simshear_gym.io as sio
+
+    _, paired = write_sets(tmp_path / "data")
+
+    def failing_save(obj, path, *args, **kwargs):
+        Path(path).write_bytes(b"PK\x03\x04 partial")
+        raise RuntimeError("[enforce fail at inline_container.cc:664] . PytorchStreamWriter failed writing file "
+                           "data/0: file write failed")
+
+    monkeypatch.setattr(torch, "save", failing_save)
+    monkeypatch.setattr(sio.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**9, 10**9 - 4096, 4096))
+    argv = TRAINERS["train posenet sim"] + ["--paired", str(paired), "--out", str(tmp_path / "run")]
+    line = assert_one_error_line(*run_cli(argv, capsys), ("cannot be written: the disk is full", "4.0 KiB free"))
+    assert ".pt" in line
+
+
+# -- names in a pipeline config -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["../escaped", "a/b", "..", "with space"])
+def test_a_dataset_name_that_is_not_a_name_is_refused_before_anything_is_written(tmp_path, capsys, name):
+    config = _lab(tmp_path / "lab")
+    text = config.read_text()
+    table = next(line for line in text.splitlines() if line.startswith("[datasets."))
+    old = table[len("[datasets."):].split("]")[0].split(".")[0]
+    config.write_text(text.replace(f"[datasets.{old}", f'[datasets."{name}"'))
+    before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
+    argv = ["pipeline", "run", str(config), "--profile", "smoke", "--data", str(tmp_path / "lab"), "--out",
+            str(tmp_path / "out" / "run")]
+    line = assert_one_error_line(*run_cli(argv, capsys), ("lab.toml", repr(name), "is not a name"))
+    assert "no path separators" in line
+    assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before  # nothing written anywhere
+
+
+def test_a_stage_cannot_write_outside_its_run_folder(tmp_path):
+    from simshear_gym.pipelines.stages import StageFolderError, StageRunner
+
+    runner = StageRunner(tmp_path / "run", log=lambda text: None)
+    ran = []
+    with pytest.raises(StageFolderError, match="outside the run folder"):
+        runner.run("adapt/../../escaped", {"k": 1}, lambda folder: ran.append(folder) or {})
+    assert ran == [] and not (tmp_path / "escaped").exists()
+    with pytest.raises(StageFolderError, match="outside the run folder"):
+        runner.run("adapt/ok", {"k": 1}, lambda folder: {"outputs": {"set": runner.relative(tmp_path / "x")}})

@@ -8,6 +8,7 @@ import json
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -17,7 +18,7 @@ import torch
 from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
-from simshear_gym.pipelines.export_policy import POLICY_WEIGHTS_DIR, export, source_files
+from simshear_gym.pipelines.export_policy import POLICY_WEIGHTS_DIR, SHIPPED_FILES, export, source_files
 from simshear_gym.train.rl import RLTrainConfig, train
 
 torch.set_num_threads(1)
@@ -38,16 +39,18 @@ def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp
     code = cli.main(["train", "export-policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
                      "--date", "2026-01-02"])
     assert code == 0
-    assert {p.name for p in to.iterdir()} == {"model.zip", "vecnormalize.pkl", "config.json", "model.md"}
-    assert (to / "model.zip").read_bytes() == (run_dir / "best_model.zip").read_bytes()
+    assert {p.name for p in to.iterdir()} == {"model.pt", "model.json", "vecnormalize.json", "config.json",
+                                              "model.md"}  # no pickle
+    assert (to / "model.pt").read_bytes() == (run_dir / "best_model.pt").read_bytes()
+    assert not list(run_dir.rglob("*.pkl"))  # the trainer writes none either
     config = json.loads((to / "config.json").read_text())
     assert config["provenance"]["train_command"] == COMMAND
     assert set(config["provenance"]["estimator_models_sha256"]) == {"translator_shpix2pix_surface", "posenet_surface"}
-    assert PolicySettings.of_model(to / "model.zip") == PolicySettings.of_model(run_dir / "best_model.zip")
+    assert PolicySettings.of_model(to / "model.pt") == PolicySettings.of_model(run_dir / "best_model.zip")
 
-    settings = PolicySettings.of_model(to / "model.zip")
+    settings = PolicySettings.of_model(to / "model.pt")
     env = gym.make("SimShearTracking-v0", trajectory="circle", **env_kwargs(settings))
-    shipped = SB3Controller.for_env(to / "model.zip", env)
+    shipped = SB3Controller.for_env(to / "model.pt", env)
     original = SB3Controller.for_env(run_dir / "best_model.zip", env)
     observation, _ = env.reset(seed=0)
     for _ in range(3):
@@ -66,19 +69,19 @@ def test_a_policy_whose_estimator_models_were_replaced_warns_on_load(run_dir, tm
     shipped file changes, loading it warns (it sees other observations than in training) and names the model."""
     to = tmp_path / "policy"
     export(run_dir, to, COMMAND, date="2026-01-02")
-    assert stale_estimator_models(to / "model.zip") == []
+    assert stale_estimator_models(to / "model.pt") == []
     assert stale_estimator_models(run_dir / "best_model.zip") == []  # a run folder records no provenance
-    settings = PolicySettings.of_model(to / "model.zip")
+    settings = PolicySettings.of_model(to / "model.pt")
     env = gym.make("SimShearTracking-v0", trajectory="circle", **env_kwargs(settings))
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        SB3Controller.for_env(to / "model.zip", env)
+        SB3Controller.for_env(to / "model.pt", env)
     config = json.loads((to / "config.json").read_text())
     config["provenance"]["estimator_models_sha256"]["translator_shpix2pix_surface"] = "0" * 64
     (to / "config.json").write_text(json.dumps(config))
-    assert stale_estimator_models(to / "model.zip") == ["translator_shpix2pix_surface"]
+    assert stale_estimator_models(to / "model.pt") == ["translator_shpix2pix_surface"]
     with pytest.warns(UserWarning, match=r"translator_shpix2pix_surface.*train it again"):
-        SB3Controller.for_env(to / "model.zip", env)
+        SB3Controller.for_env(to / "model.pt", env)
     env.close()
 
 
@@ -91,22 +94,49 @@ def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_di
 
 
 def test_shipped_policies_load_in_their_env():
-    """Every folder under models/weights/policies is a complete policy that loads against its own env, trained on
-    the observations of the shipped translator and GDNN."""
+    """Every folder under models/weights/policies is a complete, pickle-free policy that loads against its own env,
+    trained on the observations of the shipped translator and GDNN."""
     folders = sorted(p for p in POLICY_WEIGHTS_DIR.glob("*") if p.is_dir()) if POLICY_WEIGHTS_DIR.is_dir() else []
+    assert {folder.name for folder in folders} >= {"tracking_ppo", "colift_ppo"}
     for folder in folders:
-        assert (folder / "model.md").is_file(), folder
-        assert (folder / "model.zip").stat().st_size <= 10 * 2**20, folder
+        assert {p.name for p in folder.iterdir()} == set(SHIPPED_FILES), folder  # no pickle
+        assert (folder / "model.pt").stat().st_size <= 10 * 2**20, folder
         # a new shipped translator or GDNN ships with the policies retrained on its observations
-        assert stale_estimator_models(folder / "model.zip") == [], folder
-        settings = PolicySettings.of_model(folder / "model.zip")
+        assert stale_estimator_models(folder / "model.pt") == [], folder
+        settings = PolicySettings.of_model(folder / "model.pt")
         env_id = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}[settings.task]
         env = gym.make(env_id, **env_kwargs(settings))
-        controller = SB3Controller.for_env(folder / "model.zip", env)
+        controller = SB3Controller.for_env(folder / "model.pt", env)
         observation, _ = env.reset(seed=0)
         action = controller(observation)
         assert action.shape == (4,) and np.all(np.abs(action) <= 1.0)
         env.close()
+
+
+def test_shipped_policies_act_as_their_pickled_originals():
+    """The shipped policies were converted from SB3 .zip + vecnormalize.pkl to pickle-free files; on the stored
+    observations they give the actions the pickled originals gave (tests/fixtures/policy_actions.json, written
+    from the originals before the conversion), to 1e-6."""
+    from simshear_gym.control.policy_files import load_normalizer, load_policy
+
+    stored = json.loads((Path(__file__).parent / "fixtures" / "policy_actions.json").read_text())["policies"]
+    assert set(stored) == {"tracking_ppo", "colift_ppo"}
+    for name, rows in stored.items():
+        policy = load_policy(POLICY_WEIGHTS_DIR / name / "model.pt")
+        normalizer = load_normalizer(POLICY_WEIGHTS_DIR / name / "vecnormalize.json")
+        assert len(rows) >= 20
+        for row in rows:
+            observation = {key: np.asarray(value, np.float32) for key, value in row["observation"].items()}
+            action, _ = policy.predict(normalizer.normalize_obs(observation), deterministic=True)
+            np.testing.assert_allclose(action, row["action"], rtol=0, atol=1e-6)
+
+
+def test_a_policy_is_named_by_any_of_its_files():
+    """model.pt, model.json and the model.zip they replaced (in recorded commands) name one policy."""
+    from simshear_gym.control.policy import sb3_algorithm
+
+    folder = POLICY_WEIGHTS_DIR / "tracking_ppo"
+    assert {sb3_algorithm(folder / name) for name in ("model.pt", "model.json", "model.zip")} == {"ppo"}
 
 
 def test_the_trainer_registers_the_envs_its_evaluation_makes():
@@ -123,7 +153,7 @@ def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
 
     to = tmp_path / "policy"
     to.mkdir()
-    (to / "model.zip").write_bytes(b"0")
+    (to / "model.pt").write_bytes(b"0")
     evaluations = [{"timesteps": 100, "wall_s": 6.0, "contact_error_mean_mm": 0.7, "ended_early": 0, "best": True,
                     "episodes": {}},
                    {"timesteps": 200, "wall_s": 12.0, "contact_error_mean_mm": 0.2, "ended_early": 0, "best": True,
@@ -147,7 +177,7 @@ def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
 
     to = tmp_path / "policy"
     to.mkdir()
-    (to / "model.zip").write_bytes(b"0")
+    (to / "model.pt").write_bytes(b"0")
     config = {**asdict(RLTrainConfig(task="colift", timesteps=0, observation="estimate+action", history=2,
                                      bc_steps=100, bc_rounds=2)), "env_id": "SimShearCoLift-v0"}
     provenance = {"train_command": COMMAND, "exported_from": "tiny/model.zip", "estimator_models_sha256": {}}

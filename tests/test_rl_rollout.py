@@ -60,7 +60,7 @@ def test_a_trained_policy_runs_through_rollout_on_the_emulator_within_the_limits
     assert "truth_contact_error_mm" in summary  # the simulated camera's ground truth was logged
 
 
-SHIPPED_TRACKING = "simshear_gym/models/weights/policies/tracking_ppo/model.zip"
+SHIPPED_TRACKING = "simshear_gym/models/weights/policies/tracking_ppo/model.pt"
 
 
 def check_servo_commands_within_limits(emulator: MG400Emulator, steps: int, period_s: float) -> None:

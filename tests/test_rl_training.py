@@ -45,9 +45,12 @@ def test_residual_estimate_policy_trains_evaluates_resumes_and_loads_with_its_no
     run_dir = tmp_path / "ppo"
     summary = train(tiny(residual_bound=0.2), run_dir, progress=False)
     assert summary["timesteps"] >= 32 and summary["stopped_by"] == "timesteps"
-    for name in ("model.zip", "vecnormalize.pkl", "best_model.zip", "best_model_vecnormalize.pkl", "config.json",
-                 "evaluations.json", "learning_curve.png", "checkpoints/rl_model_vecnormalize_16_steps.pkl"):
+    for name in ("model.zip", "model.pt", "model.json", "vecnormalize.json", "best_model.zip", "best_model.pt",
+                 "best_model.json", "best_model_vecnormalize.json", "config.json", "evaluations.json",
+                 "learning_curve.png", "checkpoints/rl_model_16_steps.pt",
+                 "checkpoints/rl_model_vecnormalize_16_steps.json"):
         assert (run_dir / name).is_file(), name
+    assert not list(run_dir.rglob("*.pkl"))  # no pickle written
     evaluations = json.loads((run_dir / "evaluations.json").read_text())["evaluations"]
     assert [e["timesteps"] for e in evaluations] == [16, 32]
     assert set(evaluations[-1]["episodes"]) == {"circle", "tilted_square", "spiral", "loop"}
@@ -59,7 +62,7 @@ def test_residual_estimate_policy_trains_evaluates_resumes_and_loads_with_its_no
         "estimate", 2, "sim", 64)
     assert settings.residual.bound == 0.2 and settings.residual.kp == (0.6, 0.6, 0.5, 0.0)
     checkpoint = latest_checkpoint(run_dir)
-    assert vecnormalize_path(checkpoint).name == "rl_model_vecnormalize_32_steps.pkl"
+    assert vecnormalize_path(checkpoint).name == "rl_model_vecnormalize_32_steps.json"
     assert PolicySettings.of_model(checkpoint) == settings
 
     env = gym.make("SimShearTracking-v0", trajectory="circle", **env_kwargs(settings))
@@ -92,7 +95,7 @@ def test_subproc_workers_with_the_wall_clock_budget(tmp_path, monkeypatch):
     summary = train(tiny(n_envs=2, vec="subproc", timesteps=10_000, minutes=0.05, eval_steps=0, n_steps=8,
                          batch_size=16), tmp_path / "sub", progress=False)
     assert summary["stopped_by"] == "minutes" and summary["timesteps"] == 48 * 2
-    assert (tmp_path / "sub" / "model.zip").is_file() and (tmp_path / "sub" / "vecnormalize.pkl").is_file()
+    assert (tmp_path / "sub" / "model.pt").is_file() and (tmp_path / "sub" / "vecnormalize.json").is_file()
 
 
 def test_colift_sac_trains_on_the_objects(tmp_path):

@@ -11,12 +11,17 @@ and the real rollout (``simshear_gym.real.rollout.run_rollout``) take any of the
 A controller that keeps a state estimate exposes it as ``last_estimate`` (:class:`EstimatingController`); the real
 rollout logs it. A controller may carry a ``name`` for logs (``"servo"``, ``"ppo:<path>"``).
 
-A policy of ``simshear train rl`` is its run folder: ``model.zip`` (or a checkpoint) beside ``config.json`` (the
-env settings it was trained with: :class:`PolicySettings`) and ``vecnormalize.pkl`` (SB3's ``VecNormalize``
-statistics; a checkpoint's own ``rl_model_vecnormalize_<steps>_steps.pkl``). :meth:`SB3Controller.load` loads the
-three together, so the benchmark and the robot normalise the observation as training did, and a residual policy
-adds its correction to the same servo law (:class:`ResidualServo`). A bare ``.zip`` (no ``config.json``) is the
-``tactile`` observation, not normalised, not residual.
+A policy of ``simshear train rl`` is its run folder: the policy's pickle-free files ``model.pt`` (its network's
+state dict) and ``model.json`` (what rebuilds it, with the ``.pt``'s sha256; :mod:`~simshear_gym.control.policy_files`)
+beside ``config.json`` (the env settings it was trained with: :class:`PolicySettings`) and ``vecnormalize.json``
+(SB3's ``VecNormalize`` statistics as JSON; a checkpoint's own ``rl_model_vecnormalize_<steps>_steps.json``).
+:meth:`SB3Controller.load` loads them together, so the benchmark and the robot normalise the observation as training
+did, and a residual policy adds its correction to the same servo law (:class:`ResidualServo`). A policy may be named
+by any of its files, or by the SB3 ``.zip`` they were written beside: ``model.zip``, ``model.pt`` and ``model.json``
+load the same policy, and nothing in them is unpickled. An SB3 ``.zip`` or ``vecnormalize.pkl`` without those files
+(a run of an older version) is refused unless ``trust_pickle`` (a pickle runs whatever code it carries: only for
+files you made yourself); ``simshear train export-policy --trust-pickle`` converts such a run once. A policy without
+``config.json`` is the ``tactile`` observation, not normalised, not residual.
 
 Stable-Baselines3 (and so torch) is imported only when a model is loaded, so importing this module stays cheap.
 """
@@ -24,7 +29,6 @@ Stable-Baselines3 (and so torch) is imported only when a model is loaded, so imp
 from __future__ import annotations
 
 import json
-import pickle
 import re
 import warnings
 import zipfile
@@ -43,6 +47,14 @@ from simshear_gym.contract import (
     filter_mean_from_estimate,
 )
 from simshear_gym.control.pi_law import PIGains, PILaw
+from simshear_gym.control.policy_files import (
+    PolicyFileError,
+    has_policy_files,
+    load_policy,
+    policy_files,
+    read_description,
+)
+from simshear_gym.control.policy_files import load_normalizer as load_json_normalizer
 
 
 @runtime_checkable
@@ -77,11 +89,18 @@ def as_action_scale(action_scale: Any, owner: str) -> ActionScale:
 
 
 def sb3_algorithm(path: str | Path) -> str:
-    """``"ppo"``, ``"sac"`` or ``"tqc"`` (sb3-contrib): which algorithm saved a ``.zip`` (read from its ``data``).
+    """``"ppo"``, ``"sac"`` or ``"tqc"`` (sb3-contrib): which algorithm made a policy (its ``<stem>.json``, else the
+    SB3 ``.zip``'s ``data`` entry, read as JSON: nothing unpickled).
 
     Raises:
-        ValueError: not a Stable-Baselines3 model, or none of PPO, SAC, TQC.
+        ValueError: not a policy of simshear train rl, or none of PPO, SAC, TQC.
     """
+    if has_policy_files(path):
+        return read_description(path)["algorithm"]
+    if Path(path).suffix in (".pt", ".json"):
+        description, weights = policy_files(path)
+        missing = weights if description.is_file() else description
+        raise FileNotFoundError(f"{missing}: missing; a policy is <stem>.pt with its <stem>.json")
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
@@ -99,7 +118,8 @@ def sb3_algorithm(path: str | Path) -> str:
 
 
 RUN_CONFIG = "config.json"
-VECNORMALIZE = "vecnormalize.pkl"
+VECNORMALIZE = "vecnormalize.json"
+VECNORMALIZE_PICKLE = "vecnormalize.pkl"  # SB3's own format (older runs): loaded only when trusted
 
 
 @dataclass(frozen=True)
@@ -211,27 +231,42 @@ class ResidualServo:
         return np.clip(base + self.settings.bound * correction, -1.0, 1.0).astype(np.float32)
 
 
-def vecnormalize_path(model_path: str | Path) -> Path | None:
-    """The ``VecNormalize`` statistics saved with a model, or None: a checkpoint ``rl_model_<N>_steps.zip``'s
-    ``rl_model_vecnormalize_<N>_steps.pkl``; ``best_model.zip``'s ``best_model_vecnormalize.pkl``; else (and for
-    ``model.zip``) the folder's ``vecnormalize.pkl``."""
+def vecnormalize_path(model_path: str | Path, suffix: str = ".json") -> Path | None:
+    """The ``VecNormalize`` statistics saved with a model, or None: a checkpoint ``rl_model_<N>_steps``'s
+    ``rl_model_vecnormalize_<N>_steps.json``; ``best_model``'s ``best_model_vecnormalize.json``; else (and for
+    ``model``) the folder's ``vecnormalize.json``. ``suffix=".pkl"``: the pickles SB3 itself writes."""
     path = Path(model_path)
-    match = re.fullmatch(r"(.*)_(\d+)_steps\.zip", path.name)
+    name = f"vecnormalize{suffix}"
+    match = re.fullmatch(r"(.*)_(\d+)_steps", path.stem)
     candidates = []
     if match:
-        candidates.append(path.parent / f"{match.group(1)}_vecnormalize_{match.group(2)}_steps.pkl")
+        candidates.append(path.parent / f"{match.group(1)}_vecnormalize_{match.group(2)}_steps{suffix}")
     elif path.stem != "model":
-        candidates.append(path.parent / f"{path.stem}_{VECNORMALIZE}")
+        candidates.append(path.parent / f"{path.stem}_{name}")
     if not match:
-        candidates.append(path.parent / VECNORMALIZE)
+        candidates.append(path.parent / name)
     return next((candidate for candidate in candidates if candidate.is_file()), None)
 
 
-def load_normalizer(path: str | Path):
-    """SB3 ``VecNormalize`` statistics (its pickle, without an env) in evaluation mode: ``normalize_obs`` is all a
-    controller calls. Only load the files of your own runs (a pickle runs code)."""
+def load_normalizer(path: str | Path, trust_pickle: bool = False):
+    """Observation statistics in evaluation mode (``normalize_obs`` is all a controller calls): a
+    ``vecnormalize.json`` (:class:`~simshear_gym.control.policy_files.ObservationNormalizer`), or with
+    ``trust_pickle`` SB3's pickled ``VecNormalize`` (a pickle runs code: only your own files).
+
+    Raises:
+        PolicyFileError: a pickle without ``trust_pickle``, or a malformed file.
+    """
+    path = Path(path)
+    if path.suffix != ".pkl":
+        return load_json_normalizer(path)
+    if not trust_pickle:
+        raise PolicyFileError(f"{path}: a pickle, which runs whatever code it carries when loaded; refused. Use "
+                              f"the pickle-free {path.with_suffix('.json').name} (simshear train export-policy "
+                              "--trust-pickle converts a run of your own once)")
+    import pickle
+
     with open(path, "rb") as handle:
-        normalizer = pickle.load(handle)
+        normalizer = pickle.load(handle)  # noqa: S301 - trusted by the caller
     normalizer.training = False
     normalizer.norm_reward = False
     return normalizer
@@ -311,19 +346,33 @@ class SB3Controller:
 
     @classmethod
     def load(cls, path: str | Path, observation_space, action_space, reference_depth_mm: float = 4.0,
-             action_scale: ActionScale = ActionScale()) -> SB3Controller:
-        """Load a PPO/SAC/TQC ``.zip`` on the CPU with its run's ``VecNormalize`` statistics and settings, and check
-        that it was trained on these spaces (the env's). ``reference_depth_mm`` and ``action_scale`` (the env's) are
-        the residual law's, for a residual policy.
+             action_scale: ActionScale = ActionScale(), trust_pickle: bool = False) -> SB3Controller:
+        """Load a PPO/SAC/TQC policy on the CPU with its run's ``VecNormalize`` statistics and settings, and check
+        that it was trained on these spaces (the env's). ``path``: any of the policy's pickle-free files (or the
+        SB3 ``.zip`` they lie beside); ``trust_pickle``: an SB3 ``.zip`` / ``.pkl`` without them is loaded by
+        unpickling (only files you made: a pickle runs code). ``reference_depth_mm`` and ``action_scale`` (the
+        env's) are the residual law's, for a residual policy.
 
         Raises:
-            FileNotFoundError: no such file.
-            ValueError: not an SB3 PPO/SAC/TQC model, or trained for other observation/action spaces.
+            FileNotFoundError: no such policy.
+            ValueError: not a policy of PPO/SAC/TQC, a pickle without ``trust_pickle``
+                (:class:`~simshear_gym.control.policy_files.PolicyFileError`), a corrupt file, or trained for other
+                observation/action spaces.
         """
         path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"no Stable-Baselines3 model file at {str(path)!r}")
-        model = sb3_class(sb3_algorithm(path)).load(path, device="cpu")
+        if has_policy_files(path):
+            model = load_policy(path)
+        elif path.suffix == ".zip" and path.is_file():
+            if not trust_pickle:
+                description, weights = policy_files(path)
+                raise PolicyFileError(
+                    f"{path}: a Stable-Baselines3 .zip without its pickle-free {weights.name} and "
+                    f"{description.name}; loading the .zip unpickles objects that can run code, so it is refused. "
+                    "Convert a run of your own once with simshear train export-policy --trust-pickle")
+            model = sb3_class(sb3_algorithm(path)).load(path, device="cpu")
+        else:
+            raise FileNotFoundError(f"no policy at {str(path)!r}: expected <stem>.pt with its <stem>.json (or the "
+                                    "SB3 .zip they were written beside)")
         settings = PolicySettings.of_model(path)
         trained = (f" ({settings.observation} observation, history {settings.history}, {settings.image_size_px} px)"
                    if settings else "")
@@ -338,8 +387,14 @@ class SB3Controller:
                              f"gives {observation_space} (another observation or tactile image size?)")
         if model.action_space != action_space:
             raise ValueError(f"{path} was trained with actions {model.action_space}, the env takes {action_space}")
-        stats = vecnormalize_path(path) if settings is not None else None
-        normalizer = load_normalizer(stats) if stats is not None else None
+        normalizer = None
+        if settings is not None:
+            stats = vecnormalize_path(path)
+            pickled = vecnormalize_path(path, ".pkl")
+            if stats is not None:
+                normalizer = load_normalizer(stats)
+            elif pickled is not None:
+                normalizer = load_normalizer(pickled, trust_pickle)
         residual = None
         if settings is not None and settings.residual is not None:
             residual = ResidualServo(settings.residual, reference_depth_mm, action_scale)
@@ -348,14 +403,16 @@ class SB3Controller:
             warnings.warn(f"{path} was trained on observations made by other weights than the shipped {stale} "
                           "(their sha256 at export, in its config.json, differs): it sees other images or "
                           "estimates than in training; train it again", UserWarning, stacklevel=2)
-        return cls(model, f"{type(model).__name__.lower()}:{path}", normalizer, residual, settings)
+        algorithm = getattr(model, "algorithm", type(model).__name__.lower())
+        return cls(model, f"{algorithm}:{path}", normalizer, residual, settings)
 
     @classmethod
-    def for_env(cls, path: str | Path, env) -> SB3Controller:
+    def for_env(cls, path: str | Path, env, trust_pickle: bool = False) -> SB3Controller:
         """:meth:`load` for an env (a sim env or ``RealTactileEnv``; wrappers are looked through): its spaces,
         reference depth and action scale."""
         base = getattr(env, "unwrapped", env)
-        return cls.load(path, env.observation_space, env.action_space, base.reference_depth_mm, base.action_scale)
+        return cls.load(path, env.observation_space, env.action_space, base.reference_depth_mm, base.action_scale,
+                        trust_pickle)
 
     def reset(self) -> None:
         """Start an episode: the residual law forgets its integral; the policy itself is feed-forward."""

@@ -31,8 +31,15 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from simshear_gym.data.labels import IMAGE_COLUMN, MOVE_COLUMNS, POSE_COLUMNS
-from simshear_gym.data.tactile_set import TactileDataError, image_name, write_image, write_targets
+from simshear_gym.data.labels import ANGLE_LIMIT_DEG, IMAGE_COLUMN, LENGTH_LIMIT_MM, MOVE_COLUMNS, POSE_COLUMNS
+from simshear_gym.data.tactile_set import (
+    TactileDataError,
+    check_header,
+    decode_image,
+    image_name,
+    write_image,
+    write_targets,
+)
 
 VARIABLES: tuple[str, ...] = (
     "pose_x", "pose_y", "pose_z", "pose_rx", "pose_ry", "pose_rz",
@@ -306,6 +313,7 @@ def read_labels(config: DatasetConfig, root: Path, where: str = "") -> list[tupl
         csv_path = resolve(data_file.csv, root)
         if not csv_path.is_file():
             raise TactileDataError(f"{where}{csv_path}: no such CSV file (files[].csv = {data_file.csv!r})")
+        check_header(csv_path, where)
         try:
             table = pd.read_csv(csv_path)
         except (pd.errors.ParserError, UnicodeDecodeError, pd.errors.EmptyDataError) as error:
@@ -338,6 +346,13 @@ def canonical_labels(config: DatasetConfig, frame: FrameConfig, table: pd.DataFr
                                    f"{table[source.column].iloc[int(bad[0])]!r}; expected a finite number")
         factor = (ANGLE_UNITS if is_angle(name) else LENGTH_UNITS)[source.unit]
         lab[:, index] = values * factor * source.scale
+        limit, unit = (ANGLE_LIMIT_DEG, "deg") if is_angle(name) else (LENGTH_LIMIT_MM, "mm")
+        outside = np.flatnonzero(np.abs(lab[:, index]) > limit)
+        if len(outside):
+            row = int(outside[0])
+            raise TactileDataError(f"{csv_path}: column {source.column!r} ({name}) row {row} is "
+                                   f"{table[source.column].iloc[row]!r} ({lab[row, index]:.6g} {unit}); expected "
+                                   f"a value within the declared range [-{limit:g}, {limit:g}] {unit}")
     pose, move = frame.to_sim(lab[:, :6], lab[:, 6:])
     return pd.DataFrame(np.hstack([pose, move]), columns=list(POSE_COLUMNS + MOVE_COLUMNS)), lab
 
@@ -418,10 +433,7 @@ def _read_images(paths: list[Path], adapter: ImageAdapter, where: str) -> tuple[
     out = np.empty((len(paths), adapter.size_px, adapter.size_px), dtype=np.uint8)
     first_shape = None
     for index, path in enumerate(paths):
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if image is None:
-            state = "missing" if not path.exists() else "not a readable image (corrupt?)"
-            raise TactileDataError(f"{where}{path}: {state}")
+        image = decode_image(path, cv2.IMREAD_UNCHANGED, where, unreadable="not a readable image")
         if image.ndim == 3 and image.shape[2] == 4:
             image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
         if image.dtype != np.uint8:

@@ -36,6 +36,19 @@ POSE_NAMES: tuple[str, ...] = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_d
 
 CONTACT_TYPES: tuple[str, ...] = ("surface", "edge")
 
+LENGTH_LIMIT_MM = 1000.0
+"""The declared range of every length label (poses, moves, shear; mm): |value| <= 1 m. A tactile contact lies
+within an arm's reach of the work origin (an MG400 reaches 440 mm); a larger value is a unit or parsing error."""
+ANGLE_LIMIT_DEG = 360.0
+"""The declared range of every angle label (deg): |value| <= 360 (angles are degrees, not radians x 1000)."""
+
+
+def label_limit(column: str) -> tuple[float, str]:
+    """The declared range (+- limit, unit) of a label column of the format: an angle (``pose_4..6``,
+    ``move_4..6``, ``shear_sensor_r*_deg``) or a length."""
+    angle = column in POSE_COLUMNS[3:] + MOVE_COLUMNS[3:] or column.endswith("_deg")
+    return (ANGLE_LIMIT_DEG, "deg") if angle else (LENGTH_LIMIT_MM, "mm")
+
 
 @dataclass(frozen=True)
 class LabelRange:

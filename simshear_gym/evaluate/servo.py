@@ -36,6 +36,7 @@ import numpy as np
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
+from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
 from simshear_gym.io import write_json
 
@@ -196,8 +197,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--posenet-pix2pix", default=None, help="GDNN trained on pix2pix images")
     parser.add_argument("--posenet-sim", default=None, help="GDNN trained on raw sim images")
     parser.add_argument("--policy", default=None,
-                        help="SB3 model .zip for the policy variant (its run folder's config.json and "
-                             "vecnormalize.pkl are loaded with it)")
+                        help="policy of simshear train rl for the policy variant: its model.pt (or the .zip it was "
+                             "saved beside; its run folder's config.json and vecnormalize.json are loaded with it)")
     parser.add_argument("--policy-ppo", default=None, help="PPO model .zip of simshear train rl for the ppo variant")
     parser.add_argument("--policy-sac", default=None, help="SAC model .zip of simshear train rl for the sac variant")
     parser.add_argument("--policy-tqc", default=None, help="TQC model .zip of simshear train rl for the tqc variant")
@@ -225,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
             flag = "--policy" if variant == "policy" else f"--policy-{variant}"
             if not policies[variant]:
                 raise ValueError(f"--variants {variant} needs {flag} MODEL.zip (from simshear train rl)")
-            if not Path(policies[variant]).is_file():
+            if not Path(policies[variant]).is_file() and not has_policy_files(policies[variant]):
                 raise FileNotFoundError(f"{flag} {policies[variant]!r}: no such model file")
             algorithm = sb3_algorithm(policies[variant])
             if variant != "policy" and algorithm != variant:

@@ -9,9 +9,9 @@ from pathlib import Path
 def write_translator_card(weights: Path, train_command: str, translation_results: Path, contact: str,
                           arch: str, date: str, notes: str = "") -> Path:
     """Write ``<weights>.md`` from the weights' embedded training record and ``results/translation.json``."""
-    import torch
+    from simshear_gym.models.weights_io import read_weights
 
-    payload = torch.load(weights, map_location="cpu", weights_only=True)
+    payload = read_weights(weights, "translator")
     card = payload.get("card", {})
     config = card.get("train_config", {})
     best = card.get("best", {})

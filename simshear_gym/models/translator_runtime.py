@@ -9,7 +9,8 @@ An ONNX translator is a shipped generator exported by ``simshear train export-on
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
 image (``floor(255 y + 0.5)`` clamped, as the torch path rounds). Its metadata records the sha256 of the torch
-weights it came from, so that ``"auto"`` never runs an ONNX file that is older than the weights beside it.
+weights it came from, so that ``"auto"`` never runs an ONNX file that is older than the weights beside it, and its
+own sha256 lies beside it (``<file>.onnx.sha256``), checked at load: a corrupt file is an error naming it.
 
 Runtimes (:data:`RUNTIMES`): ``"torch"``; ``"onnx"`` (fails with a message naming what is missing);
 ``"auto"``: ONNX where ``onnxruntime`` is installed and an up-to-date ``.onnx`` lies beside the ``.pt``, else torch.
@@ -28,6 +29,8 @@ import os
 from pathlib import Path
 
 import numpy as np
+
+from simshear_gym.io import verify_checksum
 
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
@@ -149,6 +152,7 @@ class OnnxTranslator:
             raise FileNotFoundError(f"ONNX translator {self.path} not found")
         if not (isinstance(threads, int) and threads >= 1):
             raise ValueError(f"threads must be an int >= 1, got {threads!r}")
+        verify_checksum(self.path)  # a flipped bit in an initializer loads fine and makes black images
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads
         options.inter_op_num_threads = 1

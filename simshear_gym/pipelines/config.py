@@ -25,11 +25,16 @@ Tables (``configs/tactip331.toml`` describes the shipped sensor; ``configs/READM
   key by key.
 
 Every error is a :class:`~simshear_gym.tables.ConfigError` naming the file, the key, the value and what was
-expected, raised before anything reads data.
+expected, raised before anything reads data or writes a file.
+
+Names (the sensor's ``name``, each ``[datasets.<name>]``, ``[env_models.<name>]`` and pool generator ``name``) name
+folders and files of a run, so a name is a name: it matches :data:`NAME_PATTERN` (letters, digits, ``_`` and ``-``,
+starting with a letter or digit, at most 64 characters): no path separator, no ``..``, no space.
 """
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -43,6 +48,18 @@ from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.tables import ConfigError, from_table, read_toml
 from simshear_gym.train.runs import LR_SCHEDULES
+
+NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}"
+"""What a name of the config may be (it names a folder of the run): letters, digits, '_' and '-', starting with a
+letter or digit, at most 64 characters."""
+
+
+def check_name(kind: str, name) -> str:
+    """``name`` if it matches :data:`NAME_PATTERN`, else a ValueError naming ``kind`` and the value."""
+    if not isinstance(name, str) or not re.fullmatch(NAME_PATTERN, name):
+        raise ValueError(f"{kind} {name!r} is not a name: it names a folder of the run, so it must match "
+                         f"{NAME_PATTERN} (letters, digits, '_' and '-'; no path separators, no '..', no spaces)")
+    return name
 
 
 def _check_per_contact(name: str, mapping: Mapping, valid, expected: str) -> None:
@@ -231,8 +248,7 @@ class PoolGenerator:
     reader_seed: int = 0
 
     def __post_init__(self) -> None:
-        if not self.name or not self.name.replace("_", "").isalnum():
-            raise ValueError(f"name must be letters, digits or '_' (it names a stage), got {self.name!r}")
+        check_name("pool generator name", self.name)
         if self.contact not in ("", *CONTACTS):
             raise ValueError(f"contact must be one of {list(CONTACTS)} or '' (every one), got {self.contact!r}")
         if self.draws < 1 or (self.epochs is not None and self.epochs < 1):
@@ -384,16 +400,16 @@ class ExperimentConfig:
     path: Path | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
-        if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
-            raise ValueError(f"name must be letters, digits, '-' or '_' (it names folders), got {self.name!r}")
+        check_name("name", self.name)
         if not self.datasets:
             raise ValueError("datasets must name at least one [datasets.<name>] table")
         stray = sorted(set(self.dataset_frames) - set(self.datasets))
         if stray:
             raise ValueError(f"dataset_frames: {stray[0]!r} is no dataset; expected one of {sorted(self.datasets)}")
-        bad = [name for name in self.env_models if not name or not name.replace("_", "").isalnum()]
-        if bad:
-            raise ValueError(f"env_models: a name must be letters, digits or '_' (it names a run), got {bad[0]!r}")
+        for name in self.datasets:
+            check_name("datasets: the dataset name", name)
+        for name in self.env_models:
+            check_name("env_models: the model name", name)
         contacts = {dataset.contact for dataset in self.datasets.values()}
         for name, profile in self.profiles.items():
             unused = sorted(({g.contact for g in profile.pool if g.contact}
@@ -443,6 +459,11 @@ def load_config(path: str | Path) -> ExperimentConfig:
     datasets_table = table.get("datasets")
     if not isinstance(datasets_table, dict) or not datasets_table:
         raise ConfigError(f"{source}: missing [datasets.<name>] tables (one per task)")
+    for name in list(datasets_table) + list(table.get("env_models") or {}):
+        try:  # before the tables: a bad name is the first thing said
+            check_name("the table name", name)
+        except ValueError as error:
+            raise ConfigError(f"{source}: {error}") from None
     dataset_frames = {name: from_table(FrameConfig, value["frame"], source, f"datasets.{name}.frame")
                       for name, value in datasets_table.items() if isinstance(value, dict) and "frame" in value}
     datasets = {name: from_table(DatasetConfig, {k: v for k, v in value.items() if k != "frame"}

@@ -321,7 +321,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
         raise FileNotFoundError(f"translator weights {weights} not found")
     import onnx
 
-    from simshear_gym.io import atomic_write
+    from simshear_gym.io import atomic_write, write_checksum
     from simshear_gym.models.translator_runtime import METADATA_KEY, file_sha256
 
     to = Path(to) if to is not None else weights.with_suffix(".onnx")
@@ -347,6 +347,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
               "card": {"torch_card": torch_card, "check": check}}
     onnx.helper.set_model_props(model, {METADATA_KEY: json.dumps(record, default=float)})
     atomic_write(to, lambda tmp: onnx.save_model(model, tmp))
+    write_checksum(to)  # checked when the file is loaded
     size_bytes = to.stat().st_size
     evaluation = full_evaluation(translation_results, to, contact_name) if translation_results is not None else {}
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")

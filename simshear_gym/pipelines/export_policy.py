@@ -1,14 +1,20 @@
 """Ship a policy of ``simshear train rl``: ``simshear train export-policy --run RUN --to DIR --train-command ...``.
 
-A shipped policy is a folder, the layout :meth:`~simshear_gym.control.policy.SB3Controller.load` reads:
-``model.zip`` (the run's ``best_model.zip`` by default, ``--model final``: its ``model.zip``), ``vecnormalize.pkl``
-(that model's VecNormalize statistics), ``config.json`` (the run's settings, so the benchmark and the robot rebuild
-the observation it was trained on, plus the sha256 of the translator and GDNN that made its observations at export)
-and the card ``model.md``: the exact command, the budget and the seed, the run's own evaluations and, with
-``--results``, the figures of ``simshear evaluate servo`` on it.
+A shipped policy is a folder, the layout :meth:`~simshear_gym.control.policy.SB3Controller.load` reads, with no
+pickle in it: ``model.pt`` and ``model.json`` (the policy's pickle-free files,
+:mod:`~simshear_gym.control.policy_files`: its network's state dict, and what rebuilds it with the sha256 of the
+``.pt``; the run's ``best_model`` by default, ``--model final``: its ``model``), ``vecnormalize.json`` (that model's
+VecNormalize statistics), ``config.json`` (the run's settings, so the benchmark and the robot rebuild the observation
+it was trained on, plus the sha256 of the translator and GDNN that made its observations at export) and the card
+``model.md``: the exact command, the budget and the seed, the run's own evaluations and, with ``--results``, the
+figures of ``simshear evaluate servo`` on it.
 
-``simshear evaluate servo --variants ppo --policy-ppo DIR/model.zip`` and ``simshear rollout --policy
-DIR/model.zip`` load it like a run folder.
+A run of an older simshear has only SB3's ``.zip`` and a pickled ``vecnormalize.pkl``: ``--trust-pickle`` converts
+them (by unpickling: only for runs you made yourself), and ``--convert DIR --trust-pickle`` converts a shipped
+folder of that kind in place, keeping its settings and card.
+
+``simshear evaluate servo --variants ppo --policy-ppo DIR/model.pt`` and ``simshear rollout --policy
+DIR/model.pt`` load it like a run folder.
 """
 
 from __future__ import annotations
@@ -23,34 +29,113 @@ from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.pipelines.ship import WEIGHTS_DIR
 
 POLICY_WEIGHTS_DIR = WEIGHTS_DIR / "policies"
-"""Where the package's policies live: ``policies/<name>/model.zip`` with its card ``model.md``."""
+"""Where the package's policies live: ``policies/<name>/model.pt`` (+ ``model.json``) with its card ``model.md``."""
+SHIPPED_FILES = ("model.pt", "model.json", "vecnormalize.json", "config.json", "model.md")
+"""The files of a shipped policy."""
+PICKLES = ("model.zip", "vecnormalize.pkl")
+CONVERTED = "- Converted to pickle-free files"
+"""The pickle-bearing files of older shipped policies (removed by a conversion)."""
 MODEL_CHOICES = ("best", "final")
 ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift")}
 """task -> (env id, the shipped GDNN its estimate observation reads)."""
 
 
 def source_files(run: Path, model: str) -> tuple[Path, Path | None]:
-    """The model ``.zip`` of a run (``best``: ``best_model.zip``, ``final``: ``model.zip``) and its VecNormalize
-    statistics (None for a run without normalisation).
+    """The model of a run (``best``: ``best_model``, ``final``: ``model``; its SB3 ``.zip`` path, whose pickle-free
+    files lie beside it) and its VecNormalize statistics (``.json``; an older run's ``.pkl``; None for a run without
+    normalisation).
 
     Raises:
         FileNotFoundError: the run lacks that model or its ``config.json``.
     """
     from simshear_gym.control.policy import RUN_CONFIG, vecnormalize_path
+    from simshear_gym.control.policy_files import has_policy_files
 
     if model not in MODEL_CHOICES:
         raise ValueError(f"model must be one of {MODEL_CHOICES}, got {model!r}")
     if not (run / RUN_CONFIG).is_file():
         raise FileNotFoundError(f"{run} is not a run of simshear train rl: no {RUN_CONFIG}")
     zip_path = run / ("best_model.zip" if model == "best" else "model.zip")
-    if not zip_path.is_file():
+    if not zip_path.is_file() and not has_policy_files(zip_path):
         hint = " (the run never evaluated: pass --model final, or train with --eval-steps)" if model == "best" else ""
         raise FileNotFoundError(f"no {zip_path.name} in {run}{hint}")
     config = json.loads((run / RUN_CONFIG).read_text())
-    stats = vecnormalize_path(zip_path)
+    stats = vecnormalize_path(zip_path) or vecnormalize_path(zip_path, ".pkl")
     if config.get("normalize", True) and stats is None:
         raise FileNotFoundError(f"{zip_path} was trained with VecNormalize but its statistics are missing in {run}")
     return zip_path, stats
+
+
+def write_policy_files(zip_path: Path, stats: Path | None, to: Path, trust_pickle: bool = False) -> None:
+    """``to/model.pt``, ``to/model.json`` and ``to/vecnormalize.json`` from a model and its statistics: copied
+    where they are pickle-free, else (``trust_pickle``) converted by loading the SB3 ``.zip`` / ``.pkl``.
+
+    Raises:
+        PolicyFileError: a pickle to convert without ``trust_pickle``.
+    """
+    from simshear_gym.control.policy import load_normalizer, sb3_algorithm, sb3_class
+    from simshear_gym.control.policy_files import (
+        PolicyFileError,
+        has_policy_files,
+        load_policy,
+        policy_files,
+        save_normalizer,
+        save_policy,
+    )
+
+    if has_policy_files(zip_path):
+        load_policy(zip_path)  # whole and loadable (its sha256 checked) before it ships
+        for source, target in zip(policy_files(zip_path), policy_files(to / "model.pt")):
+            atomic_write(target, lambda tmp, source=source: shutil.copyfile(source, tmp))
+        # the description names its weights file: model.pt now
+        description = json.loads((to / "model.json").read_text())
+        write_json(to / "model.json", {**description, "weights": "model.pt"})
+    elif not trust_pickle:
+        raise PolicyFileError(f"{zip_path}: a Stable-Baselines3 .zip without pickle-free policy files (a run of an "
+                              "older version); converting it unpickles it, which runs whatever code it carries: "
+                              "pass --trust-pickle if you made this run yourself")
+    else:
+        save_policy(sb3_class(sb3_algorithm(zip_path)).load(zip_path, device="cpu"), to / "model.pt")
+    if stats is None:
+        (to / "vecnormalize.json").unlink(missing_ok=True)
+    elif stats.suffix == ".json":
+        atomic_write(to / "vecnormalize.json", lambda tmp: shutil.copyfile(stats, tmp))
+    else:
+        save_normalizer(load_normalizer(stats, trust_pickle), to / "vecnormalize.json")
+    for name in PICKLES:
+        (to / name).unlink(missing_ok=True)
+
+
+def convert_shipped(folder: Path, trust_pickle: bool = False) -> Path:
+    """Convert a shipped policy of an older version (``model.zip``, ``vecnormalize.pkl``) in place to the
+    pickle-free files, keeping its ``config.json`` and card (whose file list is updated); returns the card.
+
+    Raises:
+        FileNotFoundError: not a shipped policy folder with a ``model.zip``.
+        PolicyFileError: without ``trust_pickle``.
+    """
+    folder = Path(folder)
+    if not (folder / "model.zip").is_file() or not (folder / "model.md").is_file():
+        raise FileNotFoundError(f"{folder}: not an older shipped policy (expected model.zip and model.md)")
+    stats = folder / "vecnormalize.pkl"
+    write_policy_files(folder / "model.zip", stats if stats.is_file() else None, folder, trust_pickle)
+    card = (folder / "model.md").read_text().splitlines()
+    card = [line for line in card if not line.startswith(CONVERTED)]
+    at = next((i for i, line in enumerate(card) if line.startswith("- Files:")), 1)
+    card[at:at + 1] = [files_line(folder), f"{CONVERTED} from the pickled SB3 `model.zip` and `vecnormalize.pkl` it "
+                       f"was trained as (`simshear train export-policy --convert {recorded_path(folder)} "
+                       "--trust-pickle`): the same network and statistics, so the same actions."]
+    atomic_write(folder / "model.md", lambda tmp: Path(tmp).write_text("\n".join(card) + "\n"), suffix=".md")
+    return folder / "model.md"
+
+
+def files_line(to: Path) -> str:
+    """The card's line on a shipped policy's files."""
+    size_mib = (to / "model.pt").stat().st_size / 2**20
+    stats = ", `vecnormalize.json` (observation statistics)" if (to / "vecnormalize.json").is_file() else ""
+    return (f"- Files: `model.pt` ({size_mib:.2f} MiB, the policy network's state dict), `model.json` (what rebuilds "
+            f"the network, with the sha256 of `model.pt`){stats}, `config.json` (the env settings it was trained "
+            "with); no pickle: loading runs no code from them")
 
 
 def model_hashes(task: str) -> dict[str, str]:
@@ -63,17 +148,14 @@ def model_hashes(task: str) -> dict[str, str]:
 
 
 def export(run: Path, to: Path, train_command: str, model: str = "best", results: Path | None = None,
-           variant: str = "ppo", date: str | None = None) -> Path:
-    """Copy a run's policy into ``to`` and write its card; returns the card's path."""
+           variant: str = "ppo", date: str | None = None, trust_pickle: bool = False) -> Path:
+    """Write a run's policy into ``to`` as pickle-free files (:func:`write_policy_files`; ``trust_pickle``: convert
+    an older run's pickles) and its card; returns the card's path."""
     run, to = Path(run), Path(to)
     zip_path, stats = source_files(run, model)
     config = json.loads((run / "config.json").read_text())
     to.mkdir(parents=True, exist_ok=True)
-    atomic_write(to / "model.zip", lambda tmp: shutil.copyfile(zip_path, tmp), suffix=".zip")
-    if stats is not None:
-        atomic_write(to / "vecnormalize.pkl", lambda tmp: shutil.copyfile(stats, tmp), suffix=".pkl")
-    elif (to / "vecnormalize.pkl").exists():
-        (to / "vecnormalize.pkl").unlink()
+    write_policy_files(zip_path, stats, to, trust_pickle)
     provenance = {"train_command": train_command, "exported_from": f"{run.name}/{zip_path.name}",
                   "estimator_models_sha256": model_hashes(config["task"])}
     write_json(to / "config.json", {**config, "provenance": provenance})
@@ -94,7 +176,6 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
               servo: dict, variant: str, results: Path | None, date: str) -> str:
     """The Markdown card of a shipped policy."""
     env_id, posenet = ENV_MODELS[config["task"]]
-    size_mib = (to / "model.zip").stat().st_size / 2**20
     # best_model.zip is the model of the last evaluation that set a new best
     chosen = next((entry for entry in reversed(evaluations) if entry.get("best")), None) if model == "best" else (
         evaluations[-1] if evaluations else None)
@@ -109,8 +190,7 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
     lines = [
         f"# {config['algo'].upper()} policy, {config['task']}",
         "",
-        f"- Files: `model.zip` ({size_mib:.2f} MiB), `vecnormalize.pkl` (observation statistics), `config.json` "
-        "(the env settings it was trained with)",
+        files_line(to),
         f"- Date: {date}",
         f"- Env: `{env_id}`, randomised episodes (random trajectories; scale, speed, turn and start drawn per reset), "
         f"`obs_mode={config['obs_mode']}` ({config['image_size_px']} px images through the shipped shPix2pix), "
@@ -167,19 +247,35 @@ def _imitation_line(imitation: dict, config: dict) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--run", type=Path, required=True, help="run folder of simshear train rl")
-    parser.add_argument("--to", type=Path, required=True,
+    parser.add_argument("--run", type=Path, default=None, help="run folder of simshear train rl")
+    parser.add_argument("--to", type=Path, default=None,
                         help="the shipped policy's folder, e.g. simshear_gym/models/weights/policies/tracking_ppo")
     parser.add_argument("--model", choices=MODEL_CHOICES, default="best",
-                        help="best: the run's best evaluated model (best_model.zip), final: its last (model.zip)")
-    parser.add_argument("--train-command", required=True, help="the exact simshear train rl command of the run")
+                        help="best: the run's best evaluated model (best_model), final: its last (model)")
+    parser.add_argument("--train-command", default=None, help="the exact simshear train rl command of the run")
     parser.add_argument("--results", type=Path, default=None,
                         help="a results/*.json of simshear evaluate servo on this policy, quoted in the card")
     parser.add_argument("--variant", default="ppo", help="the policy's variant name in --results (ppo, sac, ...)")
     parser.add_argument("--date", default=None, help="the card's date (default today)")
+    parser.add_argument("--convert", type=Path, default=None, metavar="DIR",
+                        help="instead of exporting a run: convert a shipped policy folder of an older version "
+                             "(model.zip, vecnormalize.pkl) in place to pickle-free files (needs --trust-pickle)")
+    parser.add_argument("--trust-pickle", action="store_true",
+                        help="convert SB3 .zip / vecnormalize.pkl files of an older version by unpickling them. A "
+                             "pickle runs whatever code it carries when loaded (a crafted policy file is a program): "
+                             "only for files you made yourself, never for policies from e-mail or shared drives")
 
 
 def run(args: argparse.Namespace) -> int:
-    card = export(args.run, args.to, args.train_command, args.model, args.results, args.variant, args.date)
-    print(f"wrote {args.to / 'model.zip'} and {card}")
+    if args.convert is not None:
+        card = convert_shipped(args.convert, args.trust_pickle)
+        print(f"converted {args.convert} to pickle-free files ({', '.join(SHIPPED_FILES)}); card {card}")
+        return 0
+    missing = [flag for flag, value in (("--run", args.run), ("--to", args.to),
+                                        ("--train-command", args.train_command)) if value is None]
+    if missing:
+        raise ValueError(f"export-policy needs {' and '.join(missing)} (or --convert DIR)")
+    card = export(args.run, args.to, args.train_command, args.model, args.results, args.variant, args.date,
+                  args.trust_pickle)
+    print(f"wrote {args.to / 'model.pt'} and {card}")
     return 0

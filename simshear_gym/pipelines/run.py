@@ -26,6 +26,9 @@ part of their cache keys.
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
 
+SIGTERM or SIGINT stops the run and all its processes (:mod:`simshear_gym.pipelines.stopping`): exit status 128 +
+the signal, one ``simshear: error:`` line; the rerun resumes.
+
 The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, the machine
 (:func:`simshear_gym.machine.machine_info`: wall times are that machine's), per stage its folder, whether it ran or
 was cached, wall time and metrics.
@@ -36,6 +39,7 @@ from __future__ import annotations
 import argparse
 import json
 import subprocess
+import sys
 import time
 from dataclasses import asdict, replace
 from functools import partial
@@ -53,6 +57,7 @@ from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
+from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
 POSE_NAMES = {"pose_x": "x_mm", "pose_y": "y_mm", "pose_z": "z_mm", "pose_rx": "rx_deg", "pose_ry": "ry_deg",
@@ -510,8 +515,14 @@ def run(args: argparse.Namespace) -> int:
 
     config = only_contacts(load_config(args.config), args.contacts)
     out = args.out or Path("runs") / "pipeline" / config.name
-    manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
-                            args.workers, args.jobs, getattr(args, "device", None))
+    try:
+        with stop_on_signals():
+            manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
+                                    args.workers, args.jobs, getattr(args, "device", None))
+    except RunStopped as stopped:  # the pools were ended on the way out; anything left is ended here
+        end_children()
+        print(f"simshear: error: pipeline run {out}: {stopped}", file=sys.stderr)
+        return 128 + stopped.signum
     ran = sum(result["ran"] for result in manifest["results"])
     print(f"{config.name}: {len(manifest['results'])} stage steps ({ran} ran, "
           f"{len(manifest['results']) - ran} cached) in {manifest['wall_s']:.1f} s; manifest {out / 'manifest.json'}")

@@ -24,6 +24,23 @@ from simshear_gym.train.runs import CAP_STOP
 RECORD = "stage.json"
 
 
+class StageFolderError(ValueError):
+    """A stage name that would put its folder (and so its writes) outside the run folder."""
+
+
+def stage_folder(root: Path, name: str, stage_hash: str) -> Path:
+    """``root/<name>/<hash>``, checked to lie inside ``root`` (a name with ``..`` or an absolute part would not),
+    before anything is written."""
+    parts = Path(name).parts
+    if not parts or Path(name).is_absolute() or any(part in ("..", ".", "") for part in parts):
+        raise StageFolderError(f"stage name {name!r} would write outside the run folder {root}; expected names "
+                               "of letters, digits, '_', '-' separated by '/'")
+    folder = root / name / stage_hash
+    if not folder.resolve().is_relative_to(root.resolve()):
+        raise StageFolderError(f"stage {name!r}: its folder {folder} resolves outside the run folder {root}")
+    return folder
+
+
 def digest(value: Any) -> str:
     """A short, stable content hash of JSON-able settings (dataclasses, paths and tuples allowed)."""
     text = json.dumps(_plain(value), sort_keys=True, separators=(",", ":"))
@@ -85,9 +102,14 @@ class StageRunner:
         """Run ``work(folder) -> {"outputs": {...}, "metrics": {...}}`` unless its record exists.
 
         ``key`` is everything the stage's result depends on: settings, seeds and its inputs' hashes.
-        Output paths in the record are relative to ``root``."""
+        Output paths in the record are relative to ``root`` and must lie inside it.
+
+        Raises:
+            StageFolderError: the stage's folder or an output would lie outside ``root`` (checked before ``work``
+                runs for the folder).
+        """
         stage_hash = digest(key)
-        folder = self.root / name / stage_hash
+        folder = stage_folder(self.root, name, stage_hash)
         record_path = folder / RECORD
         if record_path.exists():
             record = json.loads(record_path.read_text())
@@ -106,8 +128,12 @@ class StageRunner:
                     f"finished epochs ({metrics.get('elapsed_s')} s of training) in {folder}: not the recipe's model, "
                     "so it is not recorded. Rerun the same command to continue it from that epoch: each run trains "
                     "a stage for at most cap_minutes (a changed cap_minutes starts the stage afresh)")
+            outputs = _plain(produced.get("outputs", {}))
+            for output in _leaves(outputs):
+                if isinstance(output, str) and (Path(output).is_absolute() or ".." in Path(output).parts):
+                    raise StageFolderError(f"[{name}] output {output!r} lies outside the run folder {self.root}")
             record = {"stage": name, "hash": stage_hash, "key": _plain(key),
-                      "outputs": _plain(produced.get("outputs", {})), "metrics": _plain(metrics),
+                      "outputs": outputs, "metrics": _plain(metrics),
                       "wall_s": round(time.perf_counter() - start, 2), "resumed": resumed}
             write_json(record_path, record)
             self.log(f"[{name}] done in {record['wall_s']:.1f} s")
@@ -116,4 +142,16 @@ class StageRunner:
         return result
 
     def relative(self, path: Path) -> str:
-        return str(Path(path).resolve().relative_to(self.root.resolve()))
+        """``path`` relative to the run folder (a StageFolderError outside it)."""
+        try:
+            return str(Path(path).resolve().relative_to(self.root.resolve()))
+        except ValueError:
+            raise StageFolderError(f"{path} lies outside the run folder {self.root}") from None
+
+
+def _leaves(value: Any) -> list:
+    if isinstance(value, dict):
+        return [leaf for item in value.values() for leaf in _leaves(item)]
+    if isinstance(value, list):
+        return [leaf for item in value for leaf in _leaves(item)]
+    return [value]

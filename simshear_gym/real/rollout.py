@@ -45,6 +45,7 @@ from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported f
     SB3Controller,
     sb3_algorithm,
 )
+from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.io import atomic_write, write_json
 
 logger = logging.getLogger(__name__)
@@ -329,12 +330,12 @@ def _policy_path(args: argparse.Namespace) -> str | None:
     if (args.policy is None) == (args.controller is None):
         raise ValueError("give --controller servo|MODEL.zip or --policy MODEL.zip (one of them)")
     if args.policy is not None:
-        if not Path(args.policy).is_file():
+        if not Path(args.policy).is_file() and not has_policy_files(args.policy):
             raise FileNotFoundError(f"--policy {args.policy!r}: no such SB3 .zip file")
         return args.policy
     if args.controller == "servo":
         return None
-    if not Path(args.controller).is_file():
+    if not Path(args.controller).is_file() and not has_policy_files(args.controller):
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
     return args.controller
 

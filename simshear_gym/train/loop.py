@@ -51,6 +51,42 @@ from simshear_gym.train.runs import CAP_STOP, check_same_settings, run_progress,
 LOG_EVERY_STEPS = 20  # training scalars to tensorboard
 
 
+class CheckpointError(ValueError):
+    """A ``checkpoint.pt`` that cannot be resumed from (unreadable, or holding objects that would run code)."""
+
+
+def numpy_globals() -> list:
+    """What a checkpoint's numpy parts (generator states, arrays, scalars) unpickle through: array and scalar
+    reconstruction and the dtypes, nothing that runs code; allowlisted for ``torch.load(weights_only=True)``."""
+    try:
+        from numpy._core import multiarray
+    except ImportError:  # numpy < 2
+        from numpy.core import multiarray
+    dtypes = [type(np.dtype(code)) for code in "?bBhHiIlLqQefdgFDGUS"]
+    return [np.ndarray, np.dtype, multiarray._reconstruct, multiarray.scalar, *dtypes]
+
+
+def load_checkpoint(path: Path) -> dict:
+    """A ``checkpoint.pt`` read with ``torch.load(weights_only=True)`` and numpy's arrays allowlisted
+    (:func:`numpy_globals`): a crafted file whose pickle would call anything else is refused, nothing run.
+
+    Raises:
+        CheckpointError: naming the file (corrupt, truncated, or not a checkpoint of plain data and tensors).
+    """
+    try:
+        with torch.serialization.safe_globals(numpy_globals()):
+            state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # noqa: BLE001 - torch raises RuntimeError, UnpicklingError, EOFError...
+        reason = " ".join(str(error).split())[:240]
+        raise CheckpointError(f"{path}: cannot be resumed from: not a checkpoint of plain data and tensors that "
+                              f"loads without running code ({type(error).__name__}: {reason}); delete it to train "
+                              "the run afresh") from None
+    if not isinstance(state, dict) or "config" not in state:
+        raise CheckpointError(f"{path}: not a training checkpoint (expected a table with 'config'); delete it to "
+                              "train the run afresh")
+    return state
+
+
 def save_checkpoint(run_dir: Path, state: dict, config, history: list[dict]) -> None:
     """Write ``checkpoint.pt`` (``state``) and ``history.json`` atomically: a crash mid-write leaves the previous
     files whole."""
@@ -167,11 +203,11 @@ class EpochTrainer(ABC):
 
     def resume(self) -> bool:
         """Continue from ``checkpoint.pt`` if there is one; returns whether it did. Refuses a checkpoint trained
-        with other settings (outside :attr:`resume_free`)."""
+        with other settings (outside :attr:`resume_free`) and one that would run code (:func:`load_checkpoint`)."""
         path = self.run_dir / "checkpoint.pt"
         if not path.is_file():
             return False
-        state = torch.load(path, map_location="cpu", weights_only=False)
+        state = load_checkpoint(path)
         check_same_settings(path, state["config"], self.config, self.resume_free)
         self.load_trainer_state(state)
         self.epoch, self.step = state["epoch"], state["step"]

@@ -35,13 +35,15 @@ to tensorboard (``eval/*`` against env steps: the learning curve) and ``evaluati
 
 Run directory: ``config.json`` (these settings and the residual law's gains: what
 :meth:`~simshear_gym.control.policy.SB3Controller.load` reads to rebuild the env's observation), tensorboard logs
-``tb/``, ``checkpoints/rl_model_<steps>_steps.zip`` with ``rl_model_vecnormalize_<steps>_steps.pkl`` every
+``tb/``, ``checkpoints/rl_model_<steps>_steps.zip`` with ``rl_model_vecnormalize_<steps>_steps.json`` every
 ``--checkpoint-steps``, ``evaluations.json`` and ``learning_curve.png``, ``best_model.zip`` with
-``best_model_vecnormalize.pkl`` (the evaluation with the lowest mean contact error among those without an early
-end, else the lowest), and the final ``model.zip`` with ``vecnormalize.pkl``, ``summary.json``. ``--resume``
-continues from the newest checkpoint (or ``model.zip``) and its normalisation statistics, the step count carried
+``best_model_vecnormalize.json`` (the evaluation with the lowest mean contact error among those without an early
+end, else the lowest), and the final ``model.zip`` with ``vecnormalize.json``, ``summary.json``; beside every
+``<stem>.zip`` the policy's pickle-free ``<stem>.pt`` and ``<stem>.json``, what controllers load
+(:mod:`~simshear_gym.control.policy_files`; no pickle is written). ``--resume`` continues from the newest
+checkpoint (or ``model.zip``, read without unpickling) and its normalisation statistics, the step count carried
 on (SAC's replay buffer starts empty). Evaluate: ``simshear evaluate servo --variants ppo --policy-ppo
-OUT/model.zip``; on the robot: ``simshear rollout --policy OUT/model.zip``.
+OUT/model.pt``; on the robot: ``simshear rollout --policy OUT/model.pt``.
 
 This module is the command, its flags and its settings; it imports no torch (``--help`` stays fast). The trainer
 is :mod:`simshear_gym.train.rl_trainer`, the settings :mod:`simshear_gym.train.rl_config`.

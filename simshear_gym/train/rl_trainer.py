@@ -1,11 +1,20 @@
 """The trainer of ``simshear train rl`` (:mod:`simshear_gym.train.rl`: the command and the run folder's layout;
 :mod:`simshear_gym.train.rl_config`: its settings): the envs, VecNormalize, the agent, checkpoints, the wall-clock
-budget and the periodic evaluation."""
+budget and the periodic evaluation.
+
+Every saved model (``model``, ``best_model``, the checkpoints ``rl_model_<N>_steps``) is SB3's ``.zip`` (what a
+resumed run continues: optimiser state, counters) plus the policy's pickle-free ``<stem>.pt`` and ``<stem>.json``
+(:mod:`~simshear_gym.control.policy_files`, what a controller loads) and its VecNormalize statistics as JSON; no
+pickle is written. A resumed run reads the ``.zip`` without unpickling its cloudpickled entries (the spaces, the
+policy class and the schedules are given from the run's settings instead: :func:`load_agent`) and the statistics
+from their JSON."""
 
 from __future__ import annotations
 
+import inspect
 import json
 import time
+import zipfile
 from dataclasses import asdict, fields
 from functools import partial
 from pathlib import Path
@@ -26,6 +35,7 @@ from simshear_gym.control.policy import (
     sb3_class,
     vecnormalize_path,
 )
+from simshear_gym.control.policy_files import restore_vec_normalize, save_normalizer, save_policy
 from simshear_gym.control.servo import SERVO_GAINS
 from simshear_gym.io import atomic_write, write_json
 from simshear_gym.models.device import resolve_device
@@ -221,10 +231,64 @@ class WallClockBudget(BaseCallback):
 
 
 def save_model(model, vec_normalize, path: Path, stats_path: Path) -> None:
-    """The model ``.zip`` and its VecNormalize statistics, each written atomically."""
+    """The model: SB3's ``.zip`` (to resume from), the policy's pickle-free ``.pt`` + ``.json`` beside it, and its
+    VecNormalize statistics as JSON (``stats_path``), each written atomically."""
     atomic_write(path, lambda tmp: model.save(tmp), suffix=".zip")
+    save_policy(model, path)
     if vec_normalize is not None:
-        atomic_write(stats_path, lambda tmp: vec_normalize.save(tmp), suffix=".pkl")
+        save_normalizer(vec_normalize, stats_path)
+
+
+class Checkpoints(CheckpointCallback):
+    """SB3's periodic checkpoints, each saved as :func:`save_model` saves (``rl_model_<N>_steps.zip`` with its
+    pickle-free policy files and ``rl_model_vecnormalize_<N>_steps.json``; no pickle)."""
+
+    def _on_step(self) -> bool:
+        if self.n_calls % self.save_freq == 0:
+            save_model(self.model, self.model.get_vec_normalize_env(), Path(self._checkpoint_path(extension="zip")),
+                       Path(self._checkpoint_path("vecnormalize_", extension="json")))
+        return True
+
+
+# SB3 ``.zip`` entries that are cloudpickled and rebuilt on resume from the run itself: None is what a fresh
+# ``learn`` fills in (the last observation, the episode buffers) or what ``_setup_model`` derives (the buffers'
+# classes, the learning-rate schedule from ``learning_rate``)
+RESET_ON_RESUME = ("_last_obs", "_last_episode_starts", "_last_original_obs", "ep_info_buffer", "ep_success_buffer",
+                   "rollout_buffer_class", "replay_buffer_class", "lr_schedule", "action_noise")
+
+
+def load_agent(Algorithm, path: Path, env, config: RLTrainConfig, **kwargs):
+    """SB3's ``Algorithm.load`` of a run's ``.zip`` without unpickling any of its entries: the spaces are the env's,
+    the policy class the run's, the schedules rebuilt from the run's settings (a hyper-parameter the trainer does
+    not set takes the algorithm's default, as it had in training); the tensors load with ``weights_only``.
+
+    Raises:
+        ValueError: the ``.zip`` holds a pickled entry this trainer does not know how to rebuild.
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+    except (OSError, KeyError, zipfile.BadZipFile, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a Stable-Baselines3 model .zip ({error})") from None
+    pickled = [key for key, value in data.items() if isinstance(value, dict) and ":serialized:" in value]
+    defaults = {name: parameter.default for name, parameter in inspect.signature(Algorithm.__init__).parameters.items()
+                if parameter.default is not inspect.Parameter.empty}
+    if config.asymmetric_critic:
+        from simshear_gym.control.asymmetric import AsymmetricActorCriticPolicy as policy_class
+    else:
+        policy_class = Algorithm.policy_aliases["MultiInputPolicy"]
+    given = {"policy_class": policy_class, "observation_space": env.observation_space,
+             "action_space": env.action_space, **dict.fromkeys(RESET_ON_RESUME)}
+    custom = {}
+    for key in pickled:
+        if key in given:
+            custom[key] = given[key]
+        elif defaults.get(key) is not None:
+            custom[key] = defaults[key]
+        else:
+            raise ValueError(f"{path}: entry {key!r} is pickled and cannot be rebuilt from the run's settings; "
+                             "refusing to unpickle it (start a new run with another --out)")
+    return Algorithm.load(path, env=env, custom_objects=custom, **kwargs)
 
 
 def plot_learning_curve(evaluations: list[dict], path: Path, title: str) -> None:
@@ -324,20 +388,23 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     start_from = latest_checkpoint(run_dir) if resume else None
     vec_normalize = None
     if config.normalize:
-        stats = vecnormalize_path(start_from) if start_from is not None else None
-        if stats is not None:
-            vec_normalize = VecNormalize.load(str(stats), venv)
-            vec_normalize.training = True
-        else:
-            keys = [key for key in venv.observation_space.spaces if key != "tactile"]
-            vec_normalize = VecNormalize(venv, norm_obs=True, norm_reward=config.algo == "ppo",
-                                         norm_obs_keys=keys, gamma=config.gamma)
+        keys = [key for key in venv.observation_space.spaces if key != "tactile"]
+        vec_normalize = VecNormalize(venv, norm_obs=True, norm_reward=config.algo == "ppo",
+                                     norm_obs_keys=keys, gamma=config.gamma)
+        if start_from is not None:
+            stats = vecnormalize_path(start_from)
+            if stats is None:
+                older = vecnormalize_path(start_from, ".pkl")
+                raise ValueError(f"{start_from}: its VecNormalize statistics are "
+                                 + (f"only the pickle {older.name} of an older version, which is not unpickled"
+                                    if older else "missing") + "; start a new run with another --out")
+            restore_vec_normalize(vec_normalize, stats)
     env = vec_normalize if vec_normalize is not None else venv
     Algorithm = sb3_class(config.algo)
     tensorboard = str(run_dir / "tb")
     policy_kwargs = {"net_arch": list(config.net_arch)} if config.net_arch else None
     if start_from is not None:
-        model = Algorithm.load(start_from, env=env, tensorboard_log=tensorboard, device=device)
+        model = load_agent(Algorithm, start_from, env, config, tensorboard_log=tensorboard, device=device)
     elif config.algo == "ppo":
         policy = "MultiInputPolicy"
         if config.asymmetric_critic:
@@ -361,9 +428,8 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     evaluation = EvaluationCallback(config, run_dir, vec_normalize)
     try:
         if remaining > 0:
-            checkpoints = CheckpointCallback(save_freq=max(1, config.checkpoint_steps // config.n_envs),
-                                             save_path=str(run_dir / "checkpoints"), name_prefix="rl_model",
-                                             save_vecnormalize=True)
+            checkpoints = Checkpoints(save_freq=max(1, config.checkpoint_steps // config.n_envs),
+                                      save_path=str(run_dir / "checkpoints"), name_prefix="rl_model")
             model.learn(total_timesteps=remaining, callback=CallbackList([checkpoints, evaluation, budget]),
                         reset_num_timesteps=start_from is None, tb_log_name=config.algo)
         save_model(model, vec_normalize, run_dir / "model.zip", run_dir / VECNORMALIZE)
