@@ -71,6 +71,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "run the servo controller or an SB3 policy on the real (or emulated) MG400 with the TacTip, logging every step"),
     (("experiment", "tracking"), "simshear_gym.lab.experiment",
      "the paper's two-arm tracking experiment: a leader MG400 moves the plate, the follower servos on the TacTip"),
+    (("collect-real",), "simshear_gym.pipelines.collect_real",
+     "record a sensor's tap and shear data set with the MG400 from its config's [collect] protocol (or rehearse it)"),
     (("calibrate-arms",), "simshear_gym.lab.calibrate",
      "the leader MG400's base in the follower's frame, by touching the leader's plate (or from a fixture)"),
     (("evaluate", "experiment"), "simshear_gym.evaluate.experiment",
@@ -168,6 +170,7 @@ INPUT_ERRORS: tuple[tuple[str, str], ...] = (
     ("simshear_gym.real.mg400_client", "FeedbackStaleError"),
     ("simshear_gym.lab.experiment", "ExperimentError"),
     ("simshear_gym.lab.calibrate", "CalibrationError"),
+    ("simshear_gym.lab.collect_real", "CollectError"),
     ("simshear_gym.sim.parallel", "ExecutorError"),
     ("simshear_gym.pipelines.stages", "StageStopped"),
 )
