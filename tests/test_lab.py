@@ -305,3 +305,19 @@ def test_calibration_recovers_a_known_leader_base(tmp_path, torch_one_thread):
         assert tracked["contact_error_mean_mm"] == pytest.approx(tracked["truth_contact_error_mean_mm"], abs=0.15), (
             tracked["contact_error_mean_mm"], tracked["truth_contact_error_mean_mm"])
         assert math.isfinite(tracked["contact_error_mean_mm"])
+
+
+@pytest.mark.slow
+def test_an_sb3_policy_drives_the_follower(tmp_path, torch_one_thread):
+    """The shipped tracking PPO policy (estimate + last action, history 4) through the same run: the env gives it
+    the observation it was trained on; it tracks, and whatever ends the run is a safe stop (this policy turns the
+    sensor about its axis without end, until the safety layer's R range refuses the target)."""
+    from simshear_gym.lab.experiment import run_tracking_rehearsal
+    from simshear_gym.models.posenet_io import shipped_posenet_path
+
+    policy = shipped_posenet_path("surface").parents[1] / "policies" / "tracking_ppo" / "model.zip"
+    summary = run_tracking_rehearsal(ExperimentConfig(trajectory="circle", **SHORT), tmp_path,
+                                     controller=str(policy))
+    assert summary["stop"] in ("", "follower_safety_refused"), summary["stop_reason"]
+    assert summary["tracking_cycles"] > 20 and summary["commands_outside_limits"] == 0
+    assert summary["contact_error_mean_mm"] < 1.5

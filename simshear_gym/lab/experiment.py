@@ -257,14 +257,17 @@ class _Arms:
 
 
 class _Contact:
-    """The env's contact check: not armed during the approach (True), then the GDNN depth >= ``min_depth_mm``."""
+    """The env's contact check: not armed during the approach (True), then the GDNN depth >= ``min_depth_mm``.
+    It sees every frame's image whatever the policy observes, and keeps the last (the approach reads it)."""
 
     def __init__(self, read_depth: Callable[[np.ndarray], float], min_depth_mm: float | None) -> None:
         self.read_depth = read_depth
         self.min_depth_mm = min_depth_mm
         self.armed = False
+        self.last_tactile: np.ndarray | None = None
 
     def __call__(self, observation: dict[str, np.ndarray]) -> bool:
+        self.last_tactile = observation["tactile"]
         if not self.armed or self.min_depth_mm is None:
             return True
         return self.read_depth(observation["tactile"]) >= self.min_depth_mm
@@ -449,10 +452,17 @@ class ExperimentRun:
 
         cfg = self.config
         endpoint = self.follower_endpoint
+        policy = None
+        if self.controller_spec != "servo":
+            from simshear_gym.control.policy import PolicySettings
+
+            policy = PolicySettings.of_model(self.controller_spec)  # the observation it was trained on
         env_config = RealEnvConfig(
             robot_ip=endpoint.host, dashboard_port=endpoint.dashboard_port, motion_port=endpoint.motion_port,
             feedback_port=endpoint.feedback_port, control_period_s=cfg.control_period_s,
-            servo_margin_s=cfg.servo_margin_s, preprocess=cfg.preprocess, image_size_px=cfg.image_size_px,
+            servo_margin_s=cfg.servo_margin_s, preprocess=cfg.preprocess,
+            image_size_px=policy.image_size_px if policy else cfg.image_size_px,
+            observation=policy.observation if policy else "tactile", history=policy.history if policy else 1,
             reference_depth_mm=cfg.reference_depth_mm, posenet=self.posenet,
             start_pose_mm_deg=tuple(follower_hover_pose(cfg, self.calibration.leader_in_follower)),
             action_scale=cfg.action_scale, mount=cfg.mount,
@@ -549,7 +559,7 @@ class ExperimentRun:
             compute_start = time.perf_counter()
             estimate = None
             if phase == "approach":
-                depth = arms.read_depth(observation["tactile"])
+                depth = arms.read_depth(env.contact_check.last_tactile)
                 estimate = (np.array([depth, math.nan, math.nan, math.nan]), np.full(4, math.nan))
                 if depth >= cfg.touch_depth_mm:
                     phase, settle_until = "settle", now + cfg.settle_s
@@ -775,8 +785,12 @@ def draw_run(axes, rows: list[dict[str, Any]], title: str = "") -> None:
         axes.plot(column("target_x_mm"), column("target_y_mm"), column("target_z_mm"), color="red", label="leader")
         axes.plot(column("sensor_x_mm"), column("sensor_y_mm"), column("sensor_z_mm"), color="blue",
                   label="follower", linewidth=0.9)
-        spans = [_span(column(f"target_{n}")) for n in XYZ]
-        axes.set_box_aspect((max(spans[0], 1.0), max(spans[1], 1.0), max(spans[2], 0.3 * max(spans[:2]), 1.0)))
+        # one scale on all three axes, so that a flat path looks flat (and the follower's z wobble true to size)
+        centres = [float(np.nanmean(column(f"target_{n}"))) for n in XYZ]
+        half = max(max(_span(column(f"target_{n}")) for n in XYZ), 1.0) / 2.0 + 2.0
+        axes.set(xlim=(centres[0] - half, centres[0] + half), ylim=(centres[1] - half, centres[1] + half),
+                 zlim=(centres[2] - half, centres[2] + half))
+        axes.view_init(elev=35.0, azim=-130.0)
     axes.set(xlabel="x (mm)", ylabel="y (mm)", zlabel="z (mm)")
     axes.legend(fontsize=8)
     if title:
