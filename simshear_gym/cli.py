@@ -75,6 +75,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "record a sensor's tap and shear data set with the MG400 from its config's [collect] protocol (or rehearse it)"),
     (("calibrate-arms",), "simshear_gym.lab.calibrate",
      "the leader MG400's base in the follower's frame, by touching the leader's plate (or from a fixture)"),
+    (("evaluate", "collect-real"), "simshear_gym.evaluate.collect_real",
+     "collect-real rehearsed on an emulated MG400, killed at a random row and rerun: rows, images, limits, row time"),
     (("evaluate", "experiment"), "simshear_gym.evaluate.experiment",
      "the two-arm tracking experiment rehearsed on every trajectory: contact error, contact loss, loop rate"),
     (("evaluate", "real-cycle"), "simshear_gym.evaluate.real_cycle",

@@ -106,3 +106,19 @@ def test_the_command_rehearses_and_its_config_stub_passes_pipeline_check(tmp_pat
     (report,) = check(load_config(out / "config_stub.toml"), tmp_path)
     assert report.rows["train"] + report.rows["val"] == 12 and report.contact_share == 1.0
     assert {v["name"] for v in report.variables if v["varies"]} == {"pose_z", "move_x", "move_y"}
+
+
+@pytest.mark.slow
+def test_the_benchmark_kills_and_resumes_on_both_stimuli(tmp_path):
+    """``simshear evaluate collect-real`` at a few rows: the collector killed with SIGKILL mid-run and rerun."""
+    import json
+
+    assert main(["evaluate", "collect-real", "--rows", "8", "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "collect_real.json").read_text())
+    assert record["command"].startswith("simshear evaluate collect-real") and (tmp_path / "collect_real.png").is_file()
+    for result in record["results"]:
+        assert result["rows"] == 8 and 1 <= result["killed_at_row"] < 8
+        assert (result["duplicate_images"], result["missing_images"], result["undecodable_images"],
+                result["labels_outside_ranges"], result["emulator_commands_outside_limits"]) == (0, 0, 0, 0, 0)
+        assert result["stray_files"] == [] and result["emulator_commands"] > 8 * 3
+        assert result["labels_match_protocol_rows"]

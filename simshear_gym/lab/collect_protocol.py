@@ -190,8 +190,9 @@ class CollectProtocol:
     def check_reach(self, waypoints: list[dict[str, np.ndarray]], inside, max_move_mm: float,
                     max_move_deg: float, max_speed_mm_s: float) -> None:
         """Raise ``ValueError`` naming the first row and waypoint the arm cannot reach (kinematics), that
-        ``inside`` (flange pose -> bool: the safety layer's workspace) refuses, or a move longer than
-        ``max_move_mm`` or turning more than ``max_move_deg``; and if the protocol's speed exceeds
+        ``inside`` (flange pose -> bool: the safety layer's workspace) refuses, a move longer than ``max_move_mm``,
+        or a move into or along the contact turning more than ``max_move_deg`` (in the air,
+        :func:`~simshear_gym.lab.collect_real.move_to` splits a turn); and if the protocol's speed exceeds
         ``max_speed_mm_s``."""
         if self.speed_mm_s > max_speed_mm_s:
             raise ValueError(f"speed_mm_s = {self.speed_mm_s:g} exceeds the safety layer's {max_speed_mm_s:g} mm/s")
@@ -212,7 +213,7 @@ class CollectProtocol:
                                      f"{np.linalg.norm(point[:3] - previous[:3]):.1f} mm, over the {max_move_mm:g} mm "
                                      "one queued move may jump; narrow the ranges or lower hover_mm")
                 turn_deg = abs((point[3] - previous[3] + 180.0) % 360.0 - 180.0) if previous is not None else 0.0
-                if turn_deg > max_move_deg:
+                if turn_deg > max_move_deg and name != "hover":  # in the air a turn is split into several moves
                     raise ValueError(f"row {index}: the move to its {name} point turns the flange {turn_deg:.1f} "
                                      f"deg, over the {max_move_deg:g} deg one queued move may turn")
                 previous = point

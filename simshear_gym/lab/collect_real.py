@@ -81,10 +81,20 @@ def wait_arrived(client, pose: np.ndarray, timeout_s: float = 10.0, tolerance: f
 
 
 def move_to(client, pose: np.ndarray) -> None:
-    """A MovL to ``pose`` through the safe client, then wait for it."""
-    client.mov_l(*(float(v) for v in pose))
-    client.sync()
-    wait_arrived(client, pose)
+    """MovL to ``pose`` through the safe client, then wait for it; a turn larger than the safety layer lets one
+    queued move make is split into equal moves (position and turn together)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    limit_deg = 0.9 * float(client.safety.config.max_move_deg)
+    start = np.asarray(client.measured_pose(), dtype=np.float64)[:4]
+    turn_deg = float(wrap_deg(pose[3] - start[3]))
+    pieces = max(1, int(math.ceil(abs(turn_deg) / limit_deg)))
+    for piece in range(1, pieces + 1):
+        share = piece / pieces
+        target = start + share * (pose - start)
+        target[3] = start[3] + share * turn_deg
+        client.mov_l(*(float(v) for v in target))
+        client.sync()
+        wait_arrived(client, target)
 
 
 def apex_z(protocol: CollectProtocol, flange_pose: np.ndarray) -> float:
@@ -153,6 +163,8 @@ def collect(protocol: CollectProtocol, client, camera, out_dir: str | Path,
     ``stop_after_rows``: stop after this many new rows (a test's stand-in for a kill)."""
     out_dir = Path(out_dir)
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
+    for leftover in (out_dir / "images").glob(".*.tmp*"):  # a write a kill cut short: its row is recorded again
+        leftover.unlink()
     done, meta = _done_rows(out_dir, protocol)
     if meta is None:
         touch = touch_off(client, camera, protocol, preprocess)
@@ -254,22 +266,33 @@ def plan_text(protocol: CollectProtocol, times_s: np.ndarray) -> str:
             f"{protocol.frames_per_capture} frame(s)); {times_s.sum() / 60.0:.1f} min in all")
 
 
-class Rehearsal:
-    """An emulated MG400 (loopback) and a rig camera that renders the protocol's flat face where the config says it
-    lies (a context manager): the whole collection runs on it, with no hardware."""
+def rehearsal_camera(protocol: CollectProtocol, geometry, follower_pose: Callable[[], object]):
+    """A rig camera (:class:`~simshear_gym.lab.rig.RigCamera`) rendering the protocol's stimulus where the config
+    says it lies (the work frame's place, ``geometry``: the config's ``[replay]``), seen from the flange pose that
+    ``follower_pose`` returns (an emulator's state, or an arm's feedback), in a raw camera frame."""
+    from simshear_gym.lab.rig import RigCamera
+    from simshear_gym.real.camera import default_config
+    from simshear_gym.sim.stimuli import make_stimulus
 
-    def __init__(self, protocol: CollectProtocol, face_size_mm: tuple[float, float, float] = (200.0, 200.0, 10.0)
-                 ) -> None:
-        if protocol.stimulus != "surface":
-            raise ValueError("the rehearsal renders a flat face; an edge protocol is not rehearsed yet")
+    stimulus = make_stimulus(protocol.stimulus)
+    T_base_stimulus = protocol.T_base_work() @ geometry.T_work_stimulus()
+    return RigCamera(follower_pose, lambda: T_base_stimulus, stimulus.size_mm, protocol.mount, default_config(),
+                     contact=protocol.stimulus, stimulus=stimulus)
+
+
+class Rehearsal:
+    """An emulated MG400 (loopback) and a rig camera rendering the protocol's stimulus where the config says it lies
+    (:func:`rehearsal_camera`; a context manager): the whole collection runs on it, with no hardware."""
+
+    def __init__(self, protocol: CollectProtocol, geometry=None) -> None:
+        from simshear_gym.sim.replay import ReplayGeometry
+
         self.protocol = protocol
-        self.face_size_mm = face_size_mm
+        self.geometry = ReplayGeometry(surface_depth_mm=protocol.surface_depth_mm) if geometry is None else geometry
         self.emulator = None
         self.camera = None
 
     def __enter__(self) -> Rehearsal:
-        from simshear_gym.lab.rig import RigCamera
-        from simshear_gym.real.camera import default_config
         from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
         from simshear_gym.robots.mg400.kinematics import inverse
 
@@ -279,12 +302,8 @@ class Rehearsal:
         self.emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
                                                      initial_joints_deg=tuple(float(v) for v in inverse(*start))))
         self.emulator.start()
-        x, y, z = protocol.work_origin_base_mm
-        T_face = np.eye(4)
-        T_face[:3, 3] = (x, y, z)
         emulator = self.emulator
-        self.camera = RigCamera(lambda: emulator.pose, lambda: T_face, self.face_size_mm, protocol.mount,
-                                default_config(), contact=protocol.stimulus)
+        self.camera = rehearsal_camera(protocol, self.geometry, lambda: emulator.pose)
         return self
 
     def __exit__(self, *exc_info: object) -> None:

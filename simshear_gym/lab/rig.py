@@ -85,12 +85,15 @@ class RigCamera:
         noise_grey: the border noise's largest grey value.
         contact: the translator's contact type.
         clock: monotonic time source, s.
+        stimulus: what the face is (default: a flat box of ``face_size_mm``; a
+            :class:`~simshear_gym.sim.stimuli.StraightEdge` for edge contacts, its frame ``T_follower_face``).
     """
 
     def __init__(self, follower_pose: Callable[[], object], T_follower_face: Callable[[], np.ndarray],
                  face_size_mm: tuple[float, float, float] = PlateMount().size_mm, mount: TacTipMount = TacTipMount(),
                  raw_frame_layout: PreprocessConfig | None = None, noise_seed: int = 0, noise_grey: int = 8,
-                 contact: str = "surface", clock: Callable[[], float] = time.monotonic) -> None:
+                 contact: str = "surface", clock: Callable[[], float] = time.monotonic,
+                 stimulus: stimuli.Stimulus | None = None) -> None:
         if not (callable(follower_pose) and callable(T_follower_face)):
             raise ValueError("RigCamera needs callables for the follower's pose and the face's frame")
         self.name = "rehearsal rig camera"
@@ -106,7 +109,7 @@ class RigCamera:
         self._T_flange_sensor = mount.T_flange_sensor()
         self._T_work_face = invert(T_face_work())
         self._half_extents_mm = (face_size_mm[0] / 2.0, face_size_mm[1] / 2.0)
-        self._stimulus = stimuli.FlatSurface(size_mm=tuple(face_size_mm))
+        self._stimulus = stimuli.FlatSurface(size_mm=tuple(face_size_mm)) if stimulus is None else stimulus
         self.world = World()
         self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
         self._body = stimuli.spawn(self.world, self._stimulus, T_follower_face())

@@ -20,6 +20,7 @@ from simshear_gym.lab.collect_real import (
     config_stub,
     connect,
     plan_text,
+    rehearsal_camera,
 )
 
 
@@ -27,7 +28,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="the sensor's config (TOML) with a [collect] table")
     parser.add_argument("--robot", default=None, metavar="HOST[:PORTS]",
                         help="the MG400: HOST or HOST:DASHBOARD,MOTION,FEEDBACK (not with --rehearsal)")
-    parser.add_argument("--camera", default=None, help="camera device index, video file or image folder")
+    parser.add_argument("--camera", default=None,
+                        help="camera device index, video file or image folder; 'rehearsal': the configured stimulus "
+                        "rendered from the arm's feedback (an emulator: `simshear mg400-emulator`)")
     parser.add_argument("--out", type=Path, default=None, help="output folder (a rerun continues there)")
     parser.add_argument("--rehearsal", action="store_true",
                         help="no hardware: an emulated MG400 and a camera rendering the configured stimulus")
@@ -53,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         protocol = replace(protocol, rows=args.rows)
-    safety = rehearsal_safety() if args.rehearsal else SafetyConfig()
+    safety = rehearsal_safety() if args.rehearsal or args.camera == "rehearsal" else SafetyConfig()
     times = check_protocol(protocol, safety)
     print(plan_text(protocol, times))
     if args.dry_run:
@@ -74,8 +77,13 @@ def run(args: argparse.Namespace) -> int:
                            {"config": str(args.config), "sensor": config.name}, progress=show)
 
     if args.rehearsal:
-        with Rehearsal(protocol) as rig:
+        with Rehearsal(protocol, config.replay) as rig:
             summary = record(rig.endpoint, rig.camera)
+    elif args.camera == "rehearsal":  # an arm (or an emulator elsewhere) and the camera rendered from its feedback
+        with connect(ArmEndpoint.parse(args.robot, "--robot"), safety) as client:
+            with rehearsal_camera(protocol, config.replay, client.measured_pose) as camera:
+                summary = collect(protocol, client, camera, args.out, lambda frame: preprocess(frame, layout),
+                                  {"config": str(args.config), "sensor": config.name}, progress=show)
     else:
         with CameraSource(args.camera) as camera:
             summary = record(ArmEndpoint.parse(args.robot, "--robot"), camera)
