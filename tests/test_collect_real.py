@@ -16,6 +16,7 @@ from simshear_gym.lab.collect_real import Rehearsal, collect, connect
 from simshear_gym.lab.experiment import rehearsal_safety
 from simshear_gym.lab.rig import audit_motion_records
 from simshear_gym.real.camera import default_config, preprocess
+from tests.test_collect_protocol import TOML
 
 PROTOCOL = CollectProtocol(stimulus="surface", work_origin_base_mm=(300.0, 0.0, -110.0), rows=6, seed=2,
                            ranges={"pose_z": (3.0, 5.0), "move_x": (-2.0, 2.0), "move_y": (-2.0, 2.0)})
@@ -59,28 +60,7 @@ def test_another_protocols_folder_is_refused(tmp_path):
         _done_rows(tmp_path, replace(PROTOCOL, rows=7))
 
 
-CONFIG = """
-name = "lab"
-[datasets.tap]
-contact = "surface"
-kind = "tap"
-image_pattern = "f{index}.png"
-val_fraction = 0.2
-absent = ["move"]
-files = [{ csv = "labels.csv", images = "frames" }]
-[datasets.tap.labels]
-pose_x = { value = 0.0 }
-pose_y = { value = 0.0 }
-pose_z = { column = "z", unit = "mm" }
-pose_rx = { value = 0.0 }
-pose_ry = { value = 0.0 }
-pose_rz = { value = 0.0 }
-[collect]
-stimulus = "surface"
-work_origin_base_mm = [300.0, 0.0, -110.0]
-rows = 500
-ranges = { pose_z = [3.0, 5.0], move_x = [-3.0, 3.0], move_y = [-3.0, 3.0] }
-"""
+CONFIG = TOML.replace("rows = 6", "rows = 500").replace("-100.0]", "-110.0]")  # a [collect] protocol
 
 
 def test_dry_run_prints_the_plan_and_moves_nothing(tmp_path, capsys):
