@@ -97,6 +97,11 @@ class SimShearTrackingEnv(SimShearEnv):
     ``max_episode_steps`` of the registration (500 steps = 50 s at 10 Hz; every default trajectory ends
     within 48 s, after which the plate holds still).
 
+    **Render modes** (``render_mode``): ``"rgb_array"``: ``render()`` returns uint8 (180, 420, 3), the scene (arms,
+    TacTip, the plate) beside the newest tactile image; ``"human"``: that frame in a window, refreshed on every
+    ``reset`` and ``step`` at the control rate (needs a display: ``xvfb-run`` on a machine without one); None
+    (default): no scene bodies, the fastest steps.
+
     Args:
         trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, ``random`` (one of those four drawn
             per reset), or the held-out test paths ``circular_wave`` and ``star`` (the plate waves up and down,
