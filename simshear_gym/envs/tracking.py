@@ -65,7 +65,10 @@ class SimShearTrackingEnv(SimShearEnv):
                                                      or raw depth ("sim", "oracle"; 255 = 14.5 mm penetration)
     ``tcp_pose``         Box float32 (4,)            "tactile" only: follower TCP (dome apex) x, y, z mm and
                                                      flange R deg, in the follower's base frame (as ``GetPose``
-                                                     with the tool set)
+                                                     with the tool set); absolute, in a +-1000 box: for a
+                                                     learner without ``VecNormalize`` wrap the env in
+                                                     ``envs.wrappers.RelativeTcpPose`` (the move since reset,
+                                                     in [-1, 1])
     ``estimate``         Box float32 (16 k,) in      "estimate" or "tactile+estimate": per image, the servo
                          [-4, 4]                     controller's estimator (the shipped ``surface`` GDNN +
                                                      Bayesian filter, fed the commanded moves; ``estimator=``)
