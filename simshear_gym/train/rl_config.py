@@ -28,7 +28,7 @@ PRESETS: dict[str, dict] = {
         "algo": "ppo", "task": "tracking", "observation": "estimate+action", "history": 2, "obs_mode": "real",
         "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
         "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
-        "bc_epochs": 30, "timesteps": 50_000, "eval_steps": 25_000, "checkpoint_steps": 25_000, "seed": 0,
+        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000, "seed": 0,
         "threads": 1,
     },
 }
