@@ -164,8 +164,9 @@ class SimShearEnv(gym.Env, EzPickle):
         render_mode: None; ``"rgb_array"``: ``render()`` returns uint8 (180, 420, 3), a TinyRenderer view of the
             arms, the TacTip and the face (240 px wide) beside the newest tactile image (180 px square); ``"human"``:
             the same frame in a window (:class:`~simshear_gym.envs.viewer.HumanViewer`, Tk; needs a display, e.g.
-            ``xvfb-run``), refreshed on every ``reset`` and ``step`` at ``metadata["render_fps"]`` (the control
-            rate: simulated time at wall-clock pace); ``render()`` then returns None.
+            ``xvfb-run``: without one, one logged warning and no window), refreshed on every ``reset`` and
+            ``step`` at ``metadata["render_fps"]`` (the control rate: simulated time at wall-clock pace);
+            ``render()`` then returns None.
         reference_depth_mm: the depth to keep, label convention (face at ``SURFACE_DEPTH_MM`` = 2.2 mm).
         action_scale, reward, termination, mount, arm_config, shear_config: see their classes.
         sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its

@@ -4,15 +4,20 @@ pace, as Gymnasium's human mode does).
 
 The window is plain Tk (``tkinter``, in the standard library): the package's OpenCV is the headless build, and a
 matplotlib window would switch the process's matplotlib backend. It needs a display (``$DISPLAY``; on a machine
-without a screen, ``xvfb-run python ...``); without one, the first frame raises a ``RuntimeError`` that says so.
+without a screen, ``xvfb-run python ...``). Without one the env runs on with no window: the first frame logs one
+warning that says what to do (``logging``: shown on stderr unless the application routes it), the way an env
+checker or a headless test run can still make the env in every declared render mode.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 
 class HumanViewer:
@@ -30,6 +35,7 @@ class HumanViewer:
         self._photo = None
         self._last_s: float | None = None
         self.closed_by_user = False
+        self.no_display: str | None = None  # why no window could open (then frames are dropped)
         self.frames_shown = 0
 
     def show(self, frame: np.ndarray) -> None:
@@ -38,10 +44,10 @@ class HumanViewer:
         frame = np.asarray(frame)
         if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
             raise ValueError(f"a frame is RGB uint8 (H, W, 3), got {frame.dtype} {frame.shape}")
-        if self.closed_by_user:
+        if self.closed_by_user or self.no_display:
             return
-        if self._root is None:
-            self._open()
+        if self._root is None and not self._open():
+            return
         if self._last_s is not None:
             wait_s = self._last_s + self.period_s - self._clock()
             if wait_s > 0:
@@ -65,19 +71,22 @@ class HumanViewer:
             except Exception:  # noqa: BLE001  (already gone with its display: nothing left to close)
                 pass
 
-    def _open(self) -> None:
+    def _open(self) -> bool:
+        """Open the window; False (and one warning) where no display answers."""
         import tkinter
 
         try:
             self._root = tkinter.Tk()
         except tkinter.TclError as error:
-            raise RuntimeError(f"render_mode='human' opens a window, but no display answered ({error}); set "
-                               "DISPLAY, run under a virtual one (xvfb-run python ...) or use "
-                               "render_mode='rgb_array'") from None
+            self.no_display = str(error)
+            log.warning("render_mode='human' shows no window: no display answered (%s); set DISPLAY, run under a "
+                        "virtual one (xvfb-run python ...) or use render_mode='rgb_array'", error)
+            return False
         self._root.title(self.title)
         self._root.protocol("WM_DELETE_WINDOW", self._closed)
         self._label = tkinter.Label(self._root, borderwidth=0)
         self._label.pack()
+        return True
 
     def _closed(self) -> None:
         self.closed_by_user = True
