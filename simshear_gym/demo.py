@@ -76,8 +76,8 @@ def figure(runs: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Pat
 
     names = list(runs)
     top = max(float(np.max(errors)) for _, _, errors in runs.values())
-    fig = plt.figure(figsize=(3.2 * len(names), 8.4))
-    grid = fig.add_gridspec(3, len(names), height_ratios=(1.2, 1.0, 0.7))
+    fig = plt.figure(figsize=(3.6 * len(names), 8.8))
+    grid = fig.add_gridspec(3, len(names), height_ratios=(1.2, 1.0, 0.7), wspace=0.4, hspace=0.35)
     for column, name in enumerate(names):
         target, sensor, errors = runs[name]
         path_panel(fig.add_subplot(grid[0, column], projection="3d"), target, sensor,
