@@ -19,7 +19,9 @@ from collections.abc import Sequence
 
 # (command words, module, one-line help)
 COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
-    (("demo",), "simshear_gym.demo", "the default job: simulated TacTip contacts with shear, no data needed"),
+    (("demo",), "simshear_gym.demo",
+     "the default job: the tactile servo controller tracks the four paths in sim on shipped weights, no data "
+     "needed (figure: paths and where the error is)"),
     (("collect",), "simshear_gym.pipelines.collect", "render paired (sim image, shear, real image) sets"),
     (("collect-env",), "simshear_gym.pipelines.env_collect",
      "labelled translated images from a SimShear env (its own estimator's training set)"),
@@ -52,7 +54,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("train", "export-policy"), "simshear_gym.pipelines.export_policy",
      "ship a simshear train rl policy (model, normalisation, settings) with its model card"),
     (("train", "rl"), "simshear_gym.train.rl",
-     "train a PPO or SAC agent on SimShearTracking-v0 (translated images, randomised trajectories)"),
+     "train a PPO, SAC or TQC agent on SimShearTracking-v0 or SimShearCoLift-v0 (--preset tracking-first: a "
+     "first tracking policy on a 2-core CPU)"),
     (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",
      "pose-and-shear GDNN errors on the real validation images, against chance"),
     (("evaluate", "filter"), "simshear_gym.evaluate.posenet_filter",

@@ -1,12 +1,20 @@
 """What a benchmark or a pipeline run records of the machine it ran on, so that wall times from two machines can be
-told apart: the CPU count and model, and the instruction set torch's CPU kernels use (training on two CPUs with
-different kernels gives different bits: docs/experiments.md, pipeline_full_tactip331_slow_cpu)."""
+told apart: the CPU count and model, the instruction set torch's CPU kernels use (training on two CPUs with
+different kernels gives different bits: docs/experiments.md, pipeline_full_tactip331_slow_cpu), and the versions
+of Python and of the packages that make the figures (``constraints.txt`` at the repository root pins the set the
+records were measured with)."""
 
 from __future__ import annotations
 
 import os
 import platform
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
+
+#: the distributions whose versions a record names: the package and what its figures run on
+RECORDED_PACKAGES = ("simshear-gym", "numpy", "scipy", "pandas", "scikit-image", "opencv-python-headless",
+                     "pybullet", "gymnasium", "torch", "onnxruntime", "stable-baselines3", "sb3-contrib",
+                     "matplotlib")
 
 
 def cpu_model() -> str:
@@ -20,10 +28,22 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+def package_versions() -> dict[str, str | None]:
+    """``python`` and each of :data:`RECORDED_PACKAGES`' installed version (None: not installed)."""
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for name in RECORDED_PACKAGES:
+        try:
+            versions[name] = version(name)
+        except PackageNotFoundError:
+            versions[name] = None
+    return versions
+
+
 def machine_info() -> dict:
-    """``cpus``, ``processor`` (:func:`cpu_model`), ``torch`` (its version) and ``torch_cpu_capability`` (the
-    instruction set of torch's CPU kernels: ``AVX2``, ``AVX512``, ``DEFAULT``, ...)."""
+    """``cpus``, ``processor`` (:func:`cpu_model`), ``torch`` (its version), ``torch_cpu_capability`` (the
+    instruction set of torch's CPU kernels: ``AVX2``, ``AVX512``, ``DEFAULT``, ...) and ``packages``
+    (:func:`package_versions`)."""
     import torch
 
     return {"cpus": os.cpu_count(), "processor": cpu_model(), "torch": torch.__version__,
-            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability()}
+            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(), "packages": package_versions()}

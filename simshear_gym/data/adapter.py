@@ -22,7 +22,7 @@ The simulation's frame (see :mod:`simshear_gym.data.labels`): x, y in the stimul
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -299,6 +299,18 @@ class VariableSummary:
     low: float
     high: float
     varies: bool
+
+
+def config_files(datasets: Iterable[DatasetConfig], config_path: str | Path = "") -> str:
+    """What a sensor config's data root holds, in words for an error: the top entries of its datasets' CSVs and
+    image folders (relative ones: absolute paths need no root), e.g. ``labels.csv and frames/
+    (configs/example_lab.toml's datasets)``, ``tactip331/ (configs/tactip331.toml's datasets)``."""
+    paths = [Path(path) for dataset in datasets for data_file in dataset.files
+             for path in (data_file.csv, data_file.images)]
+    names = list(dict.fromkeys(path.parts[0] + ("" if path.suffix and len(path.parts) == 1 else "/")
+                               for path in paths if not path.is_absolute()))
+    listed = ", ".join(names[:-1]) + (" and " if len(names) > 1 else "") + names[-1] if names else "its files"
+    return listed + (f" ({config_path}'s datasets)" if config_path else "")
 
 
 def resolve(path: str, root: Path) -> Path:

@@ -20,17 +20,19 @@ TACTIP331_TASKS: dict[tuple[str, str], str] = {
 SPLITS: tuple[str, ...] = ("csv_train", "csv_val")
 
 
-def data_root(explicit: str | os.PathLike | None = None) -> Path:
-    """The data root: ``explicit`` if given, else ``$SIMSHEAR_DATA``, else ``../shared/data``.
+def data_root(explicit: str | os.PathLike | None = None, holding: str = "tactip331/") -> Path:
+    """The data root: ``explicit`` if given, else ``$SIMSHEAR_DATA``, else ``../shared/data``; ``holding``: what
+    the caller expects in it (a sensor config's files: :func:`simshear_gym.data.adapter.config_files`), for the
+    error.
 
     Raises:
-        FileNotFoundError: naming the path tried and how to point at the data.
+        FileNotFoundError: naming the path tried, what it should hold and how to point at it.
     """
     root = Path(explicit) if explicit is not None else Path(os.environ.get(DATA_ENV, DEFAULT_DATA_ROOT))
     if not root.is_dir():
         raise FileNotFoundError(
             f"data root {root} (resolved {root.resolve()}) does not exist; pass --data or set {DATA_ENV} "
-            "to the folder holding tactip331/"
+            f"to the folder holding {holding}"
         )
     return root
 

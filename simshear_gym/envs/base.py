@@ -161,7 +161,12 @@ class SimShearEnv(gym.Env, EzPickle):
             ``true_pose_shear``).
         image_size_px: 128 or 64 (see the module docstring).
         control_rate_hz: steps per second of simulated time; each step's servo command takes one period.
-        render_mode: None or ``"rgb_array"``.
+        render_mode: None; ``"rgb_array"``: ``render()`` returns uint8 (180, 420, 3), a TinyRenderer view of the
+            arms, the TacTip and the face (240 px wide) beside the newest tactile image (180 px square); ``"human"``:
+            the same frame in a window (:class:`~simshear_gym.envs.viewer.HumanViewer`, Tk; needs a display, e.g.
+            ``xvfb-run``: without one, one logged warning and no window), refreshed on every ``reset`` and
+            ``step`` at ``metadata["render_fps"]`` (the control rate: simulated time at wall-clock pace);
+            ``render()`` then returns None.
         reference_depth_mm: the depth to keep, label convention (face at ``SURFACE_DEPTH_MM`` = 2.2 mm).
         action_scale, reward, termination, mount, arm_config, shear_config: see their classes.
         sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its
@@ -189,7 +194,7 @@ class SimShearEnv(gym.Env, EzPickle):
             (:func:`~simshear_gym.contract.choose_translator`). A ``sensor``'s own translator takes no student.
     """
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     translator_contact = "surface"
     estimator_posenet = "surface"  # the shipped GDNN an image-based controller reads this env's images with
 
@@ -223,6 +228,7 @@ class SimShearEnv(gym.Env, EzPickle):
         self.control_rate_hz = float(control_rate_hz)
         self.dt_s = 1.0 / self.control_rate_hz
         self.render_mode = render_mode
+        self._viewer = None  # render_mode="human": its window, opened on the first frame
         self.reference_depth_mm = float(reference_depth_mm)
         self.action_scale = action_scale
         self.reward_config = reward
@@ -368,7 +374,10 @@ class SimShearEnv(gym.Env, EzPickle):
             raise RuntimeError(f"{type(self).__name__}._reset_scene left the sensor out of contact "
                                f"(penetration {state.penetration_mm:.3f} mm)")
         self._state = state
-        return self._observation(state, None), self._info(state, "")
+        observation = self._observation(state, None)
+        if self.render_mode == "human":
+            self.render()
+        return observation, self._info(state, "")
 
     def step(self, action):
         if self._state is None:
@@ -397,14 +406,29 @@ class SimShearEnv(gym.Env, EzPickle):
         info = self._info(state, reason)
         if arm_error:
             info["arm_error"] = arm_error
-        return self._observation(state, move), float(self._reward(state, reason)), bool(reason), False, info
+        observation = self._observation(state, move)
+        if self.render_mode == "human":
+            self.render()
+        return observation, float(self._reward(state, reason)), bool(reason), False, info
 
     def render(self):
-        if self.render_mode != "rgb_array":
+        if self.render_mode is None:
             return None
-        return np.concatenate([self._scene_view(), self._tactile_view()], axis=1)
+        frame = np.concatenate([self._scene_view(), self._tactile_view()], axis=1)
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._viewer is None:
+            from simshear_gym.envs.viewer import HumanViewer
+
+            self._viewer = HumanViewer(f"{self.spec.id if self.spec else type(self).__name__}: scene | tactile "
+                                       f"({self.obs_mode})", self.metadata["render_fps"])
+        self._viewer.show(frame)
+        return None
 
     def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
         self.world.close()
 
     def __getstate__(self) -> dict:

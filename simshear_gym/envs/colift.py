@@ -186,6 +186,11 @@ class SimShearCoLiftEnv(SimShearEnv):
     **Truncation**: ``max_episode_steps`` of the registration (500 steps = 50 s at 10 Hz; both default
     trajectories end within 38 s, after which the plate holds still).
 
+    **Render modes** (``render_mode``): ``"rgb_array"``: ``render()`` returns uint8 (180, 420, 3), the scene (arms,
+    TacTip, the plate and the object) beside the newest tactile image; ``"human"``: that frame in a window,
+    refreshed on every ``reset`` and ``step`` at the control rate (needs a display: ``xvfb-run`` on a machine
+    without one); None (default): no scene bodies, the fastest steps.
+
     Args:
         trajectory: ``circular_wave``, ``star`` or ``random`` (one drawn per reset).
         object_name: one of :data:`OBJECT_NAMES`.

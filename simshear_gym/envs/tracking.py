@@ -65,7 +65,10 @@ class SimShearTrackingEnv(SimShearEnv):
                                                      or raw depth ("sim", "oracle"; 255 = 14.5 mm penetration)
     ``tcp_pose``         Box float32 (4,)            "tactile" only: follower TCP (dome apex) x, y, z mm and
                                                      flange R deg, in the follower's base frame (as ``GetPose``
-                                                     with the tool set)
+                                                     with the tool set); absolute, in a +-1000 box: for a
+                                                     learner without ``VecNormalize`` wrap the env in
+                                                     ``envs.wrappers.RelativeTcpPose`` (the move since reset,
+                                                     in [-1, 1])
     ``estimate``         Box float32 (16 k,) in      "estimate" or "tactile+estimate": per image, the servo
                          [-4, 4]                     controller's estimator (the shipped ``surface`` GDNN +
                                                      Bayesian filter, fed the commanded moves; ``estimator=``)
@@ -96,6 +99,11 @@ class SimShearTrackingEnv(SimShearEnv):
     an arm refuses a target outside its limits (``"arm_limit"``; the step returns normally). **Truncation**:
     ``max_episode_steps`` of the registration (500 steps = 50 s at 10 Hz; every default trajectory ends
     within 48 s, after which the plate holds still).
+
+    **Render modes** (``render_mode``): ``"rgb_array"``: ``render()`` returns uint8 (180, 420, 3), the scene (arms,
+    TacTip, the plate) beside the newest tactile image; ``"human"``: that frame in a window, refreshed on every
+    ``reset`` and ``step`` at the control rate (needs a display: ``xvfb-run`` on a machine without one); None
+    (default): no scene bodies, the fastest steps.
 
     Args:
         trajectory: one of ``circle``, ``tilted_square``, ``spiral``, ``loop``, ``random`` (one of those four drawn

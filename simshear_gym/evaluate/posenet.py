@@ -155,13 +155,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    val_set = getattr(args, "val_set", None)
+    if (val_set is None) == (args.contact is None):  # before torch: an option error comes at once
+        raise ValueError("give --contact (tactip331's real shear val sets) or --set DIR (any real tactile set), "
+                         "one of the two")
     import torch
 
     torch.set_num_threads(getattr(args, "threads", 1))
-    val_set = getattr(args, "val_set", None)
-    if (val_set is None) == (args.contact is None):
-        raise ValueError("give --contact (tactip331's real shear val sets) or --set DIR (any real tactile set), "
-                         "one of the two")
     if val_set is not None:
         meta = read_set(val_set).meta
         if meta.get("contact") not in CONTACTS:

@@ -124,12 +124,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.cycles < 10 or args.warmup < 0:  # before torch: an option error comes at once
+        raise ValueError(f"--cycles must be >= 10 and --warmup >= 0, got {args.cycles}, {args.warmup}")
     import torch
 
     from simshear_gym.data.paths import data_root
 
-    if args.cycles < 10 or args.warmup < 0:
-        raise ValueError(f"--cycles must be >= 10 and --warmup >= 0, got {args.cycles}, {args.warmup}")
     torch.set_num_threads(args.threads)
     root = data_root(args.data)
     frames = load_raw_frames(root)

@@ -39,6 +39,7 @@ from simshear_gym.control.policy import Controller, PolicySettings, SB3Controlle
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
 from simshear_gym.io import write_json
+from simshear_gym.machine import machine_info
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 TRACKING_CHOICES = TRACKING_TRAJECTORIES + ("circular_wave", "star")
@@ -105,7 +106,7 @@ def run_episode(env, controller: Controller, seed: int, max_steps: int | None = 
         "contact_error_max_mm": float(errors.max()), "steps_out_of_contact": out_of_contact,
         "termination": termination, "dropped": dropped, "object_slip_max_mm": slip_mm,
         "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
-        "_paths": (np.stack(targets), np.stack(sensors)),
+        "_paths": (np.stack(targets), np.stack(sensors)), "_errors_mm": errors[1:],
     }
 
 
@@ -126,6 +127,24 @@ def summarise(runs: list[dict]) -> dict:
     }
 
 
+def path_panel(axis, target: np.ndarray, sensor: np.ndarray, title: str) -> None:
+    """A 3D axis: the target path red, the follower's sensor blue dashed (mm from the target's start, equal scale
+    on the three axes)."""
+    axis.plot(*(target - target[0]).T, color="tab:red", lw=1.2, label="leader (target)")
+    axis.plot(*(sensor - target[0]).T, color="tab:blue", lw=0.8, ls="--", label="follower")
+    points = np.concatenate([target, sensor]) - target[0]
+    low, high = points.min(axis=0), points.max(axis=0)
+    middle, half = (low + high) / 2, max(float((high - low).max()) / 2, 5.0)
+    for setter, centre in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), middle):
+        setter(centre - half, centre + half)
+    axis.set_box_aspect((1, 1, 1))
+    axis.set_title(title, fontsize=8)
+    axis.tick_params(labelsize=5)
+    axis.set_xlabel("x mm", fontsize=6)
+    axis.set_ylabel("y mm", fontsize=6)
+    axis.set_zlabel("z mm", fontsize=6)
+
+
 def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str) -> None:
     """One 3D panel per run: target path red, follower blue, mean error in the title."""
     import matplotlib
@@ -139,20 +158,8 @@ def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, t
     fig = plt.figure(figsize=(3.2 * columns, 3.0 * rows))
     for index, name in enumerate(names):
         target, sensor, error = paths[name]
-        axis = fig.add_subplot(rows, columns, index + 1, projection="3d")
-        axis.plot(*(target - target[0]).T, color="tab:red", lw=1.2, label="leader (target)")
-        axis.plot(*(sensor - target[0]).T, color="tab:blue", lw=0.8, ls="--", label="follower")
-        points = np.concatenate([target, sensor]) - target[0]
-        low, high = points.min(axis=0), points.max(axis=0)
-        middle, half = (low + high) / 2, max(float((high - low).max()) / 2, 5.0)
-        for setter, centre in zip((axis.set_xlim, axis.set_ylim, axis.set_zlim), middle):
-            setter(centre - half, centre + half)  # equal scale on the three axes
-        axis.set_box_aspect((1, 1, 1))
-        axis.set_title(f"{name}\nerror {error:.2f} mm", fontsize=8)
-        axis.tick_params(labelsize=5)
-        axis.set_xlabel("x mm", fontsize=6)
-        axis.set_ylabel("y mm", fontsize=6)
-        axis.set_zlabel("z mm", fontsize=6)
+        path_panel(fig.add_subplot(rows, columns, index + 1, projection="3d"), target, sensor,
+                   f"{name}\nerror {error:.2f} mm")
     fig.axes[0].legend(fontsize=6, loc="upper left")
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
@@ -210,15 +217,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="file name stem: <name>.json and <name>_<task>_<variant>.png (default servo)")
 
 
-def run(args: argparse.Namespace) -> int:
-    import gymnasium as gym
-    import torch
-
-    import simshear_gym.envs  # noqa: F401  (registers the envs)
-
-    torch.set_num_threads(args.threads)
+def check_args(args: argparse.Namespace) -> None:
+    """The options' checks that need neither torch nor PyBullet (run before either is imported)."""
     posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
     policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
+    if args.threads < 1 or (args.max_steps is not None and args.max_steps < 1):
+        raise ValueError(f"--threads and --max-steps must be >= 1, got {args.threads}, {args.max_steps}")
     for variant in args.variants:
         if variant in ("pix2pix", "sim") and not posenets[variant]:
             raise ValueError(f"--variants {variant} needs --posenet-{variant} (a GDNN trained on {variant} images)")
@@ -231,6 +235,18 @@ def run(args: argparse.Namespace) -> int:
             algorithm = sb3_algorithm(policies[variant])
             if variant != "policy" and algorithm != variant:
                 raise ValueError(f"{flag} {policies[variant]} is a {algorithm.upper()} model, not {variant.upper()}")
+
+
+def run(args: argparse.Namespace) -> int:
+    check_args(args)
+    import gymnasium as gym
+    import torch
+
+    import simshear_gym.envs  # noqa: F401  (registers the envs)
+
+    torch.set_num_threads(args.threads)
+    posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
+    policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
@@ -261,6 +277,7 @@ def run(args: argparse.Namespace) -> int:
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
                     target, sensor = r.pop("_paths")
+                    r.pop("_errors_mm")
                     r["seed"] = seed
                     paths.setdefault((task, variant), {})[f"{label} {seed}"] = (
                         target, sensor, r["contact_error_mean_mm"])
@@ -307,6 +324,7 @@ def run(args: argparse.Namespace) -> int:
                    "object slip max = the co-lift object's largest drift from its place on the plate (mm)",
         "translator_runtime": _translator_runtime(), "translator_threads": _translator_threads(),
         "results": results, "figures": figures, "seconds": round(time.perf_counter() - start, 1),
+        "machine": machine_info(),
     })
     print(f"wrote {args.out / (args.name + '.json')}")
     return 0

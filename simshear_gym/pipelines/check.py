@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from simshear_gym.data.adapter import adapt_dataset, summarise_variables
+from simshear_gym.data.adapter import adapt_dataset, config_files, summarise_variables
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import TactileDataError
 from simshear_gym.io import write_json
@@ -173,7 +173,8 @@ def run(args: argparse.Namespace) -> int:
 
     start = time.perf_counter()
     config = load_config(args.config)
-    reports = check(config, data_root(args.data), args.max_rows)
+    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    reports = check(config, root, args.max_rows)
     print(format_report(config, reports))
     print(f"ok in {time.perf_counter() - start:.1f} s")
     if args.json is not None:

@@ -10,6 +10,10 @@ real shapes), ``jobs`` probes side by side as the run trains them, started toget
 settings share a probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
 (:func:`simshear_gym.pipelines.schedule.order_steps`), which gives the training's wall time.
 
+The machine's load is measured before the probes (:func:`machine_load`: the 1-minute load average against the
+CPU count, ``os.getloadavg``): probes beside other work run slower than the run would on an idle machine, about
+``(load + jobs) / cpus`` times where that exceeds 1; the estimate says so and gives the idle figure beside it.
+
 Not included: the data stages (adapt, collect, random contacts) and the evaluation, about 2 minutes of the
 shipped recipe's 136 on the 2-core CPU it was first measured on; a GDNN stopped early by its ``patience_epochs``
 takes less. A probe of one setting varies by about 10 % between runs on a shared machine, and the probes read the
@@ -23,6 +27,7 @@ import argparse
 import heapq
 import json
 import multiprocessing
+import os
 import time
 from dataclasses import asdict, dataclass, fields
 from functools import partial
@@ -31,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from simshear_gym.data.adapter import split_sizes
+from simshear_gym.data.adapter import config_files, split_sizes
 from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
@@ -59,6 +64,29 @@ class StepEstimate:
     seconds: float
     start_s: float
     end_s: float
+
+
+def machine_load(jobs: int, load_1min: float | None = None, cpus: int | None = None) -> dict:
+    """The machine's load as the probes start: ``load_1min`` (``os.getloadavg``'s first value unless given),
+    ``cpus`` (``os.cpu_count`` unless given) and ``slowdown``: about how much slower ``jobs`` probes run beside that
+    load than on an idle machine, ``max(1, (load + jobs) / cpus)`` (each process's share of the CPUs, when more
+    want one than there are); ``busy``: whether that exceeds 1.1."""
+    load_1min = os.getloadavg()[0] if load_1min is None else float(load_1min)
+    cpus = (os.cpu_count() or 1) if cpus is None else int(cpus)
+    slowdown = max(1.0, (load_1min + jobs) / cpus)
+    return {"load_1min": round(load_1min, 2), "cpus": cpus, "jobs": jobs, "slowdown": round(slowdown, 2),
+            "busy": slowdown > 1.1}
+
+
+def load_note(load: dict, training_wall_min: float) -> str:
+    """What the load means for the figure, one line."""
+    if not load["busy"]:
+        return (f"machine idle enough (load {load['load_1min']:.2f} on {load['cpus']} CPUs, {load['jobs']} probe(s)): "
+                "the figure is this machine's")
+    return (f"machine busy: load {load['load_1min']:.2f} on {load['cpus']} CPUs before the probes, with "
+            f"{load['jobs']} probe(s) beside it about {load['slowdown']:.1f}x an idle machine's times; idle, the "
+            f"training would take about {training_wall_min / load['slowdown']:.1f} min (run the estimate again when "
+            "the machine is idle for a figure that needs no such correction)")
 
 
 def _default(config_class, name: str):
@@ -143,6 +171,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     steps = planned_steps(config, profile)
     translator_px, gdnn_px = config.sensor.image_size_px, settings.posenet.image_size_px
     key_of, probes = {}, {}
+    load = machine_load(jobs)  # before the probes add their own
     started = time.perf_counter()
     context = multiprocessing.get_context("spawn")
     with context.Manager() as manager, context.Pool(jobs, maxtasksperchild=1) as pool:
@@ -188,6 +217,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs,
             "probe_s": round(probe_s, 1), "training_wall_min": round(wall_s / 60, 1),
             "lane_busy_min": round(sum(plan["seconds"] for plan in planned.values()) / 60, 1),
+            "load": load, "training_wall_min_if_idle": round(wall_s / 60 / load["slowdown"], 1),
             "steps": [asdict(e) for e in estimates]}
 
 
@@ -224,6 +254,8 @@ def format_estimate(result: dict) -> str:
     lines.append(f"{result['sensor']} profile {result['profile']}: training about {result['training_wall_min']} min "
                  f"on {result['jobs']} lane(s) of this machine ({result['lane_busy_min']} lane-min of steps), plus "
                  f"the data stages and the evaluation (a few minutes)")
+    if "load" in result:
+        lines.append(load_note(result["load"], result["training_wall_min"]))
     return "\n".join(lines)
 
 
@@ -249,9 +281,10 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and value < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
     config = load_config(args.config)
+    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     if args.compare is not None and not args.compare.is_dir():
         raise FileNotFoundError(f"--compare {args.compare}: no such run folder")
-    result = estimate(config, data_root(args.data), args.profile, args.jobs, args.probe_steps)
+    result = estimate(config, root, args.profile, args.jobs, args.probe_steps)
     if args.compare is not None:
         result["compared_with"] = str(args.compare)
         result["measured"] = measured_epochs(result, args.compare)

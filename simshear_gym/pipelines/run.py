@@ -49,14 +49,20 @@ from typing import TYPE_CHECKING
 import pandas as pd
 
 from simshear_gym.contract import SENSOR_FILE
-from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, resolve, write_canonical
+from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, config_files, resolve, write_canonical
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.pipelines.schedule import Step, run_steps
-from simshear_gym.pipelines.stages import StageResult, StageRunner, file_fingerprint
+from simshear_gym.pipelines.stages import (
+    StageResult,
+    StageRunner,
+    file_fingerprint,
+    report_epochs,
+    training_start_line,
+)
 from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
@@ -67,6 +73,11 @@ SHEAR_SPECS = (("move_x", "shear_x_mm", "shear_sensor_x_mm"), ("move_y", "shear_
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
     from simshear_gym.pipelines.config import ExperimentConfig
+
+#: profiles that check the plumbing, not the models: a few dozen rows and an epoch or two, so their models sit near
+#: chance; their manifest and output say so
+PLUMBING_PROFILES = {"smoke": "a plumbing check (a few rows, an epoch or two): it shows that every stage runs; "
+                              "its models sit near chance and measure nothing"}
 
 
 def git_commit() -> str:
@@ -234,6 +245,7 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
                      "pose_variables": tuple(generator.pose_variables)}
     key = {"paired": train_sets, "arch": arch, "settings": settings}
     label = generator.name if generator else arch
+    name = f"translator/{contact}_{label}"
 
     def work(folder: Path) -> dict:
         import torch
@@ -249,12 +261,14 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
         pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root), pose=pose)
         trainer = TranslatorTrainer(train_config, folder / "run", pairs, pose=pose)
         trainer.resume()
+        runner.log(training_start_line(name, train_config.epochs, folder / "run" / "tb"))
+        report_epochs(trainer, name, runner.log)
         summary = trainer.fit(progress=False)
         path = export_run(folder / "run", folder / f"{label}_{contact}.pt",
                           card={"sensor": config.name, "contact": contact, "arch": arch, "name": label})
         return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
-    return runner.run(f"translator/{contact}_{label}", key, work)
+    return runner.run(name, key, work)
 
 
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
@@ -271,6 +285,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
     if seed is not None:
         settings |= {"seed": seed}
     step_source = f"{source}_s{seed}" if seed is not None else source
+    name = f"posenet/{contact}_{step_source}"
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
            "settings": settings}
 
@@ -289,6 +304,8 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
                            variables=variables)
         trainer = PosenetTrainer(train_config, folder / "run", data)
         trainer.resume()
+        runner.log(training_start_line(name, train_config.epochs, folder / "run" / "tb"))
+        report_epochs(trainer, name, runner.log)
         summary = trainer.fit(progress=False)
         model, card = load_posenet(folder / "run" / "best.pt")
         path = folder / f"posenet_{contact}_{step_source}.pt"
@@ -296,7 +313,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
         save_posenet(path, model, card={**card, "sensor": config.name, "train_config": train_record})
         return {"outputs": {"weights": runner.relative(path)}, "metrics": summary}
 
-    return runner.run(f"posenet/{contact}_{step_source}", key, work)
+    return runner.run(name, key, work)
 
 
 def posenet_sources(profile) -> tuple[str, ...]:
@@ -439,6 +456,8 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
     device = check_device_name(device or profile_settings.device)
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out)
+    if profile in PLUMBING_PROFILES:
+        runner.log(f"profile {profile}: {PLUMBING_PROFILES[profile]}")
     start, commit = time.perf_counter(), git_commit()  # the code the run starts on (a commit during it is not)
     adapted = stage_adapt(runner, config, root, rows_per_split)
     paired = stage_collect(runner, config, adapted, workers) if "collect" in stages else None
@@ -466,7 +485,8 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             "posenets": {contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
             "variables": posenets["variables"]})
     manifest = {
-        "config": str(config.path), "sensor": config.name, "profile": profile, "stages": list(stages),
+        "config": str(config.path), "sensor": config.name, "profile": profile,
+        **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
         "package_version": _version(), "git_commit": commit, "machine": machine_info(),
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
@@ -514,10 +534,11 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.config import load_config
 
     config = only_contacts(load_config(args.config), args.contacts)
+    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     out = args.out or Path("runs") / "pipeline" / config.name
     try:
         with stop_on_signals():
-            manifest = run_pipeline(config, out, data_root(args.data), args.profile, tuple(args.stages), args.rows,
+            manifest = run_pipeline(config, out, root, args.profile, tuple(args.stages), args.rows,
                                     args.workers, args.jobs, getattr(args, "device", None))
     except RunStopped as stopped:  # the pools were ended on the way out; anything left is ended here
         end_children()
@@ -526,4 +547,6 @@ def run(args: argparse.Namespace) -> int:
     ran = sum(result["ran"] for result in manifest["results"])
     print(f"{config.name}: {len(manifest['results'])} stage steps ({ran} ran, "
           f"{len(manifest['results']) - ran} cached) in {manifest['wall_s']:.1f} s; manifest {out / 'manifest.json'}")
+    if "purpose" in manifest:
+        print(f"profile {args.profile} is {manifest['purpose']}")
     return 0

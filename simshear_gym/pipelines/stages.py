@@ -72,6 +72,39 @@ def file_fingerprint(paths: list[Path]) -> str:
     return digest.hexdigest()[:12]
 
 
+def training_start_line(name: str, epochs: int, tensorboard: Path) -> str:
+    """The line a training stage logs as it starts: its epochs and where its tensorboard logs go."""
+    return f"[{name}] training {epochs} epoch{'s' if epochs != 1 else ''}; tensorboard --logdir {tensorboard}"
+
+
+def epoch_line(name: str, record: dict, epochs: int, metric: str) -> str:
+    """One line of a training stage's progress after an epoch (its ``history`` record: epoch, elapsed_s, holdout):
+    the epoch of ``epochs``, the training time so far, the holdout metric and the time left at the epochs' mean
+    pace (at most: a patience stop ends sooner)."""
+    done, elapsed_s = record["epoch"], record["elapsed_s"]
+    left_s = elapsed_s / max(done, 1) * max(epochs - done, 0)
+    holdout = record.get(f"holdout_{metric}")
+    shown = f", holdout {metric} {holdout:.4g}" if isinstance(holdout, int | float) else ""
+    return (f"[{name}] epoch {done}/{epochs}{' (partial)' if record.get('partial_epoch') else ''}: "
+            f"{_duration(elapsed_s)}{shown}; ETA {_duration(left_s)}")
+
+
+def _duration(seconds: float) -> str:
+    return f"{seconds:.0f} s" if seconds < 60 else f"{seconds / 60:.1f} min"
+
+
+def report_epochs(trainer, name: str, log: Callable[[str], None]) -> None:
+    """Make a trainer of :mod:`simshear_gym.train.loop` log :func:`epoch_line` after each of its epochs (beside
+    what its ``log_epoch`` writes to tensorboard); the pipeline's workers train with their bars off."""
+    tensorboard = trainer.log_epoch
+
+    def log_epoch(writer) -> None:
+        tensorboard(writer)
+        log(epoch_line(name, trainer.history[-1], trainer.config.epochs, trainer.metric))
+
+    trainer.log_epoch = log_epoch
+
+
 class StageStopped(RuntimeError):
     """A stage's training stopped by its wall-clock safety cap: no record, so a rerun continues it."""
 

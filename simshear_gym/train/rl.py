@@ -57,17 +57,18 @@ from pathlib import Path
 
 from simshear_gym.contract import OBSERVATIONS
 from simshear_gym.models.device import DEVICES
-from simshear_gym.train.flags import config_flags, config_from_args
+from simshear_gym.train.flags import config_flags
 from simshear_gym.train.rl_config import (
     ALGORITHMS,
     OBS_MODES,
+    PRESETS,
     TASKS,
     VEC_ENVS,
     RLTrainConfig,
     latest_checkpoint,
 )
 
-__all__ = ["RLTrainConfig", "add_arguments", "latest_checkpoint", "run", "train"]
+__all__ = ["RLTrainConfig", "add_arguments", "config_of", "latest_checkpoint", "run", "train"]
 
 def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: bool = True) -> dict:
     """Train (or continue) a run; returns its summary (:func:`simshear_gym.train.rl_trainer.train`)."""
@@ -129,15 +130,30 @@ FLAG_HELP = {
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
+    parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
+                        help="start from named settings (every flag given beside it wins): tracking-first, a "
+                             "tracking policy on a 2-core CPU (the servo law's DAgger clone on estimate+action, then "
+                             "a short PPO phase; its budget and error: docs/first_policy.md)")
     config_flags(parser, RLTrainConfig, FLAG_HELP,
                  choices={"algo": ALGORITHMS, "task": TASKS, "observation": OBSERVATIONS, "obs_mode": OBS_MODES,
                           "vec": VEC_ENVS, "device": DEVICES})
+    # a setting's flag left out reads None here, so that a preset can fill it (config_of); the help texts still
+    # show the dataclass defaults, which fill what neither gives
+    parser.set_defaults(**{name: None for name in FLAG_HELP})
     parser.add_argument("--resume", action="store_true", help="continue from the run's newest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no SB3 training log on stdout")
 
 
+def config_of(args: argparse.Namespace) -> RLTrainConfig:
+    """The run's settings: the flags given, then ``--preset``'s values (:data:`PRESETS`), then the defaults."""
+    given = {name: getattr(args, name) for name in FLAG_HELP if getattr(args, name, None) is not None}
+    given = {name: tuple(value) if isinstance(value, list) else value for name, value in given.items()}
+    preset = PRESETS[args.preset] if getattr(args, "preset", None) else {}
+    return RLTrainConfig(**{**preset, **given})
+
+
 def run(args: argparse.Namespace) -> int:
-    config = config_from_args(RLTrainConfig, args)
+    config = config_of(args)
     summary = train(config, args.out, resume=args.resume, progress=not args.quiet)
     print(json.dumps(summary))
     return 0

@@ -19,6 +19,20 @@ VEC_ENVS = ("dummy", "subproc", "batched")
 RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps",
                "device")
 
+#: ``simshear train rl --preset NAME``: named settings a run starts from (any flag given beside it wins). The
+#: recipe, its budget and what it gives are in docs/first_policy.md and results/first_policy.json.
+PRESETS: dict[str, dict] = {
+    # a first tracking policy on a 2-core CPU: the servo law's DAgger clone on the estimate and the last action
+    # (the law in velocity form: a function of what the policy sees), then a short PPO phase from the clone
+    "tracking-first": {
+        "algo": "ppo", "task": "tracking", "observation": "estimate+action", "history": 2, "obs_mode": "real",
+        "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
+        "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
+        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000, "seed": 0,
+        "threads": 1,
+    },
+}
+
 
 @dataclass(frozen=True)
 class RLTrainConfig:

@@ -27,6 +27,7 @@ The fit's losses before and after, per part, go into the run's ``summary.json`` 
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -213,3 +214,29 @@ def imitate(model, vec_normalize, rollouts: dict, epochs: int, noise: float, bat
         policy.log_std.fill_(math.log(noise))
     after = evaluate()
     return {"steps": len(actions), "epochs": epochs, "noise": noise, "before": before, "after": after}
+
+
+def clone_servo_law(model, vec_normalize, envs: list, steps: int, rounds: int = 1, epochs: int = 30,
+                    noise: float = 0.1, seed: int = 0, gamma: float = 0.99, batch_size: int = 64) -> dict:
+    """Clone the servo law into ``model`` (an SB3 PPO on an estimate observation; ``vec_normalize``: its
+    ``VecNormalize`` or None): ``steps`` steps of the law acting in ``envs`` (``gym.make``'d with the training
+    envs' settings, one per stream), then ``rounds`` - 1 rounds of DAgger (the clone acts, the law labels, all
+    rounds' steps refitted); steps 1-4 of the module docstring. Returns the fits' records (``seconds``: wall time).
+    ``simshear train rl --bc-steps`` calls it; ``examples/first_policy.py`` too."""
+    if steps < 1 or rounds < 1:
+        raise ValueError(f"clone_servo_law needs steps and rounds >= 1, got {steps}, {rounds}")
+    started = time.perf_counter()
+    records, parts = [], []
+    for round_index in range(rounds):
+        actor = None if round_index == 0 else policy_actor(model, vec_normalize)
+        part = collect(envs, steps, noise, seed + round_index, actor=actor)
+        update_normalisation(vec_normalize, part, gamma)
+        parts.append(part)
+        record = imitate(model, vec_normalize, merge(parts), epochs, noise, batch_size=batch_size, seed=seed,
+                         gamma=gamma)
+        records.append({**record, "round": round_index, "actor": "servo law" if actor is None else "policy",
+                        "new_steps": len(part["actions"]),
+                        "episodes_ended": max(0, int(part["starts"].sum()) - len(envs))})
+    return {"steps": sum(len(part["actions"]) for part in parts), "epochs": epochs, "noise": noise,
+            "before": records[0]["before"], "after": records[-1]["after"], "rounds": records,
+            "seconds": round(time.perf_counter() - started, 1)}

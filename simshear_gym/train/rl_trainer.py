@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import os
 import time
 import zipfile
 from dataclasses import asdict, fields
@@ -38,6 +39,7 @@ from simshear_gym.control.policy import (
 from simshear_gym.control.policy_files import restore_vec_normalize, save_normalizer, save_policy
 from simshear_gym.control.servo import SERVO_GAINS
 from simshear_gym.io import atomic_write, write_json
+from simshear_gym.machine import machine_info
 from simshear_gym.models.device import resolve_device
 from simshear_gym.train.rl_config import RESUME_FREE, RLTrainConfig, latest_checkpoint
 from simshear_gym.train.runs import check_same_settings
@@ -313,30 +315,17 @@ def plot_learning_curve(evaluations: list[dict], path: Path, title: str) -> None
 
 def clone_servo_law(config: RLTrainConfig, model, vec_normalize) -> dict:
     """``--bc-steps``: the servo law's rollouts in the training envs' settings cloned into ``model``'s policy, then
-    ``--bc-rounds`` - 1 rounds of DAgger (the clone acts, the law labels, all rounds' steps refitted;
-    :mod:`simshear_gym.train.rl_imitation`); returns the fits' records."""
-    from simshear_gym.train.rl_imitation import collect, imitate, merge, policy_actor, update_normalisation
+    ``--bc-rounds`` - 1 rounds of DAgger (:func:`simshear_gym.train.rl_imitation.clone_servo_law`); returns the
+    fits' records."""
+    from simshear_gym.train.rl_imitation import clone_servo_law as clone
 
-    started = time.perf_counter()
     envs = [make_env(config, rank) for rank in range(config.n_envs)]
-    rounds, parts = [], []
     try:
-        for round_index in range(config.bc_rounds):
-            actor = None if round_index == 0 else policy_actor(model, vec_normalize)
-            part = collect(envs, config.bc_steps, config.bc_noise, config.seed + round_index, actor=actor)
-            update_normalisation(vec_normalize, part, config.gamma)
-            parts.append(part)
-            record = imitate(model, vec_normalize, merge(parts), config.bc_epochs, config.bc_noise,
-                             batch_size=max(config.batch_size, 64), seed=config.seed, gamma=config.gamma)
-            rounds.append({**record, "round": round_index, "actor": "servo law" if actor is None else "policy",
-                           "new_steps": len(part["actions"]),
-                           "episodes_ended": max(0, int(part["starts"].sum()) - len(envs))})
+        return clone(model, vec_normalize, envs, config.bc_steps, config.bc_rounds, config.bc_epochs,
+                     config.bc_noise, seed=config.seed, gamma=config.gamma, batch_size=max(config.batch_size, 64))
     finally:
         for env in envs:
             env.close()
-    return {"steps": sum(len(part["actions"]) for part in parts), "epochs": config.bc_epochs,
-            "noise": config.bc_noise, "before": rounds[0]["before"], "after": rounds[-1]["after"], "rounds": rounds,
-            "seconds": round(time.perf_counter() - started, 1)}
 
 
 def _vec_env(config: RLTrainConfig):
@@ -423,7 +412,7 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
         imitation = clone_servo_law(config, model, vec_normalize)
         write_json(run_dir / "imitation.json", imitation)
     remaining = config.timesteps - model.num_timesteps
-    started = time.perf_counter()
+    started, load_start = time.perf_counter(), os.getloadavg()[0]
     budget = WallClockBudget(config.minutes)
     evaluation = EvaluationCallback(config, run_dir, vec_normalize)
     try:
@@ -442,6 +431,8 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
                "timesteps": int(model.num_timesteps), "resumed_from": str(start_from) if start_from else None,
                "stopped_by": "minutes" if budget.stopped else "timesteps",
                "seconds": round(time.perf_counter() - started, 1), "model": str(run_dir / "model.zip"),
-               "last_evaluation": evaluation.history[-1] if evaluation.history else None, "imitation": imitation}
+               "last_evaluation": evaluation.history[-1] if evaluation.history else None, "imitation": imitation,
+               "machine": {**machine_info(), "load_1min_rl_start": round(load_start, 2),
+                           "load_1min_end": round(os.getloadavg()[0], 2)}}
     write_json(run_dir / "summary.json", summary)
     return summary
