@@ -46,7 +46,9 @@ from simshear_gym.robots.mg400.protocol import RobotMode, parse_reply
 
 FAST = dict(dashboard_port=0, motion_port=0, feedback_port=0, joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0,
             initial_joints_deg=(0.0, 0.0, 0.0, 0.0))
-BENCH = UnsafeSafetyConfig(max_move_mm=250.0, max_move_deg=90.0)  # protocol tests with long queued moves
+# protocol tests with long, fast queued moves (at the emulator's full speed)
+BENCH = UnsafeSafetyConfig(max_move_mm=250.0, max_move_deg=90.0, max_speed_mm_s=1000.0, max_speed_deg_s=400.0,
+                           max_accel_mm_s2=10000.0, max_accel_deg_s2=4000.0)
 
 
 def wait_for(predicate: Callable[[], bool], timeout_s: float = 2.0) -> bool:
@@ -129,7 +131,10 @@ def test_moves_sync_and_get_pose(make_emulator):
         feedback = robot.latest_feedback()
         assert wait_for(lambda: np.allclose(robot.latest_feedback().q_actual_deg, (10, 20, 30, 5)))
         assert feedback.robot_type == 1
-    assert emulator.received_commands("motion")[:2] == ["MovL(300,20,60,10)", "MovJ(280,-30,80,0)"]
+    # queued moves carry the speed and acceleration ratios that keep them within the limits (here BENCH's)
+    assert [c.split(",S")[0] for c in emulator.received_commands("motion")[:2]] == ["MovL(300,20,60,10",
+                                                                                   "MovJ(280,-30,80,0"]
+    assert all("SpeedL=" in c and "AccL=" in c for c in emulator.received_commands("motion")[:1])
 
 
 @pytest.mark.parametrize("count", [4, 6])
@@ -186,7 +191,8 @@ def test_servo_p_streaming_reaches_the_target(make_emulator):
         robot.enable_robot()
         assert wait_for(lambda: robot.latest_feedback() is not None)
         goal = (300.0, 10.0, 100.0, 5.0)
-        config = ServoStreamConfig(period_s=0.02, margin_s=0.03, max_step_mm=2.0, max_step_deg=2.0)  # 40 mm/s
+        # 0.6 mm per 20 ms period: a stream at 30 mm/s (the speed of a stream is step / period, not step / t)
+        config = ServoStreamConfig(period_s=0.02, margin_s=0.03, max_step_mm=0.6, max_step_deg=0.6)
         with ServoStreamer(robot, config) as streamer:
             streamer.set_goal(goal)
             assert wait_for(lambda: streamer.at_goal, timeout_s=5.0), streamer.error
@@ -270,7 +276,7 @@ def test_servo_streamer_stops_on_a_dropped_connection(make_emulator):
     emulator = make_emulator()
     with client_for(emulator) as robot:
         robot.enable_robot()
-        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.04)).start()  # 2 mm / 0.05 s
+        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.04, max_step_mm=0.3)).start()
         streamer.set_goal((284.0, 0.0, 60.0, 0.0))
         assert wait_for(lambda: streamer.commands_sent > 2)
         emulator.drop_connections()
@@ -390,7 +396,7 @@ def test_dry_run_logs_instead_of_sending(make_emulator, caplog):
         with pytest.raises(SafetyError):
             robot.mov_l(600.0, 0.0, 0.0, 0.0)  # checks still apply
     assert emulator.received_commands("motion") == []
-    assert "dry run: not sending MovL(290,0,110,0)" in caplog.text
+    assert "dry run: not sending MovL(290,0,110,0,SpeedL=" in caplog.text
 
 
 def test_joint_steps_are_limited_too():

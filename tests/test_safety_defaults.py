@@ -201,7 +201,7 @@ def test_a_safety_config_cannot_loosen_the_safe_defaults(caplog):
         SafetyLayer(UnsafeSafetyConfig(max_move_mm=200.0))
     assert "UNSAFE safety limits in use (UnsafeSafetyConfig): max_move_mm = 200.0 (safe default 50.0)" in caplog.text
     everything = UnsafeSafetyConfig.arm_limits_only()
-    assert everything.unsafe and len(everything.loosened()) == 11
+    assert everything.unsafe and len(everything.loosened()) == 13
 
 
 def test_servo_checks_use_the_command_time():

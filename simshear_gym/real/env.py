@@ -95,6 +95,7 @@ from simshear_gym.real.mg400_client import (
 from simshear_gym.real.safety import (
     FeedbackMismatchError,
     MotionKind,
+    MotionRefusedError,
     SafetyConfig,
     SafetyError,
     SafetyLayer,
@@ -271,11 +272,14 @@ class RealEnvConfig:
             logger.warning("a full-scale action (%.3f mm, %.3f deg) exceeds the safety step limit (%g mm, %g deg): "
                            "such actions end the episode", step_mm, self.action_scale.step_deg,
                            self.safety.max_step_mm, self.safety.max_step_deg)
-        t_s = self.servo_time_s
-        if step_mm / t_s > self.safety.max_speed_mm_s or self.action_scale.step_deg / t_s > self.safety.max_speed_deg_s:
-            logger.warning("a full-scale action (%.3f mm, %.3f deg in t = %g s) exceeds the safety speed limit "
-                           "(%g mm/s, %g deg/s): such actions end the episode", step_mm, self.action_scale.step_deg,
-                           t_s, self.safety.max_speed_mm_s, self.safety.max_speed_deg_s)
+        # A stream of full-scale actions moves the arm one step per control period (not per ServoP t).
+        period_s = self.control_period_s
+        if (step_mm / period_s > self.safety.max_speed_mm_s
+                or self.action_scale.step_deg / period_s > self.safety.max_speed_deg_s):
+            logger.warning("a stream of full-scale actions (%.3f mm, %.3f deg every %g s) exceeds the safety speed "
+                           "limit (%g mm/s, %g deg/s): the client refuses such commands (or clamps them, "
+                           "servo_over_limit = 'clamp')", step_mm, self.action_scale.step_deg, period_s,
+                           self.safety.max_speed_mm_s, self.safety.max_speed_deg_s)
 
     @property
     def servo_time_s(self) -> float:
@@ -527,7 +531,9 @@ class RealTactileEnv(gym.Env):
     def _send(self, target: np.ndarray) -> tuple[str, str] | None:
         """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""
         try:
-            self.client.servo_p(*target, t_s=self.config.servo_time_s)
+            sent = self.client.servo_p(*target, t_s=self.config.servo_time_s)
+        except MotionRefusedError as error:  # stale or missing feedback, error mode: the client sent nothing
+            return STOP_TERMINATIONS[error.reason], f"target {target.round(3).tolist()} not sent: {error}"
         except FeedbackMismatchError as error:
             return "feedback_mismatch", f"target {target.round(3).tolist()} not sent: {error}"
         except SafetyError as error:
@@ -536,7 +542,8 @@ class RealTactileEnv(gym.Env):
             return "robot_error", str(error)
         except (MG400ConnectionError, MG400TimeoutError, ProtocolError) as error:
             return "lost_connection", str(error)
-        self._commanded = target
+        # the pose sent: with SafetyConfig.servo_over_limit = "clamp", the client may have moved it back toward the arm
+        self._commanded = np.asarray(sent, dtype=np.float64) if sent is not None else target
         if not self.config.dry_run:
             self.commands_sent += 1
         return None
