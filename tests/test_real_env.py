@@ -137,7 +137,7 @@ def test_reset_moves_to_the_start_pose_and_steps_send_servo_p(emulator):
         assert emulator.pose == pytest.approx(START, abs=1e-6)
         assert obs["tcp_pose"] == pytest.approx(tcp_pose_from_flange(START, TacTipMount()), abs=1e-3)
         motion = emulator.received_commands("motion")
-        assert motion[0].startswith("MovJ(300,0,0,0)")
+        assert motion[0].startswith("MovJ(300,0,0,0,SpeedJ=")
         start = time.monotonic()
         for _ in range(5):
             obs, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0, 0.5, 0.0], np.float32))

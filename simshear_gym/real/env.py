@@ -446,6 +446,8 @@ class RealTactileEnv(gym.Env):
             raise RealEnvError(f"moving to the start pose {start.tolist()} failed: {error}") from error
         if not dry_run:
             self._wait_until_at(start)
+            # from rest, a servo command may ask for max_accel times the time at rest: start the stream with a t's
+            self.client.wait_until_still(self.config.servo_time_s, timeout_s=self.config.move_timeout_s)
         self._commanded = start.copy()
         self.commands_sent = 0
         self.safety_events = []

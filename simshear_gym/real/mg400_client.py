@@ -273,6 +273,8 @@ class _FeedbackReader:
         self._lost: str | None = None
         self._stop = threading.Event()
         self._first = threading.Event()
+        self._last_joints: tuple[float, ...] | None = None
+        self._moved_s: float | None = None
         self._thread = threading.Thread(target=self._run, name="mg400-feedback", daemon=True)
         self._thread.start()
 
@@ -301,8 +303,14 @@ class _FeedbackReader:
                     if first:
                         logger.error("MG400 %s: %s", self._where, mismatch)
             if packets:
+                now_s = self._clock()
                 with self._lock:
-                    self._latest = (packets[-1], self._clock())
+                    for packet in packets:  # when a packet last showed the arm moving (or the first packet)
+                        joints = packet.q_actual_deg
+                        if self._last_joints is None or joints != self._last_joints:
+                            self._moved_s = now_s
+                        self._last_joints = joints
+                    self._latest = (packets[-1], now_s)
                     self._received += len(packets)
                 self._first.set()
 
@@ -336,6 +344,12 @@ class _FeedbackReader:
     def received(self) -> int:
         with self._lock:
             return self._received
+
+    @property
+    def moved_s(self) -> float | None:
+        """When a packet last showed the arm moving (or the first packet arrived), the client's clock, s."""
+        with self._lock:
+            return self._moved_s
 
     def wait_first(self, timeout_s: float) -> bool:
         """Wait until the first valid packet arrived (or ``timeout_s`` passed, or the stream was lost)."""
@@ -452,7 +466,7 @@ class MG400Client:
         self._feedback = self._motion = self._dashboard = None
 
     def __enter__(self) -> MG400Client:
-        return self.connect()
+        return self if self._dashboard is not None else self.connect()  # connected already: keep those
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
@@ -587,6 +601,21 @@ class MG400Client:
             raise FeedbackStaleError("feedback is not running (not connected, or use_feedback=False)")
         return self._feedback.latest(self.config.feedback_max_age_s if max_age_s is None else max_age_s)
 
+    def wait_until_still(self, duration_s: float, timeout_s: float = 2.0) -> bool:
+        """Wait until the feedback shows the arm still for ``duration_s`` (a servo command from rest may then ask
+        for up to ``max_accel`` times that much speed: the acceleration check); False after ``timeout_s`` or
+        without the feedback stream."""
+        if self._feedback is None:
+            return False
+        deadline_s = time.monotonic() + timeout_s
+        while True:
+            moved_s = self._feedback.moved_s
+            if moved_s is not None and self.clock() - moved_s >= duration_s + self.safety.config.controller_cycle_s:
+                return True
+            if time.monotonic() >= deadline_s:
+                return False
+            time.sleep(0.002)
+
     @property
     def feedback_rejected(self) -> int:
         """Feedback packets rejected so far (bad length field, test value or truncated)."""
@@ -700,7 +729,8 @@ class MG400Client:
                 self.safety.check_feedback_agreement(packet.q_actual_deg, packet.tool_vector_actual,
                                                      f"{where}, feedback")
                 return ArmSample(tuple(packet.tool_vector_actual), tuple(packet.q_actual_deg), received_s,
-                                 tuple(packet.tool_vector_target), tuple(packet.q_target_deg))
+                                 tuple(packet.tool_vector_target), tuple(packet.q_target_deg),
+                                 self._feedback.moved_s)
         elif cfg.refuse_stale_feedback and self.robot_mode() is RobotMode.ERROR:
             raise MotionRefusedError(StopReason.ROBOT_ERROR_MODE,
                                      f"{where}: not sending motion: the robot reports error mode "
@@ -726,13 +756,16 @@ class MG400Client:
             self.safety.submit(command, lambda text: self._request("motion", text))
         except MG400Error:  # the controller answered: refused, not in force
             self._reference = None
+            self.stream.outcome(answered=True, accepted=False)
             raise
         except BaseException:  # no answer: it may be in force
             self._reference = None
             self._uncertain = target
+            self.stream.outcome(answered=False, accepted=False)
             raise
         self._reference = target
         self._uncertain = None
+        self.stream.outcome(answered=True, accepted=True)
 
     def _stream_sample(self, measured: ArmSample) -> ArmSample:
         """What the stream checks measure from: the arm, or in dry run (nothing is sent, the arm stays) the last
@@ -740,7 +773,7 @@ class MG400Client:
         if not self.safety.dry_run or self._reference is None:
             return measured
         pose, joints = self._reference
-        return ArmSample(tuple(pose), tuple(joints), self.clock())
+        return ArmSample(tuple(pose), tuple(joints), self.clock(), moved_s=measured.moved_s)
 
     def _check_cartesian(self, target: np.ndarray, kind: MotionKind, duration_s: float | None,
                          reference: tuple[np.ndarray, np.ndarray]) -> np.ndarray:

@@ -104,8 +104,9 @@ _UPPER_LIMITS: tuple[str, ...] = ("max_step_mm", "max_step_deg", "max_speed_mm_s
                                   "max_move_deg", "max_pose_mismatch_mm", "max_pose_mismatch_deg",
                                   "path_check_step_mm", "max_accel_mm_s2", "max_accel_deg_s2")
 # Settings where a smaller value is looser: the assumed delays and the controller's assumed speeds at 100 %.
-_LOWER_LIMITS: tuple[str, ...] = ("stream_latency_s", "arm_linear_speed_mm_s", "arm_rotation_speed_deg_s",
-                                  "arm_joint_speed_deg_s", "arm_linear_accel_mm_s2", "arm_joint_accel_deg_s2")
+_LOWER_LIMITS: tuple[str, ...] = ("stream_latency_s", "controller_cycle_s", "arm_linear_speed_mm_s",
+                                  "arm_rotation_speed_deg_s", "arm_joint_speed_deg_s", "arm_linear_accel_mm_s2",
+                                  "arm_joint_accel_deg_s2")
 SERVO_OVER_LIMIT: tuple[str, ...] = ("refuse", "clamp")
 """What the client does with a servo command over the stream limits: refuse it (default) or clamp it."""
 _RANGES: tuple[str, ...] = ("x_range_mm", "y_range_mm", "z_range_mm", "radius_range_mm", "r_range_deg")
@@ -137,6 +138,9 @@ class SafetyConfig:
         stream_latency_s: the assumed bound on the delays between the controller and the client (a feedback packet
             on its way plus a command on its way), s: every target sent this long before the newest feedback packet
             arrived, or later, may still be ahead of the arm. Larger is stricter.
+        controller_cycle_s: the controller's servo cycle, s: a new target takes effect on its cycle, so the time
+            between two velocity changes is known to within one cycle (two after an arrival); the acceleration check
+            counts that time short by as much. Larger is stricter.
         refuse_stale_feedback: refuse every motion command while the feedback stream (when the client uses one)
             has no packet newer than ``max_feedback_age_s`` or the robot reports error mode.
         servo_over_limit: ``"refuse"`` a servo command over the stream limits (default), or ``"clamp"`` it: move it
@@ -171,7 +175,8 @@ class SafetyConfig:
     max_pose_mismatch_deg: float = 1.0
     max_accel_mm_s2: float = 2000.0
     max_accel_deg_s2: float = 2000.0
-    stream_latency_s: float = 0.02
+    stream_latency_s: float = 0.01
+    controller_cycle_s: float = 0.008
     refuse_stale_feedback: bool = True
     servo_over_limit: str = "refuse"
     arm_linear_speed_mm_s: float = 1000.0
@@ -576,6 +581,8 @@ class ArmSample:
         time_s: when the client received it, on the client's clock, s.
         target_pose, target_joints: the target in force when it was sampled (the packet's ``tool_vector_target`` and
             ``q_target``), None when unknown.
+        moved_s: when a packet last showed the arm moving (or the first packet, if it never moved since), the
+            client's clock, s; None when unknown (then the arm counts as having just stopped).
     """
 
     pose: tuple[float, ...]
@@ -583,6 +590,7 @@ class ArmSample:
     time_s: float
     target_pose: tuple[float, ...] | None = None
     target_joints: tuple[float, ...] | None = None
+    moved_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -605,6 +613,9 @@ def _rates(target_pose: np.ndarray, target_joints: np.ndarray, from_pose: np.nda
             joints / duration_s)
 
 
+_ServoState = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
+
+
 class MotionStream:
     """One arm's recent motion commands and the checks that span commands (module docstring, "A stream of
     commands"). Each :class:`~simshear_gym.real.mg400_client.MG400Client` holds its own, so two arms (a leader and
@@ -613,14 +624,30 @@ class MotionStream:
     def __init__(self, layer: SafetyLayer) -> None:
         self.layer = layer
         self._sent: list[SentTarget] = []
-        # the newest servo command: (time_s, the pose and joints the client expects the arm to start from, target
-        # pose, target joints, t)
-        self._servo: tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None = None
+        # What may be in force, newest first: a servo command as (time_s, the pose and joints the client expected the
+        # arm to start from, target pose, target joints, t), or None (no servo command: at rest or a queued move).
+        # More than one while the reply of a command was lost (it may or may not be in force).
+        self._options: list[_ServoState | None] = [None]
+        self._before_last: list[_ServoState | None] = [None]
+
+    @property
+    def _servo(self) -> _ServoState | None:
+        return self._options[0]
 
     def forget(self) -> None:
         """Forget the commands sent (after a stop, a reset or a cleared error: the arm is at rest where it is)."""
         self._sent.clear()
-        self._servo = None
+        self._options = [None]
+        self._before_last = [None]
+
+    def outcome(self, answered: bool, accepted: bool) -> None:
+        """How the last recorded command ended: accepted (in force), refused by the controller (never in force), or
+        no answer (``answered`` False: it may or may not be in force, both are checked from now on)."""
+        if answered and not accepted:
+            self._options = list(self._before_last)
+        elif not answered:
+            self._options = self._options[:1] + [option for option in self._before_last
+                                                 if option is not self._options[0]]
 
     def record(self, now_s: float, pose: np.ndarray, joints: np.ndarray, duration_s: float | None,
                sample: ArmSample | None) -> None:
@@ -630,16 +657,20 @@ class MotionStream:
         horizon_s = 10.0 * max(self.layer.config.stream_latency_s, self.layer.config.max_feedback_age_s)
         while self._sent and self._sent[0].time_s < now_s - horizon_s:
             self._sent.pop(0)
+        self._before_last = list(self._options)
         if duration_s is None:
-            self._servo = None  # a queued move: the controller plans it (queued_ratios)
+            self._options = [None]  # a queued move: the controller plans it (queued_ratios)
             return
         start_pose, start_joints = self._expected_position(now_s, sample)
-        self._servo = (now_s, start_pose, start_joints, pose, joints, float(duration_s))
+        self._options = [(now_s, start_pose, start_joints, pose, joints, float(duration_s))]
 
-    def _expected_position(self, now_s: float, sample: ArmSample | None) -> tuple[np.ndarray, np.ndarray]:
-        """Where the client expects the arm to be now: on the way of the newest servo command, or the measurement."""
-        if self._servo is not None:
-            sent_s, start_pose, start_joints, pose, joints, t_s = self._servo
+    def _expected_position(self, now_s: float, sample: ArmSample | None, servo: _ServoState | None = None,
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """Where the client expects the arm to be now: on the way of the servo command ``servo`` (default the
+        newest), or the measurement."""
+        servo = self._servo if servo is None else servo
+        if servo is not None:
+            sent_s, start_pose, start_joints, pose, joints, t_s = servo
             fraction = min(1.0, max(0.0, (now_s - sent_s) / t_s))
             if fraction < 1.0 or sample is None:
                 joint_delta = joints - start_joints
@@ -690,28 +721,61 @@ class MotionStream:
 
     def _check_acceleration(self, now_s: float, pose: np.ndarray, joints: np.ndarray, duration_s: float,
                             sample: ArmSample | None) -> None:
+        for option in self._options:  # against everything that may be in force
+            self._check_acceleration_from(option, now_s, pose, joints, duration_s, sample)
+
+    def _check_acceleration_from(self, servo: _ServoState | None, now_s: float, pose: np.ndarray, joints: np.ndarray,
+                                 duration_s: float, sample: ArmSample | None) -> None:
+        """Check the change of velocity against one state that may be in force: ``servo`` still on its way, or the
+        arm at rest (``servo`` None or arrived); near its arrival, both."""
         cfg = self.layer.config
-        start_pose, start_joints = self._expected_position(now_s, sample)
-        velocity, r_rate, joint_rates = _rates(pose, joints, start_pose, start_joints, duration_s)
-        before = (np.zeros(3), 0.0, np.zeros(4))
-        interval_s = duration_s
-        if self._servo is not None:
-            sent_s, old_start_pose, old_start_joints, old_pose, old_joints, old_t_s = self._servo
-            if now_s < sent_s + old_t_s:  # still on its way
+        # The controller applies a change on its cycle, and a command's delay may differ from the previous one's by
+        # up to stream_latency_s: the time since the last change is counted short by both.
+        cycle_s, slack_s = cfg.controller_cycle_s, cfg.controller_cycle_s + cfg.stream_latency_s
+        rest_since_s: float | None = None
+        may_rest = servo is None
+        if servo is not None:
+            sent_s, old_start_pose, old_start_joints, old_pose, old_joints, old_t_s = servo
+            arrival_s = sent_s + old_t_s
+            if now_s < arrival_s + slack_s:  # may still be on its way: the change from its velocity
+                start_pose, start_joints = self._expected_position(now_s, sample, servo)
+                velocity, r_rate, joint_rates = _rates(pose, joints, start_pose, start_joints, duration_s)
                 before = _rates(old_pose, old_joints, old_start_pose, old_start_joints, old_t_s)
-                interval_s = min(duration_s, max(now_s - sent_s, 1e-6))
-            else:  # arrived: at rest since
-                interval_s = min(duration_s, max(now_s - sent_s - old_t_s, 1e-6))
-        change = float(np.linalg.norm(velocity - before[0])) / interval_s
-        if change > cfg.max_accel_mm_s2 * (1.0 + 1e-9):
-            raise SafetyError(f"stream acceleration: the velocity asked for changes by "
-                              f"{float(np.linalg.norm(velocity - before[0])):.1f} mm/s within {interval_s:.3f} s "
-                              f"({change:.0f} mm/s^2 > max_accel_mm_s2 = {cfg.max_accel_mm_s2:g})")
-        for name, new, old in [("R", r_rate, before[1])] + list(zip(JOINT_NAMES, joint_rates, before[2])):
-            change = abs(float(new - old)) / interval_s
-            if change > cfg.max_accel_deg_s2 * (1.0 + 1e-9):
-                raise SafetyError(f"stream acceleration: {name} rate changes by {abs(float(new - old)):.1f} deg/s "
-                                  f"within {interval_s:.3f} s ({change:.0f} deg/s^2 > max_accel_deg_s2 = "
+                self._check_change((velocity, r_rate, joint_rates), before, max(now_s - sent_s - slack_s, cycle_s))
+            if now_s > arrival_s - slack_s:  # may have arrived (and stopped), as late as its delay and a cycle
+                may_rest, rest_since_s = True, arrival_s + slack_s
+        if not may_rest:
+            return
+        # From rest: the velocity asked for from anywhere the arm may be; since when at rest (the packet after the
+        # last one that showed it moving; unknown, or still moving in the newest packet: just now)?
+        if sample is not None and sample.moved_s is not None:
+            moved_s = now_s if sample.moved_s >= sample.time_s else sample.moved_s + cycle_s
+            rest_since_s = max(rest_since_s if rest_since_s is not None else -math.inf, moved_s)
+        interval_s = (cycle_s if rest_since_s is None
+                      else min(duration_s, max(now_s - rest_since_s - cycle_s, cycle_s)))
+        fastest = (np.zeros(3), 0.0, np.zeros(4))
+        for where_pose, where_joints in self.hull(sample):
+            velocity, r_rate, joint_rates = _rates(pose, joints, where_pose, where_joints, duration_s)
+            fastest = (velocity if np.linalg.norm(velocity) > np.linalg.norm(fastest[0]) else fastest[0],
+                       r_rate if abs(r_rate) > abs(fastest[1]) else fastest[1],
+                       np.where(np.abs(joint_rates) > np.abs(fastest[2]), joint_rates, fastest[2]))
+        self._check_change(fastest, (np.zeros(3), 0.0, np.zeros(4)), interval_s)
+
+    def _check_change(self, new: tuple[np.ndarray, float, np.ndarray], old: tuple[np.ndarray, float, np.ndarray],
+                      interval_s: float) -> None:
+        """Refuse a change of velocity (xyz mm/s, R deg/s, joints deg/s) faster than ``max_accel_*`` over
+        ``interval_s``."""
+        cfg = self.layer.config
+        delta_mm_s = float(np.linalg.norm(new[0] - old[0]))
+        if delta_mm_s / interval_s > cfg.max_accel_mm_s2 * (1.0 + 1e-9):
+            raise SafetyError(f"stream acceleration: the velocity asked for changes by {delta_mm_s:.1f} mm/s within "
+                              f"{interval_s:.3f} s ({delta_mm_s / interval_s:.0f} mm/s^2 > max_accel_mm_s2 = "
+                              f"{cfg.max_accel_mm_s2:g})")
+        for name, new_rate, old_rate in [("R", new[1], old[1])] + list(zip(JOINT_NAMES, new[2], old[2])):
+            delta = abs(float(new_rate - old_rate))
+            if delta / interval_s > cfg.max_accel_deg_s2 * (1.0 + 1e-9):
+                raise SafetyError(f"stream acceleration: {name} rate changes by {delta:.1f} deg/s within "
+                                  f"{interval_s:.3f} s ({delta / interval_s:.0f} deg/s^2 > max_accel_deg_s2 = "
                                   f"{cfg.max_accel_deg_s2:g})")
 
     def clamp_servo_pose(self, now_s: float, target_pose: np.ndarray, duration_s: float, sample: ArmSample | None,
@@ -802,8 +866,8 @@ def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.n
         spread_deg = float(np.max(np.abs(joint_delta)))
         duration_s = spread_deg / cfg.arm_joint_speed_deg_s
         accel_fraction = cfg.arm_joint_accel_deg_s2 / max(spread_deg, 1e-9)
-    if duration_s <= 0.0:
-        return 100, 100
+    if duration_s <= 1e-9 or max(cart_per_fraction, joint_per_fraction, rot_per_fraction) < 1e-6:
+        return 100, 100  # no move (to within the numbers' precision)
     rate = 1.0 / duration_s  # fraction per second at 100 %
     speed_scale = min(1.0, cfg.max_speed_mm_s / max(cart_per_fraction * rate, 1e-12),
                       cfg.max_speed_deg_s / max(joint_per_fraction * rate, 1e-12),
