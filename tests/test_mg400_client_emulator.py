@@ -198,8 +198,8 @@ def test_servo_p_streaming_reaches_the_target(make_emulator):
         config = ServoStreamConfig(period_s=0.02, margin_s=0.03, max_step_mm=0.6, max_step_deg=0.6)
         with ServoStreamer(robot, config) as streamer:
             streamer.set_goal(goal)
-            assert wait_for(lambda: streamer.at_goal, timeout_s=5.0), streamer.error
-            assert wait_for(lambda: np.allclose(emulator.pose, goal, atol=1e-3), timeout_s=1.0)
+            assert wait_for(lambda: streamer.at_goal, timeout_s=60.0), streamer.error
+            assert wait_for(lambda: np.allclose(emulator.pose, goal, atol=1e-3), timeout_s=10.0)
         assert streamer.error is None and not streamer.running
         servo = [c for c in emulator.received_commands("motion") if c.startswith("ServoP")]
         assert len(servo) == streamer.commands_sent >= 10
@@ -328,12 +328,12 @@ def test_each_feedback_fault_alone(make_emulator, fault):  # the malformed ones 
 def test_slow_reply_times_out_and_the_late_reply_is_discarded(make_emulator):
     emulator = make_emulator(faults=FaultConfig(reply_delay_s=0.3, slow_commands=("GetPose",)))
     with client_for(emulator, reply_timeout_s=0.1) as robot:
-        start = time.monotonic()
+        # the timeout fired before the reply (0.3 s late) arrived, however busy the machine: a reply waiting in
+        # the socket after the deadline is not read, so get_pose() raises rather than returns
         with pytest.raises(MG400TimeoutError, match=r"no reply to GetPose\(\) .* within 0.1 s"):
             robot.get_pose()
-        assert time.monotonic() - start < 0.25
-        time.sleep(0.3)  # the late GetPose reply arrives meanwhile
-        assert robot.robot_mode() is RobotMode.DISABLED
+        time.sleep(0.3)  # the late GetPose reply arrives meanwhile (or later: it comes first on the socket anyway)
+        assert robot.robot_mode() is RobotMode.DISABLED  # not mistaken for the late GetPose reply
 
 
 def test_stale_feedback_raises(make_emulator):

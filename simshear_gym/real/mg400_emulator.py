@@ -599,6 +599,12 @@ class MG400Emulator:
         with self._cond:
             self._feedback_paused_until = time.monotonic() + float(duration_s)
 
+    @property
+    def feedback_paused(self) -> bool:
+        """True while :meth:`pause_feedback` holds the feedback back."""
+        with self._cond:
+            return time.monotonic() < self._feedback_paused_until
+
     def motion_records(self) -> list[MotionRecord]:
         """Every motion command received so far (Sync excepted), with the state it found, oldest first."""
         with self._cond:

@@ -615,6 +615,9 @@ def _rates(target_pose: np.ndarray, target_joints: np.ndarray, from_pose: np.nda
 
 _ServoState = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]
 
+CLAMP_SPEED_SHARE = 0.8
+"""The share of the speed limits a clamped servo target aims at (it passes the full limits)."""
+
 
 class MotionStream:
     """One arm's recent motion commands and the checks that span commands (module docstring, "A stream of
@@ -696,10 +699,12 @@ class MotionStream:
         return points
 
     def check_servo(self, now_s: float, pose: np.ndarray, joints: np.ndarray, duration_s: float,
-                    sample: ArmSample | None) -> None:
+                    sample: ArmSample | None, speed_share: float = 1.0) -> None:
         """Refuse (:class:`SafetyError`) a servo command that asks the arm for more than the speed or acceleration
-        limits, from anywhere it may be; ``sample`` is the newest measurement (None: only the commands sent)."""
+        limits, from anywhere it may be; ``sample`` is the newest measurement (None: only the commands sent);
+        ``speed_share``: the share of the speed limits to hold it to (the clamp aims below them)."""
         cfg = self.layer.config
+        max_mm_s, max_deg_s = cfg.max_speed_mm_s * speed_share, cfg.max_speed_deg_s * speed_share
         fmt = self.layer._fmt
         pose, joints = np.asarray(pose, dtype=float), np.asarray(joints, dtype=float)
         points = self.hull(sample)
@@ -708,15 +713,15 @@ class MotionStream:
         for where_pose, where_joints in points:
             velocity, r_rate, joint_rates = _rates(pose, joints, where_pose, where_joints, duration_s)
             speed = float(np.linalg.norm(velocity))
-            if speed > cfg.max_speed_mm_s * (1.0 + 1e-9):
+            if speed > max_mm_s * (1.0 + 1e-9):
                 raise SafetyError(f"stream speed: reaching {fmt(pose[:3])} from {fmt(where_pose[:3])}, where the arm "
-                                  f"may be, in t = {duration_s:g} s needs {speed:.1f} mm/s > max_speed_mm_s = "
-                                  f"{cfg.max_speed_mm_s:g} mm/s")
+                                  f"may be, in t = {duration_s:g} s needs {speed:.1f} mm/s > {max_mm_s:g} mm/s "
+                                  f"(max_speed_mm_s = {cfg.max_speed_mm_s:g})")
             for name, rate in [("R", r_rate)] + list(zip(JOINT_NAMES, joint_rates)):
-                if abs(rate) > cfg.max_speed_deg_s * (1.0 + 1e-9):
+                if abs(rate) > max_deg_s * (1.0 + 1e-9):
                     raise SafetyError(f"stream speed: {name} at {abs(rate):.1f} deg/s to reach the target from where "
-                                      f"the arm may be in t = {duration_s:g} s > max_speed_deg_s = "
-                                      f"{cfg.max_speed_deg_s:g} deg/s")
+                                      f"the arm may be in t = {duration_s:g} s > {max_deg_s:g} deg/s "
+                                      f"(max_speed_deg_s = {cfg.max_speed_deg_s:g})")
         self._check_acceleration(now_s, pose, joints, duration_s, sample)
 
     def _check_acceleration(self, now_s: float, pose: np.ndarray, joints: np.ndarray, duration_s: float,
@@ -741,7 +746,12 @@ class MotionStream:
                 start_pose, start_joints = self._expected_position(now_s, sample, servo)
                 velocity, r_rate, joint_rates = _rates(pose, joints, start_pose, start_joints, duration_s)
                 before = _rates(old_pose, old_joints, old_start_pose, old_start_joints, old_t_s)
-                self._check_change((velocity, r_rate, joint_rates), before, max(now_s - sent_s - slack_s, cycle_s))
+                # how far along the arm is, is known to within a cycle of its progress: the velocity asked for, to
+                # within that distance over t
+                spread = cycle_s / duration_s
+                self._check_change((velocity, r_rate, joint_rates), before, max(now_s - sent_s - slack_s, cycle_s),
+                                   (float(np.linalg.norm(before[0])) * spread, abs(before[1]) * spread,
+                                    np.abs(before[2]) * spread))
             if now_s > arrival_s - slack_s:  # may have arrived (and stopped), as late as its delay and a cycle
                 may_rest, rest_since_s = True, arrival_s + slack_s
         if not may_rest:
@@ -762,17 +772,19 @@ class MotionStream:
         self._check_change(fastest, (np.zeros(3), 0.0, np.zeros(4)), interval_s)
 
     def _check_change(self, new: tuple[np.ndarray, float, np.ndarray], old: tuple[np.ndarray, float, np.ndarray],
-                      interval_s: float) -> None:
+                      interval_s: float, uncertainty: tuple[float, float, np.ndarray] = (0.0, 0.0, np.zeros(4)),
+                      ) -> None:
         """Refuse a change of velocity (xyz mm/s, R deg/s, joints deg/s) faster than ``max_accel_*`` over
-        ``interval_s``."""
+        ``interval_s``; ``uncertainty``: how far off the new velocity may be (the same units), added."""
         cfg = self.layer.config
-        delta_mm_s = float(np.linalg.norm(new[0] - old[0]))
+        delta_mm_s = float(np.linalg.norm(new[0] - old[0])) + uncertainty[0]
         if delta_mm_s / interval_s > cfg.max_accel_mm_s2 * (1.0 + 1e-9):
             raise SafetyError(f"stream acceleration: the velocity asked for changes by {delta_mm_s:.1f} mm/s within "
                               f"{interval_s:.3f} s ({delta_mm_s / interval_s:.0f} mm/s^2 > max_accel_mm_s2 = "
                               f"{cfg.max_accel_mm_s2:g})")
-        for name, new_rate, old_rate in [("R", new[1], old[1])] + list(zip(JOINT_NAMES, new[2], old[2])):
-            delta = abs(float(new_rate - old_rate))
+        for name, new_rate, old_rate, spread in ([("R", new[1], old[1], uncertainty[1])]
+                                                 + list(zip(JOINT_NAMES, new[2], old[2], uncertainty[2]))):
+            delta = abs(float(new_rate - old_rate)) + float(spread)
             if delta / interval_s > cfg.max_accel_deg_s2 * (1.0 + 1e-9):
                 raise SafetyError(f"stream acceleration: {name} rate changes by {delta:.1f} deg/s within "
                                   f"{interval_s:.3f} s ({delta / interval_s:.0f} deg/s^2 > max_accel_deg_s2 = "
@@ -784,18 +796,31 @@ class MotionStream:
         the measurement) that passes ``check`` (the per-command checks; returns the joints) and
         :meth:`check_servo`; raises :class:`SafetyError` when not even the start of the way passes."""
 
-        def passes(pose: np.ndarray) -> bool:
+        def passes(pose: np.ndarray, speed_share: float = 1.0) -> bool:
             try:
-                self.check_servo(now_s, pose, check(pose), duration_s, sample)
+                self.check_servo(now_s, pose, check(pose), duration_s, sample, speed_share)
             except SafetyError:
                 return False
             return True
 
         target_pose = np.asarray(target_pose, dtype=float)
         expected, _ = self._expected_position(now_s, sample)
-        anchors = [expected]
+        anchors = []
+        if self._servo is not None:  # carrying on at the velocity in force (no change), or part of it
+            sent_s, start_pose, _, pose, _, t_s = self._servo
+            cfg = self.layer.config
+            if now_s < sent_s + t_s + cfg.controller_cycle_s + cfg.stream_latency_s:  # may still be on its way
+                velocity = pose - start_pose
+                velocity[3] = wrap_deg(velocity[3])
+                velocity /= t_s
+                anchors += [expected + share * velocity * duration_s for share in (1.0, 0.75, 0.5, 0.25)]
+        anchors.append(expected)
         if self._servo is not None:
             anchors.append(self._servo[3])
+        # from rest, the arm may be anywhere among the places it may be: the middle of them asks the least
+        points = [point for point, _ in self.hull(sample)]
+        if points:
+            anchors.append(0.5 * (np.min(points, axis=0) + np.max(points, axis=0)))
         if sample is not None:
             anchors.append(np.array(sample.pose, dtype=float))
         for anchor in anchors:
@@ -803,12 +828,14 @@ class MotionStream:
             anchor[3] = target_pose[3] - wrap_deg(target_pose[3] - anchor[3])  # turn the short way
             if not passes(anchor):
                 continue
-            low, high = 0.0, 1.0
-            if passes(target_pose):
+            if passes(target_pose, CLAMP_SPEED_SHARE):
                 return target_pose
+            # Toward the target, aiming at CLAMP_SPEED_SHARE of the speed limits: the room left lets the next
+            # command carry on even when the feedback it is checked against is a little older.
+            low, high = 0.0, 1.0
             for _ in range(30):
                 middle = 0.5 * (low + high)
-                if passes(anchor + middle * (target_pose - anchor)):
+                if passes(anchor + middle * (target_pose - anchor), CLAMP_SPEED_SHARE):
                     low = middle
                 else:
                     high = middle
