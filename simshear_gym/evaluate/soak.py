@@ -2,8 +2,9 @@
 replayed camera, for thousands of control cycles, with faults injected at random.
 
 ``simshear evaluate soak --cycles 10000 --seed 0`` runs :func:`run_soak` on the raw TacTip frames of
-``tactip331_raw`` (replayed in a loop, preprocessed as on the robot) and writes ``results/soak.json`` with the
-command that produced it. The test suite runs a shorter seeded soak on synthetic frames.
+``tactip331_raw`` (replayed in a loop, preprocessed as on the robot) and writes ``results/soak.json`` (and the
+figure ``results/soak.png``) with the command that produced it. The test suite runs a shorter seeded soak on
+synthetic frames.
 
 Every cycle is one ``env.step`` of the servo controller's action (GDNN + Bayesian filter + PI law). **The fault
 schedule is decided up front** from the seed (:func:`fault_schedule`): after a random gap, the next kind of a seeded
@@ -692,11 +693,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped surface GDNN)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--out", type=Path, default=Path("results"),
-                        help="results directory for soak.json (default results)")
+                        help="results directory for soak.json and soak.png (default results)")
+
+
+def _figure(result: dict[str, Any], path: Path) -> None:
+    """Each fault kind's outcomes (safe stop, ridden through) and the stops without a fault, as bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kinds = list(FAULT_KINDS)
+    stops = [result["fault_outcomes"][kind].get("safe_stop", 0) for kind in kinds]
+    recovered = [result["fault_outcomes"][kind].get("recovered", 0) for kind in kinds]
+    unprovoked = sum(result["stops_without_a_fault"].values())
+    fig, ax = plt.subplots(figsize=(8.0, 3.8))
+    positions = np.arange(len(kinds) + 1)
+    ax.bar(positions[:-1], stops, color="tab:orange", label="safe stop")
+    ax.bar(positions[:-1], recovered, bottom=stops, color="tab:green", label="ridden through")
+    ax.bar(positions[-1], unprovoked, color="tab:red", label="stop without a fault")
+    ax.set_xticks(positions, [kind.replace("_", " ") for kind in kinds] + ["no fault"], rotation=35, ha="right",
+                  fontsize=8)
+    ax.set_ylabel("count")
+    ax.set_title(f"Fault soak: {result['cycles']} cycles, {result['faults_total']} faults; motions faster than the "
+                 f"limits {result['motions_faster_than_the_limit']}, commands outside "
+                 f"{result['commands_outside_limits']}", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the soak, write ``soak.json``; 0 when nothing went outside the limits and nothing was unhandled."""
+    """Run the soak, write ``soak.json`` and ``soak.png``; 0 when nothing went outside the limits and nothing was
+    unhandled."""
     import logging
 
     import torch
@@ -718,6 +748,8 @@ def run(args: argparse.Namespace) -> int:
                "frames": ("synthetic camera-like frames" if args.synthetic_frames
                           else f"{len(frames)} raw 640x480 frames of tactip331_raw, replayed in a loop"),
                **result}
+    args.out.mkdir(parents=True, exist_ok=True)
+    _figure(result, args.out / "soak.png")
     path = write_json(args.out / "soak.json", payload)
     unprovoked = sum(result["stops_without_a_fault"].values())
     print(f"{result['cycles']} cycles in {result['wall_s']} s; {result['faults_total']} faults injected, "
@@ -725,7 +757,7 @@ def run(args: argparse.Namespace) -> int:
           f"recoveries; commands outside the limits {result['commands_outside_limits']}, motions faster than the "
           f"limits {result['motions_faster_than_the_limit']}, unhandled {result['unhandled_exceptions']}, faults "
           f"unaccounted {result['faults_unaccounted']}")
-    print(f"wrote {path}")
+    print(f"wrote {path} and {args.out / 'soak.png'}")
     clean = (result["commands_outside_limits"] == 0 and result["unhandled_exceptions"] == 0
              and result["motions_faster_than_the_limit"] == 0)
     return 0 if clean and result["faults_unaccounted"] == 0 else 1
