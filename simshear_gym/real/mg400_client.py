@@ -784,10 +784,16 @@ class MG400Client:
         return joints
 
     def _queued_keywords(self, kind: MotionKind, reference: tuple[np.ndarray, np.ndarray], pose: np.ndarray,
-                         joints: np.ndarray) -> dict[str, int]:
+                         joints: np.ndarray, sample: ArmSample) -> dict[str, int]:
+        """The speed and acceleration ratios of a queued move: the slowest needed from anywhere it may start (the
+        controller starts it where the arm is when the queue reaches it: the reference, or the target of a servo
+        command still in force, or wherever the arm may be)."""
         linear = kind is MotionKind.LINEAR
-        speed, accel = queued_ratios(self.safety, reference[0], reference[1], pose, joints, linear,
-                                     self._speed_factor_percent)
+        speed, accel = 100, 100
+        for start_pose, start_joints in [reference] + self.stream.hull(sample):
+            needed = queued_ratios(self.safety, start_pose, start_joints, pose, joints, linear,
+                                   self._speed_factor_percent)
+            speed, accel = min(speed, needed[0]), min(accel, needed[1])
         return {"SpeedL": speed, "AccL": accel} if linear else {"SpeedJ": speed, "AccJ": accel}
 
     def _cartesian(self, name: str, pose: Sequence[float], kind: MotionKind, duration_s: float | None = None,
@@ -808,7 +814,7 @@ class MG400Client:
                 self.stream.check_servo(now_s, target, joints, duration_s, sample)
             else:
                 joints = self._check_cartesian(target, kind, duration_s, reference)
-                keywords = {**keywords, **self._queued_keywords(kind, reference, target, joints)}
+                keywords = {**keywords, **self._queued_keywords(kind, reference, target, joints, sample)}
             params = target if command_params is None else command_params
             self.stream.record(now_s, target, joints, duration_s, sample)
             self._send_motion(format_command(name, *params, **keywords), target, joints)
@@ -828,7 +834,7 @@ class MG400Client:
                 assert duration_s is not None
                 self.stream.check_servo(now_s, pose, target, duration_s, sample)
             else:
-                keywords = {**keywords, **self._queued_keywords(MotionKind.JOINT, reference, pose, target)}
+                keywords = {**keywords, **self._queued_keywords(MotionKind.JOINT, reference, pose, target, sample)}
             self.stream.record(now_s, pose, target, duration_s, sample)
             self._send_motion(format_command(name, *target, **keywords), pose, target)
 
