@@ -159,7 +159,8 @@ class _ArmTally:
 
 def _refusal_kind(message: str) -> str:
     for key, kind in (("stream speed", "stream_speed"), ("stream acceleration", "stream_acceleration"),
-                      ("max_step", "step"), ("speed of", "command_speed"), ("workspace", "workspace"),
+                      ("max_step", "step"), ("max_move", "jump"), ("speed of", "command_speed"),
+                      ("even at 1 %", "queued_too_fast"), ("workspace", "workspace"), ("arm's limits", "reach"),
                       ("stale", "stale_feedback"), ("error mode", "error_mode")):
         if key in message:
             return kind
@@ -343,8 +344,9 @@ def run_bursts(config: BurstConfig, guarded: bool = True) -> dict[str, Any]:
     return {
         "mode": ("client, servo targets clamped" if config.clamp else "client") if guarded else "raw (no client)",
         "sequences": config.sequences,
+        "arm_sequences": config.sequences * config.arms,
         "arms": arms,
-        "sequences_with_a_motion_faster_than_the_limit": int(sum(sequences_bad)),
+        "arm_sequences_with_a_motion_faster_than_the_limit": int(sum(sequences_bad)),
         "motions_faster_than_the_limit": int(sum(a["motions_faster_than_the_limit"] for a in arms)),
         "motions_accelerating_faster_than_the_limit": int(sum(a["motions_accelerating_faster_than_the_limit"]
                                                               for a in arms)),
@@ -432,11 +434,13 @@ def run(args: argparse.Namespace) -> int:
     path = write_json(args.out / "safety_bursts.json", payload)
     print(f"{guarded['sequences']} sequences x {config.arms} arms through the client: "
           f"{guarded['motions_faster_than_the_limit']} motions faster than the limit in "
-          f"{guarded['sequences_with_a_motion_faster_than_the_limit']} sequences, "
+          f"{guarded['arm_sequences_with_a_motion_faster_than_the_limit']} of {guarded['arm_sequences']} "
+          f"arm-sequences, "
           f"{guarded['motions_accelerating_faster_than_the_limit']} accelerating faster, "
           f"{guarded['unhandled']} unhandled")
     if baseline is not None:
         print(f"raw baseline ({baseline['sequences']} sequences): {baseline['motions_faster_than_the_limit']} motions "
-              f"faster than the limit in {baseline['sequences_with_a_motion_faster_than_the_limit']} sequences")
+              f"faster than the limit in {baseline['arm_sequences_with_a_motion_faster_than_the_limit']} of "
+              f"{baseline['arm_sequences']} arm-sequences")
     print(f"wrote {path} and {figure}")
     return 0 if guarded["motions_faster_than_the_limit"] == 0 and guarded["unhandled"] == 0 else 1

@@ -707,7 +707,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
     stops = [result["fault_outcomes"][kind].get("safe_stop", 0) for kind in kinds]
     recovered = [result["fault_outcomes"][kind].get("recovered", 0) for kind in kinds]
     unprovoked = sum(result["stops_without_a_fault"].values())
-    fig, ax = plt.subplots(figsize=(8.0, 3.8))
+    fig, ax = plt.subplots(figsize=(9.5, 3.8))
     positions = np.arange(len(kinds) + 1)
     ax.bar(positions[:-1], stops, color="tab:orange", label="safe stop")
     ax.bar(positions[:-1], recovered, bottom=stops, color="tab:green", label="ridden through")
@@ -718,7 +718,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
     ax.set_title(f"Fault soak: {result['cycles']} cycles, {result['faults_total']} faults; motions faster than the "
                  f"limits {result['motions_faster_than_the_limit']}, commands outside "
                  f"{result['commands_outside_limits']}", fontsize=9)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
