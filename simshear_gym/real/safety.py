@@ -846,6 +846,13 @@ class MotionStream:
                           "is expected passes (the arm is moving faster than a stop within max_accel allows)")
 
 
+def _profile_s(distance: float, speed: float, accel: float) -> float:
+    """How long a trapezoidal profile takes over ``distance`` at ``speed`` and ``accel``, s."""
+    if distance * accel >= speed * speed:
+        return distance / speed + speed / accel
+    return 2.0 * math.sqrt(distance / accel)
+
+
 def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.ndarray, target_pose: np.ndarray,
                   target_joints: np.ndarray, linear: bool, speed_factor_percent: int = 100) -> tuple[int, int]:
     """The ``(speed, acceleration)`` ratios (percent, 1..100) that keep a queued move within ``max_speed_*`` and
@@ -886,9 +893,12 @@ def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.n
     if linear:
         distance_mm = float(np.linalg.norm(target_pose[:3] - start_pose[:3]))
         duration_s = max(distance_mm / cfg.arm_linear_speed_mm_s, r_delta / cfg.arm_rotation_speed_deg_s)
-        # the controller syncs both axes to the slower; its profile's fraction acceleration is at most the larger
-        accel_fraction = max(cfg.arm_linear_accel_mm_s2 / max(distance_mm, 1e-9) if distance_mm > 0 else 0.0,
-                             cfg.arm_joint_accel_deg_s2 / max(r_delta, 1e-9) if r_delta > 0 else 0.0)
+        # the controller syncs both axes to the one whose profile lasts longer: its fraction acceleration
+        axes = [(distance_mm, cfg.arm_linear_speed_mm_s, cfg.arm_linear_accel_mm_s2),
+                (r_delta, cfg.arm_rotation_speed_deg_s, cfg.arm_joint_accel_deg_s2)]
+        length, _, top_accel = max((axis for axis in axes if axis[0] > 0.0), key=lambda axis: _profile_s(*axis),
+                                   default=(1.0, 1.0, 0.0))
+        accel_fraction = top_accel / length
     else:
         spread_deg = float(np.max(np.abs(joint_delta)))
         duration_s = spread_deg / cfg.arm_joint_speed_deg_s
