@@ -915,6 +915,24 @@ def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.n
     factor = max(1, min(100, int(speed_factor_percent))) / 100.0
     speed_ratio = math.floor(100.0 * speed_scale / factor + 1e-9)
     accel_ratio = math.floor(100.0 * accel_scale + 1e-9)
+    if linear and speed_ratio >= 1:
+        # Which axis the controller syncs to depends on the ratios themselves: take the largest acceleration ratio
+        # whose synced profile keeps every axis within the limits.
+        speed = factor * min(100, speed_ratio) / 100.0
+        for candidate in range(min(100, accel_ratio if accel_ratio >= 1 else 100), 0, -1):
+            share = candidate / 100.0
+            axes = [(length, top_speed * speed, top_accel * share) for length, top_speed, top_accel in (
+                (distance_mm, cfg.arm_linear_speed_mm_s, cfg.arm_linear_accel_mm_s2),
+                (r_delta, cfg.arm_rotation_speed_deg_s, cfg.arm_joint_accel_deg_s2)) if length > 0.0]
+            length, _, synced_accel = max(axes, key=lambda axis: _profile_s(*axis))
+            fraction_accel = synced_accel / length
+            if (cart_per_fraction * fraction_accel <= cfg.max_accel_mm_s2 * (1.0 + 1e-9)
+                    and joint_per_fraction * fraction_accel <= cfg.max_accel_deg_s2 * (1.0 + 1e-9)
+                    and rot_per_fraction * fraction_accel <= cfg.max_accel_deg_s2 * (1.0 + 1e-9)):
+                accel_ratio = candidate
+                break
+        else:
+            accel_ratio = 0
     if speed_ratio < 1 or accel_ratio < 1:
         raise SafetyError(f"queued move too fast even at 1 %: needs a speed ratio of "
                           f"{100 * speed_scale / factor:.2f} % "
