@@ -157,7 +157,7 @@ def test_reset_moves_to_the_start_pose_and_steps_send_servo_p(emulator):
         assert elapsed >= 5 * PERIOD_S * 0.9  # paced at the control period (a lower bound: a busy machine only adds)
         commands = servo_commands(emulator)
         assert len(commands) == 5 == info["commands_sent"]
-        assert commands[0].endswith(f"t={PERIOD_S + 0.02:g})")
+        assert commands[0].endswith(f"t={PERIOD_S + RealEnvConfig().servo_margin_s:g})")
         # five full-scale steps: +5 mm along sensor x (flange x at R=0), +2.5 mm into the contact (flange -z)
         assert info["flange_target_mm_deg"] == pytest.approx([305.0, 0.0, -2.5, 0.0], abs=1e-6)
         assert wait_for(lambda: emulator.pose == pytest.approx([305.0, 0.0, -2.5, 0.0], abs=1e-3))

@@ -183,7 +183,9 @@ class RealEnvConfig:
         robot_ip: the MG400 controller's address.
         dashboard_port, motion_port, feedback_port: its TCP ports.
         control_period_s: time between servo commands (and observations), s.
-        servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s.
+        servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s:
+            generous, because a cycle that runs late must not let the arm reach its target and stop (the next
+            command would then start it again from rest, which the client's acceleration check bounds).
         camera_source: device index, video file or image folder (:class:`CameraSource`), used unless a frame
             source is passed to the env.
         camera_stall_timeout_s: a live camera that gives no new frame for this long raises (ends the episode), s.
@@ -214,7 +216,7 @@ class RealEnvConfig:
     motion_port: int = MOTION_PORT
     feedback_port: int = FEEDBACK_PORT
     control_period_s: float = 0.1
-    servo_margin_s: float = 0.02
+    servo_margin_s: float = 0.08
     camera_source: str = "0"
     camera_stall_timeout_s: float = 0.5
     frozen_frame_limit: int | None = 20
