@@ -86,6 +86,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "compute per control cycle of the real path: preprocess, estimator, filter, servo law, ServoP to the emulator"),
     (("evaluate", "soak"), "simshear_gym.evaluate.soak",
      "fault soak of the real path: the servo controller on the MG400 emulator for 10,000 cycles, faults injected"),
+    (("evaluate", "safety-bursts"), "simshear_gym.evaluate.safety_bursts",
+     "bursts of individually valid ServoP / MovL on two emulated MG400s: motions faster than the limits"),
     (("pipeline", "check"), "simshear_gym.pipelines.check",
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "estimate"), "simshear_gym.pipelines.estimate",

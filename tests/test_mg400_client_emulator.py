@@ -46,7 +46,9 @@ from simshear_gym.robots.mg400.protocol import RobotMode, parse_reply
 
 FAST = dict(dashboard_port=0, motion_port=0, feedback_port=0, joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0,
             initial_joints_deg=(0.0, 0.0, 0.0, 0.0))
-BENCH = UnsafeSafetyConfig(max_move_mm=250.0, max_move_deg=90.0)  # protocol tests with long queued moves
+# protocol tests with long, fast queued moves (at the emulator's full speed)
+BENCH = UnsafeSafetyConfig(max_move_mm=250.0, max_move_deg=90.0, max_speed_mm_s=1000.0, max_speed_deg_s=400.0,
+                           max_accel_mm_s2=10000.0, max_accel_deg_s2=4000.0)
 
 
 def wait_for(predicate: Callable[[], bool], timeout_s: float = 2.0) -> bool:
@@ -81,7 +83,10 @@ def client_for(emulator: MG400Emulator, safety: SafetyLayer | None = None, **ove
                     feedback_port=emulator.feedback_port, connect_timeout_s=1.0, reply_timeout_s=1.0,
                     sync_timeout_s=5.0)
     config = MG400ClientConfig(**{**settings, **overrides})
-    return MG400Client(config, safety).connect()
+    client = MG400Client(config, safety).connect()
+    # the arm known still for 0.1 s: a first servo command may then ask for up to max_accel * 0.1 s of speed
+    client.wait_until_still(0.1)
+    return client
 
 
 def raw_request(port: int, command: str) -> str:
@@ -129,7 +134,10 @@ def test_moves_sync_and_get_pose(make_emulator):
         feedback = robot.latest_feedback()
         assert wait_for(lambda: np.allclose(robot.latest_feedback().q_actual_deg, (10, 20, 30, 5)))
         assert feedback.robot_type == 1
-    assert emulator.received_commands("motion")[:2] == ["MovL(300,20,60,10)", "MovJ(280,-30,80,0)"]
+    # queued moves carry the speed and acceleration ratios that keep them within the limits (here BENCH's)
+    assert [c.split(",S")[0] for c in emulator.received_commands("motion")[:2]] == ["MovL(300,20,60,10",
+                                                                                   "MovJ(280,-30,80,0"]
+    assert all("SpeedL=" in c and "AccL=" in c for c in emulator.received_commands("motion")[:1])
 
 
 @pytest.mark.parametrize("count", [4, 6])
@@ -186,11 +194,12 @@ def test_servo_p_streaming_reaches_the_target(make_emulator):
         robot.enable_robot()
         assert wait_for(lambda: robot.latest_feedback() is not None)
         goal = (300.0, 10.0, 100.0, 5.0)
-        config = ServoStreamConfig(period_s=0.02, margin_s=0.03, max_step_mm=2.0, max_step_deg=2.0)  # 40 mm/s
+        # 0.6 mm per 20 ms period: a stream at 30 mm/s (the speed of a stream is step / period, not step / t)
+        config = ServoStreamConfig(period_s=0.02, margin_s=0.03, max_step_mm=0.6, max_step_deg=0.6)
         with ServoStreamer(robot, config) as streamer:
             streamer.set_goal(goal)
-            assert wait_for(lambda: streamer.at_goal, timeout_s=5.0), streamer.error
-            assert wait_for(lambda: np.allclose(emulator.pose, goal, atol=1e-3), timeout_s=1.0)
+            assert wait_for(lambda: streamer.at_goal, timeout_s=60.0), streamer.error
+            assert wait_for(lambda: np.allclose(emulator.pose, goal, atol=1e-3), timeout_s=10.0)
         assert streamer.error is None and not streamer.running
         servo = [c for c in emulator.received_commands("motion") if c.startswith("ServoP")]
         assert len(servo) == streamer.commands_sent >= 10
@@ -202,12 +211,15 @@ def test_servo_streamer_never_queues_when_replies_are_slow(make_emulator):
     emulator = make_emulator(faults=FaultConfig(reply_delay_s=0.1, slow_commands=("ServoP",)))
     with client_for(emulator) as robot:
         robot.enable_robot()
-        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.02, max_step_mm=1.0))
+        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.02, max_step_mm=0.3))
+        start = time.monotonic()
         with streamer:
             streamer.set_goal((284.0, 0.0, 90.0, 0.0))
-            time.sleep(0.45)
-        # One command per slow reply at most, not one per 10 ms period.
-        assert 2 <= streamer.commands_sent <= 6
+            assert wait_for(lambda: streamer.commands_sent >= 2, timeout_s=30.0), streamer.error
+        elapsed_s = time.monotonic() - start
+        # One command per slow reply (0.1 s) at most, not one per 10 ms period, however slow the machine.
+        assert streamer.error is None
+        assert streamer.commands_sent <= elapsed_s / 0.1 + 1
 
 
 def test_servo_j(make_emulator):
@@ -270,7 +282,7 @@ def test_servo_streamer_stops_on_a_dropped_connection(make_emulator):
     emulator = make_emulator()
     with client_for(emulator) as robot:
         robot.enable_robot()
-        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.04)).start()  # 2 mm / 0.05 s
+        streamer = ServoStreamer(robot, ServoStreamConfig(period_s=0.01, margin_s=0.04, max_step_mm=0.3)).start()
         streamer.set_goal((284.0, 0.0, 60.0, 0.0))
         assert wait_for(lambda: streamer.commands_sent > 2)
         emulator.drop_connections()
@@ -316,12 +328,12 @@ def test_each_feedback_fault_alone(make_emulator, fault):  # the malformed ones 
 def test_slow_reply_times_out_and_the_late_reply_is_discarded(make_emulator):
     emulator = make_emulator(faults=FaultConfig(reply_delay_s=0.3, slow_commands=("GetPose",)))
     with client_for(emulator, reply_timeout_s=0.1) as robot:
-        start = time.monotonic()
+        # the timeout fired before the reply (0.3 s late) arrived, however busy the machine: a reply waiting in
+        # the socket after the deadline is not read, so get_pose() raises rather than returns
         with pytest.raises(MG400TimeoutError, match=r"no reply to GetPose\(\) .* within 0.1 s"):
             robot.get_pose()
-        assert time.monotonic() - start < 0.25
-        time.sleep(0.3)  # the late GetPose reply arrives meanwhile
-        assert robot.robot_mode() is RobotMode.DISABLED
+        time.sleep(0.3)  # the late GetPose reply arrives meanwhile (or later: it comes first on the socket anyway)
+        assert robot.robot_mode() is RobotMode.DISABLED  # not mistaken for the late GetPose reply
 
 
 def test_stale_feedback_raises(make_emulator):
@@ -390,7 +402,7 @@ def test_dry_run_logs_instead_of_sending(make_emulator, caplog):
         with pytest.raises(SafetyError):
             robot.mov_l(600.0, 0.0, 0.0, 0.0)  # checks still apply
     assert emulator.received_commands("motion") == []
-    assert "dry run: not sending MovL(290,0,110,0)" in caplog.text
+    assert "dry run: not sending MovL(290,0,110,0,SpeedL=" in caplog.text
 
 
 def test_joint_steps_are_limited_too():

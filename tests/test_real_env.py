@@ -52,6 +52,16 @@ def emulator(make_emulator) -> MG400Emulator:
     return make_emulator()
 
 
+def wait_for(predicate: Callable[[], bool], timeout_s: float = 10.0) -> bool:
+    """Poll ``predicate`` until it holds (a generous timeout: the test asserts what happens, not how fast)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return predicate()
+
+
 def tactile_camera(size: int = 128) -> VirtualCamera:
     rng = np.random.default_rng(0)
     return VirtualCamera(lambda: rng.integers(0, 256, (size, size), dtype=np.uint8))
@@ -137,21 +147,20 @@ def test_reset_moves_to_the_start_pose_and_steps_send_servo_p(emulator):
         assert emulator.pose == pytest.approx(START, abs=1e-6)
         assert obs["tcp_pose"] == pytest.approx(tcp_pose_from_flange(START, TacTipMount()), abs=1e-3)
         motion = emulator.received_commands("motion")
-        assert motion[0].startswith("MovJ(300,0,0,0)")
+        assert motion[0].startswith("MovJ(300,0,0,0,SpeedJ=")
         start = time.monotonic()
         for _ in range(5):
             obs, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0, 0.5, 0.0], np.float32))
             assert not terminated and not truncated and reward == 0.0
             assert env.observation_space.contains(obs)
         elapsed = time.monotonic() - start
-        assert elapsed >= 5 * PERIOD_S * 0.9  # paced at the control period
+        assert elapsed >= 5 * PERIOD_S * 0.9  # paced at the control period (a lower bound: a busy machine only adds)
         commands = servo_commands(emulator)
         assert len(commands) == 5 == info["commands_sent"]
-        assert commands[0].endswith(f"t={PERIOD_S + 0.02:g})")
+        assert commands[0].endswith(f"t={PERIOD_S + RealEnvConfig().servo_margin_s:g})")
         # five full-scale steps: +5 mm along sensor x (flange x at R=0), +2.5 mm into the contact (flange -z)
         assert info["flange_target_mm_deg"] == pytest.approx([305.0, 0.0, -2.5, 0.0], abs=1e-6)
-        time.sleep(0.15)
-        assert emulator.pose == pytest.approx([305.0, 0.0, -2.5, 0.0], abs=1e-3)
+        assert wait_for(lambda: emulator.pose == pytest.approx([305.0, 0.0, -2.5, 0.0], abs=1e-3))
     finally:
         env.close()
 

@@ -4,9 +4,22 @@ every fault ends as a safe stop or a recovery. The record run is ``simshear eval
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from simshear_gym.evaluate.soak import FAULT_KINDS, SoakConfig, audit, run_soak, safety_config, synthetic_frames
+from simshear_gym.contract import ActionScale, TacTipMount
+from simshear_gym.evaluate.soak import (
+    FAULT_KINDS,
+    SoakConfig,
+    audit,
+    braking_margin_mm,
+    fault_schedule,
+    keep_in_box,
+    run_soak,
+    safety_config,
+    synthetic_frames,
+)
+from simshear_gym.real.env import move_to_flange_target
 from simshear_gym.real.mg400_emulator import READY_JOINTS_DEG, READY_POSE_MM_DEG, MotionRecord
 from simshear_gym.real.safety import SafetyLayer
 from simshear_gym.robots.mg400.kinematics import inverse
@@ -34,6 +47,11 @@ def check(result: dict, cycles: int) -> None:
     # every stop was followed by a reset that started a new episode (the last one may have ended the run)
     assert result["safe_stops_total"] - 1 <= result["recoveries"] <= result["safe_stops_total"]
     assert result["servo_commands_sent"] > cycles // 2
+    assert result["motions_faster_than_the_limit"] == 0, result["motions_faster_examples"]
+    # the faults injected are the schedule's, decided before the run from the seed
+    scheduled = [kind for kind, start, _, _ in result["fault_schedule"] if start < cycles]
+    assert result["faults_total"] == len(scheduled)
+    assert all(result["faults_injected"][kind] == scheduled.count(kind) for kind in FAULT_KINDS)
 
 
 def test_a_seeded_soak_stays_within_the_limits_and_handles_every_fault():
@@ -77,3 +95,31 @@ def test_the_audit_counts_commands_outside_the_limits():
     assert audit([fine[0], halted], safety)[0] == 0
     executed = _record("ServoP(h)", (x + 2.0, y, z, r), in_force=(x - 0.5, y, z, r), t_s=0.04)  # 62.5 mm/s
     assert audit([fine[0], executed], safety)[0] == 1
+
+
+def test_the_fault_schedule_is_decided_up_front_from_the_seed():
+    config = SoakConfig(cycles=2000, seed=5)
+    schedule = fault_schedule(config)
+    assert schedule == fault_schedule(SoakConfig(cycles=2000, seed=5))
+    assert schedule != fault_schedule(SoakConfig(cycles=2000, seed=6))
+    assert {fault.kind for fault in schedule[:len(FAULT_KINDS)]} == set(FAULT_KINDS)  # each kind once a round
+    for before, after in zip(schedule, schedule[1:]):  # windows never overlap
+        assert after.start_cycle > before.start_cycle + before.cycles
+    assert all(fault.start_cycle < config.cycles for fault in schedule)
+
+
+def test_the_controller_keeps_its_targets_inside_the_soak_box():
+    safety = SafetyLayer(safety_config())
+    margin_mm = braking_margin_mm(safety, 0.1)
+    assert margin_mm == pytest.approx(50.0 * 0.1 + 50.0 ** 2 / (2 * 2000.0) + 1.0)
+    scale, mount = ActionScale(), TacTipMount()
+    low_z = safety.config.z_range_mm[0] + margin_mm
+    commanded = np.array([300.0, 0.0, low_z + 0.3, 0.0])
+    down = np.array([0.5, 0.0, 1.0, 0.0])  # +z of the sensor: the flange goes down, 1 mm a step
+    kept = keep_in_box(down, commanded, safety, scale, mount, margin_mm)
+    target = move_to_flange_target(commanded, kept * scale.as_array(), mount)
+    assert target[2] == pytest.approx(low_z, abs=1e-6) and target[2] >= low_z  # scaled back, direction kept
+    assert kept[0] / kept[2] == pytest.approx(0.5) and kept[3] == down[3]
+    inside = np.array([0.2, -0.3, -0.5, 0.4])
+    assert keep_in_box(inside, commanded, safety, scale, mount, margin_mm) is not None
+    assert np.array_equal(keep_in_box(inside, commanded, safety, scale, mount, margin_mm), inside)

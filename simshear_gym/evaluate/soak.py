@@ -2,13 +2,16 @@
 replayed camera, for thousands of control cycles, with faults injected at random.
 
 ``simshear evaluate soak --cycles 10000 --seed 0`` runs :func:`run_soak` on the raw TacTip frames of
-``tactip331_raw`` (replayed in a loop, preprocessed as on the robot) and writes ``results/soak.json`` with the
-command that produced it. The test suite runs a shorter seeded soak on synthetic frames.
+``tactip331_raw`` (replayed in a loop, preprocessed as on the robot) and writes ``results/soak.json`` (and the
+figure ``results/soak.png``) with the command that produced it. The test suite runs a shorter seeded soak on
+synthetic frames.
 
-Every cycle is one ``env.step`` of the servo controller's action (GDNN + Bayesian filter + PI law). Between faults
-the soak waits a random number of cycles, then injects the next kind of a seeded random permutation of
-:data:`FAULT_KINDS` (a new permutation each round, so every kind recurs), with random parameters, for a random
-number of cycles:
+Every cycle is one ``env.step`` of the servo controller's action (GDNN + Bayesian filter + PI law). **The fault
+schedule is decided up front** from the seed (:func:`fault_schedule`): after a random gap, the next kind of a seeded
+random permutation of :data:`FAULT_KINDS` (a new permutation each round, so every kind recurs), with random
+parameters, at a fixed cycle for a fixed number of cycles, whatever happens during the run; so two runs with the same
+seed inject the same faults at the same cycles, and give the same record (:data:`TIMING_KEYS` aside: wall-clock
+timings and the stop examples, which quote measured poses and ports). The faults:
 
 * ``dropped_connection``: the emulator closes every connection; ``split_replies``: replies in 2-7 byte TCP
   segments; ``partial_feedback`` / ``corrupt_feedback``: every 2nd-4th feedback packet cut in half / with a wrong
@@ -18,6 +21,13 @@ number of cycles:
   (ridden through) or 0.4 s late (past the reply timeout); ``camera_stall``: the camera delivers nothing for
   0.6 s; ``frozen_frames``: the camera repeats one frame 5-40 times; ``nan_estimate``: the estimator's reading is
   NaN for 1-3 cycles.
+
+**The controller's box is the soak's workspace.** The soak, like a deployed controller with a workspace guard, scales
+back the translation of an action that would take the flange target out of the workspace box (the safety layer's
+box; every point of it within ``max_move_mm`` of the start, so that a reset can always move back), so the controller
+never asks for a target the safety layer must refuse; and its servo stream is clamped to the stream limits
+(``servo_over_limit="clamp"``: the user's choice for a servo stream) instead of being refused. A stop without an
+injected fault is then a finding, not the controller running into the box.
 
 Each injected fault ends as a **safe stop** (the episode ended, with a termination the fault can cause
 (:data:`FAULT_STOPS`), while it was active or within :data:`GRACE_CYCLES` after) or is **recovered** (ridden
@@ -29,13 +39,15 @@ after an alarm), resets the env (reconnecting if needed) and the controller, and
 a reset refused while the robot is not ready (a typed error) is retried. Episodes are truncated after
 ``episode_cycles``.
 
-**Commands outside the limits** are counted independently of the client, from the emulator's record of every
-motion command it received (:meth:`~simshear_gym.real.mg400_emulator.MG400Emulator.motion_records`), against the
-soak's :class:`~simshear_gym.real.safety.SafetyConfig`: the target's reach, joint limits and workspace box; its
-step, speed (step / ``t``) or jump from the last target the robot accepted (what the client commanded); and, for a
-command the robot executed, from the target in force when it arrived (what the arm did: after an alarm halted the
-arm short of its target, a command is measured from where the arm stopped). Anything raised by ``env.step`` or the
-controller is **unhandled**: counted, with its message, and the soak goes on with a reset. Both must be 0.
+**Commands outside the limits** are counted independently of the client, from the emulator's records: the motions the
+arm executed (:meth:`~simshear_gym.real.mg400_emulator.MG400Emulator.executed_motions`: faster than ``max_speed_*`` or
+accelerating faster than ``max_accel_*``), and every motion command it received
+(:meth:`~simshear_gym.real.mg400_emulator.MG400Emulator.motion_records`), against the soak's
+:class:`~simshear_gym.real.safety.SafetyConfig`: the target's reach, joint limits and workspace box; its step, speed
+(step / ``t``) or jump from the last target the robot accepted (what the client commanded); and, for a command the
+robot executed, from the target in force when it arrived (what the arm did: after an alarm halted the arm short of its
+target, a command is measured from where the arm stopped). Anything raised by ``env.step`` or the controller is
+**unhandled**: counted, with its message, and the soak goes on with a reset. All of these must be 0.
 """
 
 from __future__ import annotations
@@ -77,6 +89,13 @@ FAULT_STOPS: dict[str, tuple[str, ...]] = {
 """The terminations each fault can cause: a stop of another kind while it is active is not its doing (the
 controller reaching the workspace box, say), and is counted as a stop without a fault."""
 
+TIMING_KEYS: tuple[str, ...] = ("wall_s", "cycles_per_s", "stop_examples", "motion_commands_sent",
+                                 "servo_commands_sent", "motions_executed")
+"""Keys of the soak's record that depend on the wall clock, left out when two runs of one seed are compared: the
+timings; the stop examples (they quote measured poses and ports); and how many commands went out, which a command
+or two either way at a time-based stop (feedback older than ``max_feedback_age_s`` seconds, a reply later than the
+timeout) changes."""
+
 START_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
 WORKSPACE_HALF_MM = 25.0  # the soak's box around the start pose: every point of it within max_move_mm of the start
 
@@ -93,6 +112,8 @@ class SoakConfig:
         episode_cycles: an episode is truncated (reset, not counted as a stop) after this many cycles, once no
             fault is active (short episodes keep the controller's drift on unrelated frames inside the box).
         image_size_px: the tactile observation size.
+        servo_margin_s: added to the period for each ServoP's ``t``, s (generous: a cycle that runs late must not
+            let the arm arrive and stop, or the next command asks it to start again from rest).
         reply_timeout_s: the client's reply timeout, s.
         max_reset_attempts: resets refused in a row before the soak gives up (a stuck robot), counted as unhandled.
         posenet: GDNN weights of the servo controller (None: the shipped surface GDNN).
@@ -101,6 +122,7 @@ class SoakConfig:
     cycles: int = 10_000
     seed: int = 0
     control_period_s: float = 0.02
+    servo_margin_s: float = 0.08
     mean_gap_cycles: float = 20.0
     episode_cycles: int = 40
     image_size_px: int = 64
@@ -119,13 +141,56 @@ class SoakConfig:
 
 
 def safety_config():
-    """The soak's limits: the safe defaults with the workspace narrowed to a box around the start pose."""
+    """The soak's limits: the safe defaults with the workspace narrowed to a box around the start pose, and servo
+    targets clamped to the stream limits."""
     from simshear_gym.real.safety import SafetyConfig
 
     x, y, z, _ = START_POSE_MM_DEG
     half = WORKSPACE_HALF_MM
     return SafetyConfig(x_range_mm=(x - half, x + half), y_range_mm=(y - half, y + half),
-                        z_range_mm=(z - half, z + half))
+                        z_range_mm=(z - half, z + half), servo_over_limit="clamp")
+
+
+def braking_margin_mm(safety, servo_time_s: float) -> float:
+    """How far inside the workspace box the controller keeps its targets: a servo stream at full speed runs
+    ``max_speed * t`` behind its target and needs ``max_speed^2 / (2 max_accel)`` to stop, plus 1 mm; so the
+    clamped stream never has to leave the box to slow down."""
+    cfg = safety.config
+    return cfg.max_speed_mm_s * servo_time_s + cfg.max_speed_mm_s ** 2 / (2.0 * cfg.max_accel_mm_s2) + 1.0
+
+
+def keep_in_box(action: np.ndarray, commanded_flange: np.ndarray, safety, action_scale, mount,
+                margin_mm: float = 0.01) -> np.ndarray:
+    """``action`` with its translation scaled back (by bisection) so that the flange target stays inside the
+    workspace box of ``safety`` shrunk by ``margin_mm`` (the controller's box: the safety layer's, less the
+    :func:`braking_margin_mm`)."""
+    from simshear_gym.contract import action_to_move
+    from simshear_gym.real.env import move_to_flange_target
+
+    cfg = safety.config
+
+    def inside(candidate: np.ndarray) -> bool:
+        target = move_to_flange_target(commanded_flange, action_to_move(candidate, action_scale), mount)
+        x_mm, y_mm, z_mm, _ = target
+        return all(lower + margin_mm <= value <= upper - margin_mm for value, (lower, upper) in (
+            (x_mm, cfg.x_range_mm), (y_mm, cfg.y_range_mm), (z_mm, cfg.z_range_mm),
+            (math.hypot(x_mm, y_mm), cfg.radius_range_mm)))
+
+    action = np.asarray(action, dtype=np.float64)
+    if not np.all(np.isfinite(action)) or inside(action):
+        return action
+    low, high = 0.0, 1.0
+    for _ in range(30):
+        middle = 0.5 * (low + high)
+        candidate = action.copy()
+        candidate[:3] *= middle
+        if inside(candidate):
+            low = middle
+        else:
+            high = middle
+    kept = action.copy()
+    kept[:3] *= low
+    return kept
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -313,61 +378,105 @@ def _expected_reset_errors() -> tuple[type[BaseException], ...]:
             CameraError, ProtocolError)
 
 
+@dataclass(frozen=True)
+class ScheduledFault:
+    """One fault of the schedule: its kind, the cycle it starts at, how many cycles it stays active, and its
+    parameters (``(name, value)`` pairs: packet interval, pause, delay, alarm id, frame count, ...)."""
+
+    kind: str
+    start_cycle: int
+    cycles: int
+    params: tuple[tuple[str, float], ...] = ()
+
+    def param(self, name: str) -> float:
+        return dict(self.params)[name]
+
+
+def _draw_fault(kind: str, rng: np.random.Generator, period_s: float) -> tuple[int, tuple[tuple[str, float], ...]]:
+    """(cycles active, parameters) of one fault of ``kind``."""
+    cycles = int(rng.integers(3, 25))
+    if kind == "dropped_connection":
+        return 1, ()
+    if kind == "split_replies":
+        return cycles, (("bytes", int(rng.integers(2, 8))),)
+    if kind in ("partial_feedback", "corrupt_feedback"):
+        return cycles, (("every", int(rng.integers(2, 5))),)
+    if kind == "stale_feedback":
+        pause_s = float(rng.uniform(0.15, 0.4))
+        return int(pause_s / period_s) + 1, (("pause_s", pause_s),)
+    if kind == "inconsistent_feedback":
+        return cycles, (("every", 3),)
+    if kind == "alarm_mid_motion":
+        return 1, (("alarm", int(rng.choice([112, 48, 50]))),)
+    if kind == "slow_replies":
+        return cycles, (("delay_s", float(rng.uniform(0.005, 0.03)) if rng.random() < 0.5 else 0.4),)
+    if kind == "camera_stall":
+        return 1, (("stall_s", 0.6),)
+    if kind == "frozen_frames":
+        frames = int(rng.integers(5, 41))
+        return frames, (("frames", frames),)
+    if kind == "nan_estimate":
+        readings = int(rng.integers(1, 4))
+        return readings, (("readings", readings),)
+    raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+
+
+def fault_schedule(config: SoakConfig) -> list[ScheduledFault]:
+    """Every fault of a soak, decided from ``config.seed`` before it runs: after a gap (exponential, mean
+    ``mean_gap_cycles``) from the previous fault's window, the next kind of a random permutation of
+    :data:`FAULT_KINDS` (a new one each round) with its parameters."""
+    rng = np.random.default_rng([config.seed, 41])
+    schedule: list[ScheduledFault] = []
+    order: list[str] = []
+    cycle = int(rng.exponential(config.mean_gap_cycles)) + 1
+    while cycle < config.cycles:
+        if not order:
+            order = [str(kind) for kind in rng.permutation(FAULT_KINDS)]
+        kind = order.pop()
+        cycles, params = _draw_fault(kind, rng, config.control_period_s)
+        schedule.append(ScheduledFault(kind, cycle, cycles, params))
+        cycle += cycles + 1 + int(rng.exponential(config.mean_gap_cycles))
+    return schedule
+
+
 class _Injector:
     """Starts and ends faults on the emulator, the camera and the estimator."""
 
-    def __init__(self, emulator, camera: ReplayCamera, estimator: FaultyEstimator, rng: np.random.Generator,
-                 period_s: float) -> None:
-        self.emulator, self.camera, self.estimator, self.rng = emulator, camera, estimator, rng
-        self.period_s = period_s
-        self._order: list[str] = []
+    def __init__(self, emulator, camera: ReplayCamera, estimator: FaultyEstimator) -> None:
+        self.emulator, self.camera, self.estimator = emulator, camera, estimator
 
-    def next_kind(self) -> str:
-        if not self._order:
-            self._order = [str(k) for k in self.rng.permutation(FAULT_KINDS)]
-        return self._order.pop()
-
-    def start(self, kind: str) -> int:
-        """Inject ``kind``; returns how many cycles it stays active."""
+    def start(self, fault: ScheduledFault) -> None:
+        """Inject ``fault`` (its parameters decided by the schedule)."""
         from simshear_gym.real.mg400_emulator import FaultConfig, FeedbackFault
 
-        rng, emulator = self.rng, self.emulator
-        cycles = int(rng.integers(3, 25))
+        emulator, kind = self.emulator, fault.kind
         if kind == "dropped_connection":
             emulator.drop_connections()
-            cycles = 1
         elif kind == "split_replies":
-            emulator.set_faults(FaultConfig(split_replies_bytes=int(rng.integers(2, 8)), split_delay_s=0.0005))
+            emulator.set_faults(FaultConfig(split_replies_bytes=int(fault.param("bytes")), split_delay_s=0.0005))
         elif kind == "partial_feedback":
-            emulator.set_faults(FaultConfig(corrupt_feedback_every=int(rng.integers(2, 5)),
+            emulator.set_faults(FaultConfig(corrupt_feedback_every=int(fault.param("every")),
                                             feedback_faults=(FeedbackFault.PARTIAL,)))
         elif kind == "corrupt_feedback":
-            emulator.set_faults(FaultConfig(corrupt_feedback_every=int(rng.integers(2, 5)),
+            emulator.set_faults(FaultConfig(corrupt_feedback_every=int(fault.param("every")),
                                             feedback_faults=(FeedbackFault.BAD_LENGTH, FeedbackFault.BAD_TEST_VALUE)))
         elif kind == "stale_feedback":
-            pause_s = float(rng.uniform(0.15, 0.4))
-            emulator.pause_feedback(pause_s)
-            cycles = int(pause_s / self.period_s) + 1
+            emulator.pause_feedback(fault.param("pause_s"))
         elif kind == "inconsistent_feedback":
-            emulator.set_faults(FaultConfig(corrupt_feedback_every=3, feedback_faults=(FeedbackFault.INCONSISTENT,)))
+            emulator.set_faults(FaultConfig(corrupt_feedback_every=int(fault.param("every")),
+                                            feedback_faults=(FeedbackFault.INCONSISTENT,)))
         elif kind == "alarm_mid_motion":
-            emulator.inject_alarm(int(rng.choice([112, 48, 50])))
-            cycles = 1
+            emulator.inject_alarm(int(fault.param("alarm")))
         elif kind == "slow_replies":
-            delay_s = float(rng.uniform(0.005, 0.03)) if rng.random() < 0.5 else 0.4
-            emulator.set_faults(FaultConfig(reply_delay_s=delay_s, slow_commands=("ServoP",)))
+            emulator.set_faults(FaultConfig(reply_delay_s=fault.param("delay_s"), slow_commands=("ServoP",)))
         elif kind == "camera_stall":
-            self.camera.stall(0.6)
-            cycles = 1
+            self.camera.stall(fault.param("stall_s"))
         elif kind == "frozen_frames":
-            cycles = int(rng.integers(5, 41))
-            self.camera.freeze(cycles)
+            self.camera.freeze(int(fault.param("frames")))
         elif kind == "nan_estimate":
-            cycles = int(rng.integers(1, 4))
-            self.estimator.nan(cycles)
+            self.estimator.nan(int(fault.param("readings")))
         else:
             raise ValueError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
-        return cycles
 
     def end(self) -> None:
         """Undo every fault (the once-only ones are over by themselves)."""
@@ -377,6 +486,17 @@ class _Injector:
         self.camera.freeze(0)
         self.camera.stall(0.0)
         self.estimator.nan(0)
+
+
+def _wait_for_clean_feedback(emulator, packets: int = 3, timeout_s: float = 2.0) -> None:
+    """Wait until the emulator sends feedback again and ``packets`` more packets went out (so that none of an
+    ended fault is the newest), before a reset."""
+    deadline_s = time.monotonic() + timeout_s
+    while emulator.feedback_paused and time.monotonic() < deadline_s:
+        time.sleep(0.005)
+    sent = emulator.feedback_packets_sent
+    while emulator.feedback_packets_sent < sent + packets and time.monotonic() < deadline_s:
+        time.sleep(0.002)
 
 
 def synthetic_frames(count: int = 12, seed: int = 0) -> list[np.ndarray]:
@@ -408,27 +528,29 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
     from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 
     torch.manual_seed(config.seed)
-    rng = np.random.default_rng(config.seed)
+    schedule = fault_schedule(config)
     safety = safety_config()
     emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
                                             joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0)).start()
     camera = ReplayCamera(frames)
     env_config = RealEnvConfig(
         robot_ip="127.0.0.1", dashboard_port=emulator.dashboard_port, motion_port=emulator.motion_port,
-        feedback_port=emulator.feedback_port, control_period_s=config.control_period_s, preprocess=default_config(),
+        feedback_port=emulator.feedback_port, control_period_s=config.control_period_s,
+        servo_margin_s=config.servo_margin_s, preprocess=default_config(),
         image_size_px=config.image_size_px, start_pose_mm_deg=START_POSE_MM_DEG, safety=safety,
         reply_timeout_s=config.reply_timeout_s, connect_timeout_s=1.0, move_timeout_s=5.0)
     env = RealTactileEnv(env_config, camera=camera)
     controller = ServoController(4.0, ActionScale(), estimator=EstimatorConfig(posenet=config.posenet))
     estimator = FaultyEstimator(controller.estimator)
     controller.estimator = estimator
-    injector = _Injector(emulator, camera, estimator, rng, config.control_period_s)
+    injector = _Injector(emulator, camera, estimator)
+    margin_mm = braking_margin_mm(env.safety, env_config.servo_time_s)
     expected = _expected_reset_errors()
     tally = _Tally()
     fault: _Fault | None = None
     ended: list[_Fault] = []  # faults over, within their grace cycles, whose outcome is open
-    next_fault_cycle = int(rng.exponential(config.mean_gap_cycles)) + 1
-    cycle, episode_cycle, observation = 0, 0, None
+    next_fault = 0  # index into the schedule
+    cycle, episode_cycle, observation, commanded = 0, 0, None, np.array(START_POSE_MM_DEG)
     needs_reset, last_termination, refused_in_a_row = True, "", 0
     started = time.monotonic()
     try:
@@ -438,11 +560,13 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
                     injector.end()
                     ended.append(fault)
                     fault = None
+                _wait_for_clean_feedback(emulator)  # the operator waits for the robot to be readable again
                 try:
                     if last_termination == "robot_error" or emulator.alarms:
                         env.client.clear_error()  # the operator's part: clear the cause, ClearError, Continue
                         env.client.continue_()
-                    observation, _ = env.reset()
+                    observation, reset_info = env.reset()
+                    commanded = np.asarray(reset_info["flange_target_mm_deg"], dtype=np.float64)
                 except expected as error:
                     tally.reset_refusals[type(error).__name__] += 1
                     refused_in_a_row += 1
@@ -455,11 +579,12 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
                 if last_termination:
                     tally.recoveries += 1
                 needs_reset, last_termination, refused_in_a_row, episode_cycle = False, "", 0, 0
-            if fault is None and cycle >= next_fault_cycle:
-                kind = injector.next_kind()
-                tally.injected[kind] += 1
-                fault = _Fault(kind, cycle, cycle)
-                fault.end_cycle = cycle + injector.start(kind)
+            if fault is None and next_fault < len(schedule) and cycle >= schedule[next_fault].start_cycle:
+                scheduled = schedule[next_fault]
+                next_fault += 1
+                tally.injected[scheduled.kind] += 1
+                fault = _Fault(scheduled.kind, cycle, cycle + scheduled.cycles)
+                injector.start(scheduled)
             try:
                 try:
                     action = controller(observation)
@@ -467,7 +592,10 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
                     observation, _, terminated, _, info = env.end_episode(
                         "controller_error", f"the controller could not compute an action, nothing sent: {error}")
                 else:
+                    action = keep_in_box(action, commanded, env.safety, env.action_scale, env.config.mount,
+                                         margin_mm)
                     observation, _, terminated, _, info = env.step(action)
+                    commanded = np.asarray(info["flange_target_mm_deg"], dtype=np.float64)
             except Exception as error:  # noqa: BLE001 - the soak counts what the env failed to handle
                 tally.unhandled.append(f"cycle {cycle}: {type(error).__name__}: {error}")
                 terminated, info = True, {"termination": "unhandled"}
@@ -493,7 +621,6 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
                 injector.end()
                 ended.append(fault)
                 fault = None
-                next_fault_cycle = cycle + 1 + int(rng.exponential(config.mean_gap_cycles))
             while ended and (ended[0].stopped or cycle - ended[0].end_cycle > GRACE_CYCLES):
                 tally.outcome(ended.pop(0))
         if fault is not None:
@@ -504,8 +631,11 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
         env.close()
         emulator.stop()
     wall_s = time.monotonic() - started
+    from simshear_gym.evaluate.safety_bursts import audit_motions
+
     records = emulator.motion_records()
     outside, examples = audit(records, env.safety)
+    executed = audit_motions(emulator.executed_motions(), env.safety.config)
     outcomes = {kind: dict(tally.outcomes.get(kind, Counter())) for kind in FAULT_KINDS}
     accounted = sum(sum(counts.values()) for counts in outcomes.values())
     return {
@@ -519,6 +649,8 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
         "safe_stops": dict(sorted(tally.stops.items())),
         "safe_stops_total": int(sum(tally.stops.values())),
         "stops_without_a_fault": dict(sorted(tally.unprovoked_stops.items())),
+        "stops_without_a_fault_share": (round(sum(tally.unprovoked_stops.values()) / sum(tally.stops.values()), 4)
+                                        if tally.stops else 0.0),
         "faults_cut_short": tally.cut_short,
         "stop_examples": dict(sorted(tally.stop_examples.items())),
         "recoveries": tally.recoveries,
@@ -528,6 +660,12 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
         "servo_commands_sent": sum(1 for r in records if r.servo),
         "commands_outside_limits": outside,
         "commands_outside_limits_examples": examples,
+        "motions_executed": executed["motions_executed"],
+        "motions_faster_than_the_limit": executed["motions_faster_than_the_limit"],
+        "motions_faster_examples": executed["motions_faster_examples"],
+        "motions_accelerating_faster_than_the_limit": executed["motions_accelerating_faster_than_the_limit"],
+        "motions_accelerating_faster_examples": executed["motions_accelerating_faster_examples"],
+        "fault_schedule": [[f.kind, f.start_cycle, f.cycles, dict(f.params)] for f in schedule],
         "unhandled_exceptions": len(tally.unhandled),
         "unhandled_examples": tally.unhandled[:10],
         "config": asdict(config),
@@ -555,11 +693,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped surface GDNN)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--out", type=Path, default=Path("results"),
-                        help="results directory for soak.json (default results)")
+                        help="results directory for soak.json and soak.png (default results)")
+
+
+def _figure(result: dict[str, Any], path: Path) -> None:
+    """Each fault kind's outcomes (safe stop, ridden through) and the stops without a fault, as bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    kinds = list(FAULT_KINDS)
+    stops = [result["fault_outcomes"][kind].get("safe_stop", 0) for kind in kinds]
+    recovered = [result["fault_outcomes"][kind].get("recovered", 0) for kind in kinds]
+    unprovoked = sum(result["stops_without_a_fault"].values())
+    fig, ax = plt.subplots(figsize=(9.5, 3.8))
+    positions = np.arange(len(kinds) + 1)
+    ax.bar(positions[:-1], stops, color="tab:orange", label="safe stop")
+    ax.bar(positions[:-1], recovered, bottom=stops, color="tab:green", label="ridden through")
+    ax.bar(positions[-1], unprovoked, color="tab:red", label="stop without a fault")
+    ax.set_xticks(positions, [kind.replace("_", " ") for kind in kinds] + ["no fault"], rotation=35, ha="right",
+                  fontsize=8)
+    ax.set_ylabel("count")
+    ax.set_title(f"Fault soak: {result['cycles']} cycles, {result['faults_total']} faults; motions faster than the "
+                 f"limits {result['motions_faster_than_the_limit']}, commands outside "
+                 f"{result['commands_outside_limits']}", fontsize=9)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the soak, write ``soak.json``; 0 when nothing went outside the limits and nothing was unhandled."""
+    """Run the soak, write ``soak.json`` and ``soak.png``; 0 when nothing went outside the limits and nothing was
+    unhandled."""
     import logging
 
     import torch
@@ -581,11 +748,16 @@ def run(args: argparse.Namespace) -> int:
                "frames": ("synthetic camera-like frames" if args.synthetic_frames
                           else f"{len(frames)} raw 640x480 frames of tactip331_raw, replayed in a loop"),
                **result}
+    args.out.mkdir(parents=True, exist_ok=True)
+    _figure(result, args.out / "soak.png")
     path = write_json(args.out / "soak.json", payload)
+    unprovoked = sum(result["stops_without_a_fault"].values())
     print(f"{result['cycles']} cycles in {result['wall_s']} s; {result['faults_total']} faults injected, "
-          f"{result['safe_stops_total']} safe stops, {result['recoveries']} recoveries; commands outside the limits "
-          f"{result['commands_outside_limits']}, unhandled {result['unhandled_exceptions']}, faults unaccounted "
-          f"{result['faults_unaccounted']}")
-    print(f"wrote {path}")
-    clean = result["commands_outside_limits"] == 0 and result["unhandled_exceptions"] == 0
+          f"{result['safe_stops_total']} safe stops ({unprovoked} without a fault), {result['recoveries']} "
+          f"recoveries; commands outside the limits {result['commands_outside_limits']}, motions faster than the "
+          f"limits {result['motions_faster_than_the_limit']}, unhandled {result['unhandled_exceptions']}, faults "
+          f"unaccounted {result['faults_unaccounted']}")
+    print(f"wrote {path} and {args.out / 'soak.png'}")
+    clean = (result["commands_outside_limits"] == 0 and result["unhandled_exceptions"] == 0
+             and result["motions_faster_than_the_limit"] == 0)
     return 0 if clean and result["faults_unaccounted"] == 0 else 1

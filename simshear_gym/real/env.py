@@ -95,6 +95,7 @@ from simshear_gym.real.mg400_client import (
 from simshear_gym.real.safety import (
     FeedbackMismatchError,
     MotionKind,
+    MotionRefusedError,
     SafetyConfig,
     SafetyError,
     SafetyLayer,
@@ -182,7 +183,9 @@ class RealEnvConfig:
         robot_ip: the MG400 controller's address.
         dashboard_port, motion_port, feedback_port: its TCP ports.
         control_period_s: time between servo commands (and observations), s.
-        servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s.
+        servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s:
+            generous, because a cycle that runs late must not let the arm reach its target and stop (the next
+            command would then start it again from rest, which the client's acceleration check bounds).
         camera_source: device index, video file or image folder (:class:`CameraSource`), used unless a frame
             source is passed to the env.
         camera_stall_timeout_s: a live camera that gives no new frame for this long raises (ends the episode), s.
@@ -213,7 +216,7 @@ class RealEnvConfig:
     motion_port: int = MOTION_PORT
     feedback_port: int = FEEDBACK_PORT
     control_period_s: float = 0.1
-    servo_margin_s: float = 0.02
+    servo_margin_s: float = 0.08
     camera_source: str = "0"
     camera_stall_timeout_s: float = 0.5
     frozen_frame_limit: int | None = 20
@@ -271,11 +274,14 @@ class RealEnvConfig:
             logger.warning("a full-scale action (%.3f mm, %.3f deg) exceeds the safety step limit (%g mm, %g deg): "
                            "such actions end the episode", step_mm, self.action_scale.step_deg,
                            self.safety.max_step_mm, self.safety.max_step_deg)
-        t_s = self.servo_time_s
-        if step_mm / t_s > self.safety.max_speed_mm_s or self.action_scale.step_deg / t_s > self.safety.max_speed_deg_s:
-            logger.warning("a full-scale action (%.3f mm, %.3f deg in t = %g s) exceeds the safety speed limit "
-                           "(%g mm/s, %g deg/s): such actions end the episode", step_mm, self.action_scale.step_deg,
-                           t_s, self.safety.max_speed_mm_s, self.safety.max_speed_deg_s)
+        # A stream of full-scale actions moves the arm one step per control period (not per ServoP t).
+        period_s = self.control_period_s
+        if (step_mm / period_s > self.safety.max_speed_mm_s
+                or self.action_scale.step_deg / period_s > self.safety.max_speed_deg_s):
+            logger.warning("a stream of full-scale actions (%.3f mm, %.3f deg every %g s) exceeds the safety speed "
+                           "limit (%g mm/s, %g deg/s): the client refuses such commands (or clamps them, "
+                           "servo_over_limit = 'clamp')", step_mm, self.action_scale.step_deg, period_s,
+                           self.safety.max_speed_mm_s, self.safety.max_speed_deg_s)
 
     @property
     def servo_time_s(self) -> float:
@@ -442,6 +448,8 @@ class RealTactileEnv(gym.Env):
             raise RealEnvError(f"moving to the start pose {start.tolist()} failed: {error}") from error
         if not dry_run:
             self._wait_until_at(start)
+            # from rest, a servo command may ask for max_accel times the time at rest: start the stream with a t's
+            self.client.wait_until_still(self.config.servo_time_s, timeout_s=self.config.move_timeout_s)
         self._commanded = start.copy()
         self.commands_sent = 0
         self.safety_events = []
@@ -527,7 +535,9 @@ class RealTactileEnv(gym.Env):
     def _send(self, target: np.ndarray) -> tuple[str, str] | None:
         """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""
         try:
-            self.client.servo_p(*target, t_s=self.config.servo_time_s)
+            sent = self.client.servo_p(*target, t_s=self.config.servo_time_s)
+        except MotionRefusedError as error:  # stale or missing feedback, error mode: the client sent nothing
+            return STOP_TERMINATIONS[error.reason], f"target {target.round(3).tolist()} not sent: {error}"
         except FeedbackMismatchError as error:
             return "feedback_mismatch", f"target {target.round(3).tolist()} not sent: {error}"
         except SafetyError as error:
@@ -536,7 +546,8 @@ class RealTactileEnv(gym.Env):
             return "robot_error", str(error)
         except (MG400ConnectionError, MG400TimeoutError, ProtocolError) as error:
             return "lost_connection", str(error)
-        self._commanded = target
+        # the pose sent: with SafetyConfig.servo_over_limit = "clamp", the client may have moved it back toward the arm
+        self._commanded = np.asarray(sent, dtype=np.float64) if sent is not None else target
         if not self.config.dry_run:
             self.commands_sent += 1
         return None

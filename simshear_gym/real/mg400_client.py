@@ -6,6 +6,16 @@ workspace, the step and speed of servo commands and the jump of queued moves, wi
 :class:`~simshear_gym.real.safety.SafetyConfig` when no safety layer is given (loosening them takes an explicit
 :class:`~simshear_gym.real.safety.UnsafeSafetyConfig`).
 
+**A stream of commands.** Every motion command is also checked against the arm's *fed-back* state and the commands
+sent before it (:class:`~simshear_gym.real.safety.MotionStream`, one per client, so each arm of a two-arm rig gets
+the same rules): a servo command must not ask the arm for more than ``max_speed_*`` from anywhere it may be (the
+fed-back pose and the targets that may be in force) nor change the velocity asked for faster than ``max_accel_*``;
+queued moves (MovJ, MovL, JointMovJ, RelMovL, RelMovJ) carry the ``SpeedL``/``SpeedJ`` and ``AccL``/``AccJ``
+ratios that keep them within the same bounds. No motion command is sent while the feedback stream is stale or
+missing or the robot reports error mode (:class:`~simshear_gym.real.safety.MotionRefusedError`; without the stream
+the client asks ``RobotMode()``, ``GetAngle()`` and ``GetPose()`` before each one). The client's clock is
+injectable (``clock=``) for tests.
+
 Where the robot is: the step of a command is measured from the last target sent, or, when there is none (first
 command, after a stop or a reset), from the robot's *reported* pose (Cartesian step) and its reported joints
 (per-joint steps). The client trusts a measurement only when the two agree (forward kinematics within
@@ -40,11 +50,16 @@ import numpy as np
 
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.real.safety import (
+    ArmSample,
     FeedbackMismatchError,
     MotionKind,
+    MotionRefusedError,
+    MotionStream,
     SafetyConfig,
     SafetyLayer,
     StatusSnapshot,
+    StopReason,
+    queued_ratios,
 )
 from simshear_gym.robots.mg400.protocol import (
     DASHBOARD_PORT,
@@ -243,8 +258,10 @@ class _FeedbackReader:
     valid packet and the first reason it gives (joints and pose disagree) is kept until :meth:`clear_mismatch`."""
 
     def __init__(self, host: str, port: int, connect_timeout_s: float,
-                 check: Callable[[MG400Feedback], str | None] | None = None) -> None:
+                 check: Callable[[MG400Feedback], str | None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self._where = f"feedback port {host}:{port}"
+        self._clock = clock
         self._check = check
         self._mismatch: str | None = None
         self._sock = _connect("feedback", host, port, connect_timeout_s)
@@ -255,6 +272,9 @@ class _FeedbackReader:
         self._received = 0
         self._lost: str | None = None
         self._stop = threading.Event()
+        self._first = threading.Event()
+        self._last_joints: tuple[float, ...] | None = None
+        self._moved_s: float | None = None
         self._thread = threading.Thread(target=self._run, name="mg400-feedback", daemon=True)
         self._thread.start()
 
@@ -283,13 +303,21 @@ class _FeedbackReader:
                     if first:
                         logger.error("MG400 %s: %s", self._where, mismatch)
             if packets:
+                now_s = self._clock()
                 with self._lock:
-                    self._latest = (packets[-1], time.monotonic())
+                    for packet in packets:  # when a packet last showed the arm moving (or the first packet)
+                        joints = packet.q_actual_deg
+                        if self._last_joints is None or joints != self._last_joints:
+                            self._moved_s = now_s
+                        self._last_joints = joints
+                    self._latest = (packets[-1], now_s)
                     self._received += len(packets)
+                self._first.set()
 
     def _set_lost(self, reason: str) -> None:
         with self._lock:
             self._lost = reason
+        self._first.set()  # nothing more will come
         if not self._stop.is_set():
             logger.error("MG400 %s lost: %s", self._where, reason)
 
@@ -317,21 +345,35 @@ class _FeedbackReader:
         with self._lock:
             return self._received
 
+    @property
+    def moved_s(self) -> float | None:
+        """When a packet last showed the arm moving (or the first packet arrived), the client's clock, s."""
+        with self._lock:
+            return self._moved_s
+
+    def wait_first(self, timeout_s: float) -> bool:
+        """Wait until the first valid packet arrived (or ``timeout_s`` passed, or the stream was lost)."""
+        return self._first.wait(timeout_s)
+
     def age_s(self) -> float | None:
         with self._lock:
-            return None if self._latest is None else time.monotonic() - self._latest[1]
+            return None if self._latest is None else self._clock() - self._latest[1]
 
     def latest(self, max_age_s: float) -> MG400Feedback:
+        return self.latest_with_time(max_age_s)[0]
+
+    def latest_with_time(self, max_age_s: float) -> tuple[MG400Feedback, float]:
+        """The newest valid packet and when it arrived (the client's clock, s)."""
         with self._lock:
             latest, lost = self._latest, self._lost
         if latest is None:
             raise FeedbackStaleError(f"no valid feedback packet received yet on the {self._where}"
                                      + (f" (connection lost: {lost})" if lost else ""))
-        age_s = time.monotonic() - latest[1]
+        age_s = self._clock() - latest[1]
         if age_s > max_age_s:
             raise FeedbackStaleError(f"newest feedback is {age_s:.3f} s old, max_age_s = {max_age_s:g}"
                                      + (f" (connection lost: {lost})" if lost else ""))
-        return latest[0]
+        return latest
 
     def close(self) -> None:
         self._stop.set()
@@ -356,6 +398,12 @@ class ErrorIDs:
         return self.controller + tuple(i for servo in self.servos for i in servo)
 
 
+def _three(values: Sequence[float], name: str) -> tuple[float, float, float]:
+    if len(values) != 3 or not all(math.isfinite(float(v)) for v in values):
+        raise ValueError(f"{name} must be 3 finite numbers, got {values!r}")
+    return tuple(float(v) for v in values)  # type: ignore[return-value]
+
+
 def _four(values: Sequence[float], name: str) -> Pose:
     if len(values) != 4:
         raise ValueError(f"{name} must have 4 values, got {len(values)}")
@@ -372,11 +420,16 @@ class MG400Client:
         config: host, ports and timeouts.
         safety: the safety layer every motion command passes; default: ``SafetyLayer(SafetyConfig())``, the safe
             defaults for tactile work near a surface.
+        clock: the client's clock, s (default ``time.monotonic``): feedback arrival times and command times.
     """
 
-    def __init__(self, config: MG400ClientConfig | None = None, safety: SafetyLayer | None = None) -> None:
+    def __init__(self, config: MG400ClientConfig | None = None, safety: SafetyLayer | None = None,
+                 clock: Callable[[], float] | None = None) -> None:
         self.config = config if config is not None else MG400ClientConfig()
         self.safety = safety if safety is not None else SafetyLayer(SafetyConfig())
+        self.clock: Callable[[], float] = clock if clock is not None else time.monotonic
+        self.stream = MotionStream(self.safety)
+        self._speed_factor_percent = 100  # assumed until set: the fastest
         self._dashboard: _ReplyChannel | None = None
         self._motion: _ReplyChannel | None = None
         self._feedback: _FeedbackReader | None = None
@@ -396,10 +449,12 @@ class MG400Client:
             self._motion = _ReplyChannel("motion", cfg.host, cfg.motion_port, cfg.connect_timeout_s)
             if cfg.use_feedback:
                 self._feedback = _FeedbackReader(cfg.host, cfg.feedback_port, cfg.connect_timeout_s,
-                                                 check=self._packet_mismatch)
+                                                 check=self._packet_mismatch, clock=self.clock)
         except MG400ConnectionError:
             self.close()
             raise
+        if self._feedback is not None:  # motion waits for feedback: give the first packet the connect timeout
+            self._feedback.wait_first(cfg.connect_timeout_s)
         logger.info("connected to MG400 at %s", cfg.host)
         return self
 
@@ -411,7 +466,7 @@ class MG400Client:
         self._feedback = self._motion = self._dashboard = None
 
     def __enter__(self) -> MG400Client:
-        return self.connect()
+        return self if self._dashboard is not None else self.connect()  # connected already: keep those
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
@@ -443,9 +498,18 @@ class MG400Client:
 
     # -- dashboard -----------------------------------------------------------------------------------------------
 
-    def enable_robot(self) -> None:
-        """``EnableRobot()``."""
-        self._request("dashboard", format_command("EnableRobot"))
+    def enable_robot(self, load_kg: float | None = None,
+                     center_mm: tuple[float, float, float] | None = None) -> None:
+        """``EnableRobot()``, or ``EnableRobot(load)`` / ``EnableRobot(load,centerX,centerY,centerZ)`` with the
+        payload in kg and its centre offset in mm (-500..500)."""
+        params: list[float] = []
+        if load_kg is not None:
+            params.append(float(load_kg))
+            if center_mm is not None:
+                params += [float(v) for v in _three(center_mm, "center_mm")]
+        elif center_mm is not None:
+            raise ValueError("EnableRobot: center_mm needs load_kg")
+        self._request("dashboard", format_command("EnableRobot", *params))
 
     def disable_robot(self) -> None:
         """``DisableRobot()``."""
@@ -453,9 +517,22 @@ class MG400Client:
         self._forget_targets()
 
     def clear_error(self) -> None:
-        """``ClearError()``; follow with :meth:`continue_`."""
+        """``ClearError()``; follow with :meth:`continue_`. With the feedback stream, waits (up to the reply
+        timeout) for a packet that no longer shows error mode, so that the next motion command is not refused."""
         self._request("dashboard", format_command("ClearError"))
         self._forget_targets()
+        if self._feedback is not None:
+            deadline_s = time.monotonic() + self.config.reply_timeout_s
+            seen = self._feedback.received
+            while time.monotonic() < deadline_s:
+                try:
+                    packet = self._feedback.latest(self.config.reply_timeout_s)
+                except FeedbackStaleError:
+                    packet = None
+                if (packet is not None and self._feedback.received > seen and not packet.error_status
+                        and packet.robot_mode != int(RobotMode.ERROR)):
+                    return
+                time.sleep(0.002)
 
     def continue_(self) -> None:
         """``Continue()``."""
@@ -475,7 +552,9 @@ class MG400Client:
         """``SpeedFactor(percent)``, percent in 1..100."""
         if isinstance(percent, bool) or not isinstance(percent, int) or not 1 <= percent <= 100:
             raise ValueError(f"speed factor must be an int percent in 1..100, got {percent!r}")
+        self._speed_factor_percent = 100  # while in doubt (no reply): the fastest
         self._request("dashboard", format_command("SpeedFactor", percent))
+        self._speed_factor_percent = percent
 
     def robot_mode(self) -> RobotMode:
         """``RobotMode()``."""
@@ -521,6 +600,21 @@ class MG400Client:
         if self._feedback is None:
             raise FeedbackStaleError("feedback is not running (not connected, or use_feedback=False)")
         return self._feedback.latest(self.config.feedback_max_age_s if max_age_s is None else max_age_s)
+
+    def wait_until_still(self, duration_s: float, timeout_s: float = 2.0) -> bool:
+        """Wait until the feedback shows the arm still for ``duration_s`` (a servo command from rest may then ask
+        for up to ``max_accel`` times that much speed: the acceleration check); False after ``timeout_s`` or
+        without the feedback stream."""
+        if self._feedback is None:
+            return False
+        deadline_s = time.monotonic() + timeout_s
+        while True:
+            moved_s = self._feedback.moved_s
+            if moved_s is not None and self.clock() - moved_s >= duration_s + self.safety.config.controller_cycle_s:
+                return True
+            if time.monotonic() >= deadline_s:
+                return False
+            time.sleep(0.002)
 
     @property
     def feedback_rejected(self) -> int:
@@ -606,6 +700,45 @@ class MG400Client:
     def _forget_targets(self) -> None:
         self._reference = None
         self._uncertain = None
+        self.stream.forget()
+
+    def arm_sample(self) -> ArmSample:
+        """The newest measurement of the arm for the stream checks; refuses motion on stale or missing feedback or
+        in error mode (:class:`~simshear_gym.real.safety.MotionRefusedError`), unless
+        ``SafetyConfig.refuse_stale_feedback`` was turned off (then GetAngle / GetPose stand in).
+
+        Raises:
+            MotionRefusedError: the feedback is stale or missing, or the robot is in error mode.
+            FeedbackMismatchError: the measured joints and pose disagree.
+        """
+        cfg = self.safety.config
+        where = f"MG400 at {self.config.host}"
+        if self._feedback is not None:
+            try:
+                packet, received_s = self._feedback.latest_with_time(cfg.max_feedback_age_s)
+            except FeedbackStaleError as error:
+                if cfg.refuse_stale_feedback:
+                    raise MotionRefusedError(StopReason.STALE_FEEDBACK,
+                                             f"{where}: not sending motion on stale or missing feedback: {error} "
+                                             f"(max_feedback_age_s = {cfg.max_feedback_age_s:g})") from error
+            else:
+                if cfg.refuse_stale_feedback and (packet.robot_mode == int(RobotMode.ERROR) or packet.error_status):
+                    raise MotionRefusedError(StopReason.ROBOT_ERROR_MODE,
+                                             f"{where}: not sending motion: the robot reports error mode "
+                                             "(ClearError() and Continue() first)")
+                self.safety.check_feedback_agreement(packet.q_actual_deg, packet.tool_vector_actual,
+                                                     f"{where}, feedback")
+                return ArmSample(tuple(packet.tool_vector_actual), tuple(packet.q_actual_deg), received_s,
+                                 tuple(packet.tool_vector_target), tuple(packet.q_target_deg),
+                                 self._feedback.moved_s)
+        elif cfg.refuse_stale_feedback and self.robot_mode() is RobotMode.ERROR:
+            raise MotionRefusedError(StopReason.ROBOT_ERROR_MODE,
+                                     f"{where}: not sending motion: the robot reports error mode "
+                                     "(ClearError() and Continue() first)")
+        asked_s = self.clock()
+        joints, pose = self.get_angle(), self.get_pose()
+        self.safety.check_feedback_agreement(joints, pose, f"{where}, GetAngle() and GetPose()")
+        return ArmSample(tuple(pose), tuple(joints), asked_s)
 
     def _reference_state(self) -> tuple[np.ndarray, np.ndarray]:
         """(pose, joints) the next step is measured from; refuses while the feedback disagrees."""
@@ -623,33 +756,87 @@ class MG400Client:
             self.safety.submit(command, lambda text: self._request("motion", text))
         except MG400Error:  # the controller answered: refused, not in force
             self._reference = None
+            self.stream.outcome(answered=True, accepted=False)
             raise
         except BaseException:  # no answer: it may be in force
             self._reference = None
             self._uncertain = target
+            self.stream.outcome(answered=False, accepted=False)
             raise
         self._reference = target
         self._uncertain = None
+        self.stream.outcome(answered=True, accepted=True)
+
+    def _stream_sample(self, measured: ArmSample) -> ArmSample:
+        """What the stream checks measure from: the arm, or in dry run (nothing is sent, the arm stays) the last
+        target, as if it had been sent and reached."""
+        if not self.safety.dry_run or self._reference is None:
+            return measured
+        pose, joints = self._reference
+        return ArmSample(tuple(pose), tuple(joints), self.clock(), moved_s=measured.moved_s)
+
+    def _check_cartesian(self, target: np.ndarray, kind: MotionKind, duration_s: float | None,
+                         reference: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """The per-command checks of a Cartesian target (from the reference and a target whose reply was lost)."""
+        joints = self.safety.check_target(reference[0], target, kind, duration_s, reference[1])
+        if self._uncertain is not None:
+            self.safety.check_target(self._uncertain[0], target, kind, duration_s, self._uncertain[1])
+        return joints
+
+    def _queued_keywords(self, kind: MotionKind, reference: tuple[np.ndarray, np.ndarray], pose: np.ndarray,
+                         joints: np.ndarray, sample: ArmSample) -> dict[str, int]:
+        """The speed and acceleration ratios of a queued move: the slowest needed from anywhere it may start (the
+        controller starts it where the arm is when the queue reaches it: the reference, or the target of a servo
+        command still in force, or wherever the arm may be)."""
+        linear = kind is MotionKind.LINEAR
+        speed, accel = 100, 100
+        for start_pose, start_joints in [reference] + self.stream.hull(sample):
+            needed = queued_ratios(self.safety, start_pose, start_joints, pose, joints, linear,
+                                   self._speed_factor_percent)
+            speed, accel = min(speed, needed[0]), min(accel, needed[1])
+        return {"SpeedL": speed, "AccL": accel} if linear else {"SpeedJ": speed, "AccJ": accel}
 
     def _cartesian(self, name: str, pose: Sequence[float], kind: MotionKind, duration_s: float | None = None,
-                   **keywords: float) -> None:
-        target = _four(pose, f"{name} target (x_mm, y_mm, z_mm, r_deg)")
+                   command_params: Sequence[float] | None = None, **keywords: float) -> Pose:
+        target = np.array(_four(pose, f"{name} target (x_mm, y_mm, z_mm, r_deg)"))
         with self._motion_lock:
-            current_pose, current_joints = self._reference_state()
-            joints = self.safety.check_target(current_pose, target, kind, duration_s, current_joints)
-            if self._uncertain is not None:
-                self.safety.check_target(self._uncertain[0], target, kind, duration_s, self._uncertain[1])
-            self._send_motion(format_command(name, *target, **keywords), np.array(target), joints)
+            sample = self._stream_sample(self.arm_sample())
+            reference = self._reference_state()
+            now_s = self.clock()
+            if kind is MotionKind.SERVO:
+                assert duration_s is not None
+                if self.safety.config.servo_over_limit == "clamp":
+                    self.safety.check_target(target, target, MotionKind.JOINT)  # reach and workspace: never clamped
+                    target = self.stream.clamp_servo_pose(
+                        now_s, target, duration_s, sample,
+                        lambda candidate: self._check_cartesian(candidate, kind, duration_s, reference))
+                joints = self._check_cartesian(target, kind, duration_s, reference)
+                self.stream.check_servo(now_s, target, joints, duration_s, sample)
+            else:
+                joints = self._check_cartesian(target, kind, duration_s, reference)
+                keywords = {**keywords, **self._queued_keywords(kind, reference, target, joints, sample)}
+            params = target if command_params is None else command_params
+            self.stream.record(now_s, target, joints, duration_s, sample)
+            self._send_motion(format_command(name, *params, **keywords), target, joints)
+        return tuple(float(v) for v in target)  # type: ignore[return-value]
 
     def _joint(self, name: str, joints_deg: Sequence[float], kind: MotionKind, duration_s: float | None = None,
                **keywords: float) -> None:
-        target = _four(joints_deg, f"{name} target (J1, J2, J3, J4) deg")
+        target = np.array(_four(joints_deg, f"{name} target (J1, J2, J3, J4) deg"))
         with self._motion_lock:
-            current_pose, current_joints = self._reference_state()
-            pose = self.safety.check_joint_target(current_joints, target, kind, duration_s, current_pose)
+            sample = self._stream_sample(self.arm_sample())
+            current_pose, current_joints = reference = self._reference_state()
+            now_s = self.clock()
+            pose = np.array(self.safety.check_joint_target(current_joints, target, kind, duration_s, current_pose))
             if self._uncertain is not None:
                 self.safety.check_joint_target(self._uncertain[1], target, kind, duration_s, self._uncertain[0])
-            self._send_motion(format_command(name, *target, **keywords), np.array(pose), np.array(target))
+            if kind is MotionKind.SERVO:
+                assert duration_s is not None
+                self.stream.check_servo(now_s, pose, target, duration_s, sample)
+            else:
+                keywords = {**keywords, **self._queued_keywords(MotionKind.JOINT, reference, pose, target, sample)}
+            self.stream.record(now_s, pose, target, duration_s, sample)
+            self._send_motion(format_command(name, *target, **keywords), pose, target)
 
     def mov_j(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float) -> None:
         """Queue ``MovJ`` (joint-space move to a Cartesian pose)."""
@@ -663,10 +850,31 @@ class MG400Client:
         """Queue ``JointMovJ`` to joint angles, deg."""
         self._joint("JointMovJ", (j1_deg, j2_deg, j3_deg, j4_deg), MotionKind.JOINT)
 
-    def servo_p(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float, t_s: float = 0.1) -> None:
-        """``ServoP``: replace the servo target with a pose, reached in ``t_s`` (0.004..3600 s)."""
+    def rel_mov_l(self, dx_mm: float, dy_mm: float, dz_mm: float, dr_deg: float) -> None:
+        """Queue ``RelMovL``: a straight-line move by offsets from the current target (the last target sent, or
+        the measured pose)."""
+        self._relative("RelMovL", (dx_mm, dy_mm, dz_mm, dr_deg), MotionKind.LINEAR)
+
+    def rel_mov_j(self, dx_mm: float, dy_mm: float, dz_mm: float, dr_deg: float) -> None:
+        """Queue ``RelMovJ``: a joint-space move by Cartesian offsets from the current target."""
+        self._relative("RelMovJ", (dx_mm, dy_mm, dz_mm, dr_deg), MotionKind.JOINT)
+
+    def _relative(self, name: str, offsets: Sequence[float], kind: MotionKind) -> None:
+        delta = np.array(_four(offsets, f"{name} offsets (dx_mm, dy_mm, dz_mm, dr_deg)"))
+        with self._motion_lock:
+            self.arm_sample()  # refuse before measuring on stale feedback or in error mode
+            current_pose, _ = self._reference_state()
+            self._cartesian(name, current_pose + delta, kind, command_params=delta)
+
+    def servo_p(self, x_mm: float, y_mm: float, z_mm: float, r_deg: float, t_s: float = 0.1) -> Pose:
+        """``ServoP``: replace the servo target with a pose, reached in ``t_s`` (0.004..3600 s).
+
+        Returns:
+            The pose sent: the one asked for, or with ``SafetyConfig.servo_over_limit = "clamp"`` the point toward
+            it that keeps the stream within its limits.
+        """
         self._servo_time(t_s)
-        self._cartesian("ServoP", (x_mm, y_mm, z_mm, r_deg), MotionKind.SERVO, t_s, t=t_s)
+        return self._cartesian("ServoP", (x_mm, y_mm, z_mm, r_deg), MotionKind.SERVO, t_s, t=t_s)
 
     def servo_j(self, j1_deg: float, j2_deg: float, j3_deg: float, j4_deg: float, t_s: float = 0.1) -> None:
         """``ServoJ``: replace the servo target with joint angles, reached in ``t_s`` (0.004..3600 s)."""

@@ -2,10 +2,16 @@
 
 It listens on 127.0.0.1 only and speaks the protocol of :mod:`simshear_gym.robots.mg400.protocol`:
 
-* Dashboard (29999): EnableRobot, DisableRobot, ClearError, Continue, ResetRobot, EmergencyStop, SpeedFactor,
-  User, Tool, RobotMode, GetPose, GetAngle, GetErrorID.
-* Motion (30003): MovJ, MovL, JointMovJ (queued, executed in order at ``joint_speed_deg_s`` /
-  ``linear_speed_mm_s`` scaled by SpeedFactor: the controller plans them, so they never trip a speed limit), Sync
+* Dashboard (29999): EnableRobot (``EnableRobot()``, ``EnableRobot(load)``, ``EnableRobot(load,x,y,z)``: payload
+  in kg, 0..``max_payload_kg``, and its centre offset, -500..500 mm), DisableRobot, ClearError, Continue, Pause,
+  ResetRobot, EmergencyStop, SpeedFactor (1..100), the queued-move settings SpeedJ, SpeedL, AccJ, AccL (1..100) and
+  CP (0..100), SetPayLoad / PayLoad, User, Tool, RobotMode, GetPose, GetAngle, GetErrorID.
+* Motion (30003): MovJ, MovL, JointMovJ and RelMovJ, RelMovL (offsets from the current target; queued, executed in
+  order: the controller plans them, so they never trip a speed limit) with the optional keywords of Dobot's API
+  (``User=``, ``Tool=``, ``SpeedJ=``/``SpeedL=``, ``AccJ=``/``AccL=``, ``CP=``): a move runs at
+  ``joint_speed_deg_s`` / ``linear_speed_mm_s`` (and ``rotation_speed_deg_s`` for R) times SpeedFactor times its
+  speed ratio (its keyword, else the SpeedJ / SpeedL setting), speeding up and slowing down at
+  ``joint_accel_deg_s2`` / ``linear_accel_mm_s2`` times its acceleration ratio (a trapezoidal profile); Sync
   (answers when the queue is empty; -1 if the robot is then in error mode), ServoP / ServoJ (replace the servo
   target, reached linearly over ``t``; refused while queued moves run; a move queued during a servo motion starts
   when that motion ends).
@@ -32,7 +38,8 @@ Faults (:class:`FaultConfig`, also swapped at run time with :meth:`MG400Emulator
 motion, dropped connections after N commands, replies split across TCP segments, corrupt, partial or inconsistent
 (joints that disagree with the pose) feedback packets, slow replies; and at run time :meth:`~MG400Emulator.
 inject_alarm`, :meth:`~MG400Emulator.pause_feedback` (stale feedback) and :meth:`~MG400Emulator.drop_connections`.
-Every motion command is recorded with the state it found (:meth:`MG400Emulator.motion_records`), for audits.
+Every motion command is recorded with the state it found (:meth:`MG400Emulator.motion_records`), and every motion
+the arm executed with its peak speeds and accelerations (:meth:`MG400Emulator.executed_motions`), for audits.
 
 Command line (hooked up by the ``simshear`` CLI): ``simshear mg400-emulator --host 127.0.0.1 --dashboard-port ...``
 via :func:`add_arguments` and :func:`run`.
@@ -172,6 +179,9 @@ class EmulatorConfig:
         joint_speed_deg_s: joint speed of MovJ/JointMovJ at SpeedFactor 100, deg/s.
         linear_speed_mm_s: Cartesian speed of MovL at SpeedFactor 100, mm/s.
         rotation_speed_deg_s: R speed of MovL at SpeedFactor 100, deg/s.
+        joint_accel_deg_s2: joint (and MovL's R) acceleration of queued moves at AccJ / AccL 100, deg/s^2.
+        linear_accel_mm_s2: Cartesian acceleration of MovL at AccL 100, mm/s^2.
+        max_payload_kg: the largest load EnableRobot accepts, kg.
         max_joint_speed_deg_s: the arm's joint speed limit: a servo command needing more raises overspeed, deg/s.
         max_linear_speed_mm_s: the flange's speed limit: a servo command needing more raises overspeed, mm/s.
         initial_joints_deg: start joints (J1..J4), deg (default: those of :data:`READY_POSE_MM_DEG`).
@@ -189,6 +199,9 @@ class EmulatorConfig:
     joint_speed_deg_s: float = 180.0
     linear_speed_mm_s: float = 500.0
     rotation_speed_deg_s: float = 360.0
+    joint_accel_deg_s2: float = 4000.0
+    linear_accel_mm_s2: float = 10000.0
+    max_payload_kg: float = 0.75
     max_joint_speed_deg_s: float = 300.0
     max_linear_speed_mm_s: float = 1000.0
     initial_joints_deg: tuple[float, float, float, float] = READY_JOINTS_DEG
@@ -213,7 +226,8 @@ class EmulatorConfig:
             if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
                 raise ValueError(f"EmulatorConfig.{name} must be an int in 0..65535 (0: ephemeral), got {port!r}")
         for name in ("feedback_period_s", "joint_speed_deg_s", "linear_speed_mm_s", "rotation_speed_deg_s",
-                     "max_joint_speed_deg_s", "max_linear_speed_mm_s"):
+                     "joint_accel_deg_s2", "linear_accel_mm_s2", "max_payload_kg", "max_joint_speed_deg_s",
+                     "max_linear_speed_mm_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"EmulatorConfig.{name} must be finite and > 0, got {value!r}")
@@ -258,27 +272,107 @@ class MotionRecord:
 
 
 @dataclass(frozen=True)
+class ExecutedMotion:
+    """One motion the emulated arm executed (a servo command accepted, a queued move started), with what it asked
+    of the arm, for audits.
+
+    Attributes:
+        time_s: emulator time when it started, s.
+        command: the command text.
+        servo: ServoP / ServoJ (True) or a queued move (False).
+        start_pose, end_pose: flange poses ``(x, y, z mm, R deg)`` (R unwrapped next to the start).
+        start_joints, end_joints: deg.
+        duration_s: how long it takes, s.
+        peak_speed_mm_s: the flange's largest speed on the way, mm/s.
+        peak_rotation_deg_s: R's largest rate, deg/s.
+        peak_joint_deg_s: the fastest joint's largest rate, deg/s.
+        accel_mm_s2: the flange's largest acceleration, mm/s^2 (a servo command: the change of the flange velocity
+            from the motion it replaced, over the time since the velocity last changed, at least one tick).
+        accel_deg_s2: the same for R and the joints, deg/s^2.
+    """
+
+    time_s: float
+    command: str
+    servo: bool
+    start_pose: tuple[float, ...]
+    end_pose: tuple[float, ...]
+    start_joints: tuple[float, ...]
+    end_joints: tuple[float, ...]
+    duration_s: float
+    peak_speed_mm_s: float
+    peak_rotation_deg_s: float
+    peak_joint_deg_s: float
+    accel_mm_s2: float
+    accel_deg_s2: float
+
+
+@dataclass(frozen=True)
 class _Queued:
-    """A move waiting in the queue: a Cartesian pose (MovJ/MovL) or joints (JointMovJ)."""
+    """A move waiting in the queue: a Cartesian pose (MovJ/MovL) or joints (JointMovJ), with its speed and
+    acceleration ratios (percent; None: the global setting)."""
 
     command: str
     target: tuple[float, ...]
     joint_target: bool
     linear: bool
+    speed_ratio: float | None = None
+    accel_ratio: float | None = None
 
 
 @dataclass
 class _Motion:
-    """A move in progress: joint-space or Cartesian-linear interpolation over ``duration_s``."""
+    """A move in progress: joint-space or Cartesian-linear interpolation along a path fraction that grows at
+    ``cruise_rate`` (1/s) after speeding up at ``accel_rate`` (1/s^2; inf: at once), a trapezoidal profile."""
 
     start_joints: np.ndarray
     end_joints: np.ndarray
     start_pose: np.ndarray
     end_pose: np.ndarray
     linear: bool
-    duration_s: float
+    cruise_rate: float
     servo: bool
+    accel_rate: float = math.inf
     elapsed_s: float = 0.0
+
+    @property
+    def ramp_s(self) -> float:
+        """Time spent speeding up (and slowing down), s."""
+        if math.isinf(self.accel_rate):
+            return 0.0
+        return min(self.cruise_rate / self.accel_rate, math.sqrt(1.0 / self.accel_rate))
+
+    @property
+    def peak_rate(self) -> float:
+        """The largest path-fraction rate, 1/s."""
+        return self.cruise_rate if math.isinf(self.accel_rate) else self.accel_rate * self.ramp_s
+
+    @property
+    def duration_s(self) -> float:
+        ramp_s = self.ramp_s
+        covered = self.accel_rate * ramp_s * ramp_s if ramp_s > 0.0 else 0.0  # both ramps
+        return 2.0 * ramp_s + max(0.0, 1.0 - covered) / self.peak_rate
+
+    def fraction(self, elapsed_s: float) -> float:
+        total_s, ramp_s, peak = self.duration_s, self.ramp_s, self.peak_rate
+        if elapsed_s >= total_s:
+            return 1.0
+        if elapsed_s <= ramp_s:
+            return 0.5 * self.accel_rate * elapsed_s * elapsed_s
+        if elapsed_s >= total_s - ramp_s:
+            left_s = total_s - elapsed_s
+            return 1.0 - 0.5 * self.accel_rate * left_s * left_s
+        return 0.5 * peak * ramp_s + peak * (elapsed_s - ramp_s)
+
+    def rate(self, elapsed_s: float) -> float:
+        """The path-fraction rate at ``elapsed_s``, 1/s."""
+        total_s, ramp_s = self.duration_s, self.ramp_s
+        if elapsed_s >= total_s or elapsed_s < 0.0:
+            return 0.0
+        if elapsed_s < ramp_s:
+            return self.accel_rate * elapsed_s
+        if elapsed_s > total_s - ramp_s:
+            return self.accel_rate * (total_s - elapsed_s)
+        return self.peak_rate
 
     def joints_at(self, fraction: float, geometry: MG400Geometry, limits: MG400Limits) -> np.ndarray:
         if self.linear:
@@ -303,6 +397,10 @@ class MG400Emulator:
         self._enabled = False
         self._alarms: list[int] = []
         self._speed_factor = 100
+        self._ratios = {"speedj": 100.0, "speedl": 100.0, "accj": 100.0, "accl": 100.0, "cp": 0.0}
+        self._payload: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+        self._executed: list[ExecutedMotion] = []
+        self._velocity_changed_s = 0.0  # emulator time of the last change of the arm's velocity
         self._queue: deque[_Queued] = deque()
         self._active: _Motion | None = None
         self._alarm_fired = False
@@ -325,6 +423,14 @@ class MG400Emulator:
             ("dashboard", "disablerobot"): self._disable,
             ("dashboard", "clearerror"): self._clear_error,
             ("dashboard", "continue"): lambda cmd: self._no_args(cmd, lambda: None),
+            ("dashboard", "pause"): lambda cmd: self._no_args(cmd, lambda: None),
+            ("dashboard", "speedj"): lambda cmd: self._set_ratio(cmd, "speedj", 1),
+            ("dashboard", "speedl"): lambda cmd: self._set_ratio(cmd, "speedl", 1),
+            ("dashboard", "accj"): lambda cmd: self._set_ratio(cmd, "accj", 1),
+            ("dashboard", "accl"): lambda cmd: self._set_ratio(cmd, "accl", 1),
+            ("dashboard", "cp"): lambda cmd: self._set_ratio(cmd, "cp", 0),
+            ("dashboard", "setpayload"): self._set_payload,
+            ("dashboard", "payload"): self._set_payload,
             ("dashboard", "resetrobot"): lambda cmd: self._no_args(cmd, self._halt),
             ("dashboard", "emergencystop"): self._emergency_stop,
             ("dashboard", "speedfactor"): self._set_speed_factor,
@@ -337,6 +443,8 @@ class MG400Emulator:
             ("motion", "movj"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=False),
             ("motion", "movl"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=True),
             ("motion", "jointmovj"): lambda cmd: self._queue_move(cmd, joint_target=True, linear=False),
+            ("motion", "relmovj"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=False, relative=True),
+            ("motion", "relmovl"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=True, relative=True),
             ("motion", "servop"): lambda cmd: self._servo(cmd, joint_target=False),
             ("motion", "servoj"): lambda cmd: self._servo(cmd, joint_target=True),
             ("motion", "sync"): self._sync,
@@ -491,10 +599,33 @@ class MG400Emulator:
         with self._cond:
             self._feedback_paused_until = time.monotonic() + float(duration_s)
 
+    @property
+    def feedback_paused(self) -> bool:
+        """True while :meth:`pause_feedback` holds the feedback back."""
+        with self._cond:
+            return time.monotonic() < self._feedback_paused_until
+
     def motion_records(self) -> list[MotionRecord]:
         """Every motion command received so far (Sync excepted), with the state it found, oldest first."""
         with self._cond:
             return list(self._records)
+
+    def executed_motions(self) -> list[ExecutedMotion]:
+        """Every motion the arm executed so far (what it was asked to do and did), oldest first."""
+        with self._cond:
+            return list(self._executed)
+
+    @property
+    def payload(self) -> tuple[float, float, float, float]:
+        """The payload set by EnableRobot / SetPayLoad: (kg, centre x, y, z mm)."""
+        with self._cond:
+            return self._payload
+
+    @property
+    def ratios(self) -> dict[str, float]:
+        """The queued-move settings: SpeedJ, SpeedL, AccJ, AccL (percent) and CP (percent)."""
+        with self._cond:
+            return dict(self._ratios)
 
     def _close_clients(self) -> None:
         with self._clients_lock:
@@ -530,26 +661,81 @@ class MG400Emulator:
         self._halt()
         self._cond.notify_all()
 
-    def _speed(self, value: float) -> float:
-        return value * self._speed_factor / 100.0
-
     def _start_motion(self, item: _Queued) -> _Motion:
-        geometry, start_joints = self.config.geometry, self._joints.copy()
+        cfg, geometry, start_joints = self.config, self.config.geometry, self._joints.copy()
         start_pose = np.array(forward(start_joints, geometry))
         if item.joint_target:
             end_joints = np.array(item.target)
             end_pose = np.array(forward(end_joints, geometry))
         else:
             end_pose = np.array(item.target)
-            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
+            end_joints = check_pose_reachable(end_pose, geometry, cfg.limits)
             end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+        kind = "l" if item.linear else "j"
+        speed = self._speed_factor / 100.0 * (item.speed_ratio or self._ratios["speed" + kind]) / 100.0
+        accel = (item.accel_ratio or self._ratios["acc" + kind]) / 100.0
+        # Each axis's (distance, speed, acceleration); the move follows the slowest, the others keep pace.
         if item.linear:
-            duration_s = max(float(np.linalg.norm(end_pose[:3] - start_pose[:3])) / self._speed(
-                self.config.linear_speed_mm_s), abs(end_pose[3] - start_pose[3]) / self._speed(
-                self.config.rotation_speed_deg_s))
+            axes = [(float(np.linalg.norm(end_pose[:3] - start_pose[:3])), cfg.linear_speed_mm_s,
+                     cfg.linear_accel_mm_s2), (abs(float(end_pose[3] - start_pose[3])), cfg.rotation_speed_deg_s,
+                                               cfg.joint_accel_deg_s2)]
         else:
-            duration_s = float(np.max(np.abs(end_joints - start_joints))) / self._speed(self.config.joint_speed_deg_s)
-        return _Motion(start_joints, end_joints, start_pose, end_pose, item.linear, duration_s, servo=False)
+            axes = [(float(np.max(np.abs(end_joints - start_joints))), cfg.joint_speed_deg_s, cfg.joint_accel_deg_s2)]
+        best: _Motion | None = None
+        for distance, top_speed, top_accel in axes:
+            if distance <= 0.0:
+                continue
+            motion = _Motion(start_joints, end_joints, start_pose, end_pose, item.linear,
+                             cruise_rate=top_speed * speed / distance, servo=False,
+                             accel_rate=top_accel * accel / distance)
+            if best is None or motion.duration_s > best.duration_s:
+                best = motion
+        if best is None:
+            best = _Motion(start_joints, end_joints, start_pose, end_pose, item.linear, cruise_rate=math.inf,
+                           servo=False)
+        self._note_executed(item.command, best, accel_mm_s2=None, accel_deg_s2=None)
+        return best
+
+    def _path_rates(self, motion: _Motion) -> tuple[float, float, float]:
+        """The largest (flange mm, R deg, joint deg) per unit of path fraction along ``motion``'s path."""
+        distance_mm = float(np.linalg.norm(motion.end_pose[:3] - motion.start_pose[:3]))
+        r_deg = abs(float(motion.end_pose[3] - motion.start_pose[3]))
+        joint_delta = motion.end_joints - motion.start_joints
+        if not motion.linear:
+            # joint interpolation: the flange's speed varies along the arc; sample it
+            fractions = np.linspace(0.0, 1.0, 41)
+            poses = [np.array(forward(motion.start_joints + f * joint_delta, self.config.geometry)) for f in fractions]
+            distance_mm = max(float(np.linalg.norm(b[:3] - a[:3])) / fractions[1] for a, b in zip(poses, poses[1:]))
+            return distance_mm, r_deg, float(np.max(np.abs(joint_delta)))
+        if motion.servo:
+            joint_delta = joint_delta.copy()
+            joint_delta[3] = wrap_deg(joint_delta[3])
+            return distance_mm, r_deg, float(np.max(np.abs(joint_delta)))
+        fractions = np.linspace(0.0, 1.0, 41)
+        joints = []
+        for f in fractions:
+            try:
+                joints.append(check_pose_reachable(motion.start_pose + f * (motion.end_pose - motion.start_pose),
+                                                   self.config.geometry, self.config.limits))
+            except KinematicsError:
+                joints.append(motion.start_joints + f * joint_delta)
+        joint_rate = max(float(np.max(np.abs(b - a))) / fractions[1] for a, b in zip(joints, joints[1:]))
+        return distance_mm, r_deg, joint_rate
+
+    def _note_executed(self, command: str, motion: _Motion, accel_mm_s2: float | None,
+                       accel_deg_s2: float | None) -> None:
+        """Append an :class:`ExecutedMotion` (lock held)."""
+        mm, r_deg, joint_deg = self._path_rates(motion)
+        peak = 0.0 if math.isinf(motion.cruise_rate) else motion.peak_rate
+        if accel_mm_s2 is None:
+            accel_rate = 0.0 if math.isinf(motion.accel_rate) else motion.accel_rate
+            accel_mm_s2, accel_deg_s2 = mm * accel_rate, max(r_deg, joint_deg) * accel_rate
+        self._executed.append(ExecutedMotion(
+            self._time_s, command, motion.servo, tuple(float(v) for v in motion.start_pose),
+            tuple(float(v) for v in motion.end_pose), tuple(float(v) for v in motion.start_joints),
+            tuple(float(v) for v in motion.end_joints), float(motion.duration_s), mm * peak, r_deg * peak,
+            joint_deg * peak, float(accel_mm_s2), float(accel_deg_s2 or 0.0)))
+        self._velocity_changed_s = self._time_s
 
     def _step(self, dt_s: float) -> None:
         with self._cond:
@@ -567,7 +753,7 @@ class MG400Emulator:
             motion = self._active
             if motion is not None:
                 motion.elapsed_s += dt_s
-                fraction = 1.0 if motion.duration_s <= 0.0 else min(1.0, motion.elapsed_s / motion.duration_s)
+                fraction = motion.fraction(motion.elapsed_s)
                 try:
                     self._joints = motion.joints_at(fraction, self.config.geometry, self.config.limits)
                 except UnreachableError as error:
@@ -578,6 +764,7 @@ class MG400Emulator:
                     if fraction >= 1.0:
                         self._joints = motion.end_joints.copy()
                         self._active = None
+                        self._velocity_changed_s = self._time_s
                     faults = self.config.faults
                     if (faults.alarm_during_motion is not None and not self._alarm_fired
                             and motion.elapsed_s >= faults.alarm_after_s):
@@ -637,9 +824,47 @@ class MG400Emulator:
         return [float(v) for v in four] + [0.0] * (self.config.pose_value_count - 4)
 
     def _enable(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        def action() -> None:
+        """``EnableRobot()``, ``EnableRobot(load)`` or ``EnableRobot(load,centerX,centerY,centerZ)``."""
+        if cmd.keywords or len(cmd.args) not in (0, 1, 4):
+            return ERROR_PARAMETER_COUNT, ()
+        error_id, numbers, _ = self._numbers(cmd, len(cmd.args))
+        if error_id != ERROR_OK:
+            return error_id, ()
+        if numbers and not 0.0 <= numbers[0] <= self.config.max_payload_kg:
+            return parameter_range_error(1), ()
+        for index, value in enumerate(numbers[1:], start=2):
+            if not -500.0 <= value <= 500.0:
+                return parameter_range_error(index), ()
+        with self._cond:
             self._enabled = True
-        return self._no_args(cmd, action)
+            if numbers:
+                self._payload = (numbers[0], *(numbers[1:] or [0.0, 0.0, 0.0]))  # type: ignore[assignment]
+            self._cond.notify_all()
+        return ERROR_OK, ()
+
+    def _set_ratio(self, cmd: ParsedCommand, name: str, lowest: int) -> tuple[int, Sequence[object]]:
+        """SpeedJ / SpeedL / AccJ / AccL (1..100) and CP (0..100): the queued moves' settings, percent."""
+        error_id, numbers, _ = self._numbers(cmd, 1)
+        if error_id != ERROR_OK:
+            return error_id, ()
+        if numbers[0] != int(numbers[0]) or not lowest <= numbers[0] <= 100:
+            return parameter_range_error(1), ()
+        with self._cond:
+            self._ratios[name] = float(numbers[0])
+        return ERROR_OK, ()
+
+    def _set_payload(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
+        """``SetPayLoad(weight[,inertia])`` / ``PayLoad(weight,inertia)``: the load in kg."""
+        if cmd.keywords or len(cmd.args) not in (1, 2):
+            return ERROR_PARAMETER_COUNT, ()
+        error_id, numbers, _ = self._numbers(cmd, len(cmd.args))
+        if error_id != ERROR_OK:
+            return error_id, ()
+        if not 0.0 <= numbers[0] <= self.config.max_payload_kg:
+            return parameter_range_error(1), ()
+        with self._cond:
+            self._payload = (numbers[0],) + self._payload[1:]
+        return ERROR_OK, ()
 
     def _disable(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         def action() -> None:
@@ -730,22 +955,33 @@ class MG400Emulator:
             tuple(float(v) for v in in_force[0]), tuple(float(v) for v in in_force[1]),
             tuple(float(v) for v in forward(self._joints, geometry)), int(error_id)))
 
-    def _queue_move(self, cmd: ParsedCommand, joint_target: bool, linear: bool) -> tuple[int, Sequence[object]]:
-        error_id, target, _ = self._numbers(cmd, 4)
+    def _queue_move(self, cmd: ParsedCommand, joint_target: bool, linear: bool,
+                    relative: bool = False) -> tuple[int, Sequence[object]]:
+        speed_key, accel_key = ("speedl", "accl") if linear else ("speedj", "accj")
+        error_id, target, named = self._numbers(cmd, 4, keywords=("user", "tool", speed_key, accel_key, "cp"))
         if error_id != ERROR_OK:
             return error_id, ()
+        for offset, (key, _) in enumerate(cmd.keywords):
+            value, lowest, highest = named[key.lower()], (0 if key.lower() in ("cp", "user", "tool") else 1), (
+                9 if key.lower() in ("user", "tool") else 100)
+            if value != int(value) or not lowest <= value <= highest:
+                return parameter_range_error(5 + offset), ()
         with self._cond:
             in_force = self._in_force()
-            error_id = self._accept_move(cmd, target, joint_target, linear)
+            if relative:  # offsets from the current target, in mm and deg
+                target = [float(v) for v in in_force[0] + np.array(target)]
+            error_id = self._accept_move(cmd, target, joint_target, linear, named.get(speed_key),
+                                         named.get(accel_key))
             self._record_motion(cmd, False, target, joint_target, None, error_id, in_force)
         return error_id, ()
 
-    def _accept_move(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool, linear: bool) -> int:
+    def _accept_move(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool, linear: bool,
+                     speed_ratio: float | None = None, accel_ratio: float | None = None) -> int:
         if self._alarms or not self._enabled or len(self._queue) >= self.config.max_queue:
             return ERROR_FAILED
         if not self._check_target(cmd, target, joint_target):
             return ERROR_FAILED
-        self._queue.append(_Queued(cmd.text, tuple(target), joint_target, linear))
+        self._queue.append(_Queued(cmd.text, tuple(target), joint_target, linear, speed_ratio, accel_ratio))
         self._cond.notify_all()
         return ERROR_OK
 
@@ -784,8 +1020,27 @@ class MG400Emulator:
         if overspeed is not None:
             self._raise_alarm(*overspeed)
             return ERROR_FAILED
-        self._active = _Motion(start_joints, end_joints, start_pose, end_pose, linear=not joint_target,
-                               duration_s=duration_s, servo=True)
+        before = self._active
+        motion = _Motion(start_joints, end_joints, start_pose, end_pose, linear=not joint_target,
+                         cruise_rate=1.0 / duration_s, servo=True)
+        # The velocity change it asks for, from the motion it replaces, over the time since the velocity last
+        # changed (the controller changes it once per tick at most).
+        old_pose_rate, old_joint_rate = np.zeros(4), np.zeros(4)
+        if before is not None and before.elapsed_s < before.duration_s:
+            rate = before.rate(before.elapsed_s)
+            old_pose_rate = (before.end_pose - before.start_pose) * rate
+            old_joint_rate = (before.end_joints - before.start_joints) * rate
+        new_pose_rate = (end_pose - start_pose) / duration_s
+        joint_delta = end_joints - start_joints
+        if not joint_target:
+            joint_delta[3] = wrap_deg(joint_delta[3])  # ServoP: J4 turns the short way
+        new_joint_rate = joint_delta / duration_s
+        interval_s = max(self._time_s - self._velocity_changed_s, self.config.feedback_period_s)
+        accel_mm_s2 = float(np.linalg.norm(new_pose_rate[:3] - old_pose_rate[:3])) / interval_s
+        accel_deg_s2 = float(max(abs(new_pose_rate[3] - old_pose_rate[3]),
+                                 float(np.max(np.abs(new_joint_rate - old_joint_rate))))) / interval_s
+        self._active = motion
+        self._note_executed(cmd.text, motion, accel_mm_s2, accel_deg_s2)
         self._cond.notify_all()
         return ERROR_OK
 
