@@ -8,9 +8,10 @@ process (``--robot`` the emulator, ``--camera rehearsal``: the stimulus rendered
 when its ``targets.csv`` reaches a row drawn from ``--seed``, and is run again to the end. Then: rows (exactly the
 protocol's), duplicate or missing images, images that do not decode, labels outside the protocol's ranges, the
 emulator's motion commands outside the safety limits (:func:`~simshear_gym.lab.rig.audit_motion_records`), the
-wall time per row (the emulator executes each move in real time at the speeds the safety layer gave it; rendering
-and writing add to it) against the protocol's planned robot time. Writes ``results/collect_real.json`` and
-``.png``.
+robot time per row by the emulator's motion timing (``robot_row_s``: the durations of every move the emulated arm
+executed, the touch-off's and the killed row's redo included, over the rows, plus the protocol's settle and
+capture) against the protocol's plan, and the wall time per row (rendering and writing add to the motion).
+Writes ``results/collect_real.json`` and ``.png``.
 """
 
 from __future__ import annotations
@@ -109,6 +110,7 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
             raise RuntimeError(f"collect-real ({contact}) rerun failed: {rerun.stderr[-500:]}")
         wall_s = time.monotonic() - started
         outside = audit_motion_records(emulator.motion_records(), rehearsal_safety())
+        executed = emulator.executed_motions()
     finally:
         emulator.stop()
     table = pd.read_csv(out / "targets.csv")
@@ -126,6 +128,8 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
     labels_match = len(table) == len(drawn) and bool(np.allclose(table[label_columns].to_numpy(np.float64),
                                                                  drawn[label_columns].to_numpy(np.float64)))
     row_s = table["robot_time_s"].to_numpy(np.float64)
+    motion_s = float(sum(motion.duration_s for motion in executed))
+    robot_row_s = motion_s / rows + protocol.settle_s + protocol.frames_per_capture * protocol.frame_period_s
     return {
         "contact": contact, "rows": len(table), "rows_expected": rows, "killed_at_row": rows_at_kill,
         "duplicate_images": len(names) - len(set(names)), "missing_images": len(set(names) - files),
@@ -137,6 +141,9 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
         "row_wall_s_median": round(float(np.median(row_s)), 4), "row_wall_s_mean": round(float(row_s.mean()), 4),
         "row_wall_s_p95": round(float(np.percentile(row_s, 95)), 4),
         "planned_row_s_mean": round(float(planned_s.mean()), 4), "wall_s": round(wall_s, 1),
+        "executed_motions": len(executed), "executed_motion_s": round(motion_s, 2),
+        "robot_row_s": round(robot_row_s, 4),
+        "executed_peak_speed_mm_s": round(max((m.peak_speed_mm_s for m in executed), default=0.0), 2),
         "row_wall_s": row_s.round(4).tolist(),
     }
 
@@ -151,6 +158,7 @@ def plot(results: list[dict], path: Path) -> Path:
     for ax, result in zip(axes[0], results):
         ax.hist(result["row_wall_s"], bins=40, color="tab:blue", alpha=0.8)
         ax.axvline(result["planned_row_s_mean"], color="tab:red", label="planned robot time (mean)")
+        ax.axvline(result["robot_row_s"], color="tab:green", label="robot time by the emulator's motions")
         ax.axvline(1.0, color="black", linestyle=":", label="1.0 s")
         ax.set_title(f"{result['contact']}: {result['rows']} rows, killed at row {result['killed_at_row']}")
         ax.set_xlabel("wall time per row on the emulator, s")
@@ -184,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
                   f" duplicates {result['duplicate_images']}, missing {result['missing_images']}, undecodable "
                   f"{result['undecodable_images']}, labels outside {result['labels_outside_ranges']}, commands "
                   f"outside the limits {result['emulator_commands_outside_limits']} of {result['emulator_commands']};"
-                  f" {result['row_wall_s_median']:.3f} s a row (median; planned {result['planned_row_s_mean']:.3f})")
+                  f" robot time {result['robot_row_s']:.3f} s a row (planned {result['planned_row_s_mean']:.3f}; wall "
+                  f"{result['row_wall_s_median']:.3f} median)")
             results.append(result)
     args.out.mkdir(parents=True, exist_ok=True)
     figure = plot(results, args.out / "collect_real.png")
