@@ -199,3 +199,13 @@ def test_example_lab_maps_back_to_the_real_labels(data_root, tmp_path):
     z = adapted["train"].targets["pose_3"]
     assert 2.0 - 1e-9 <= z.min() and z.max() <= 5.0 + 1e-9  # the surface tap set's indentation range
     assert math.isclose(float(adapted["train"].targets["pose_6"].abs().max()), 0.0, abs_tol=1e-9)
+
+
+def test_a_varying_label_the_chain_cannot_represent_is_refused(tmp_path):
+    """A slide that changes the depth (sim move z: the lab's y here): the translator masks it and no GDNN reads it,
+    so it is an error."""
+    config = GOOD.replace('absent = ["move"]', 'absent = ["move_x", "move_z", "move_rx", "move_ry", "move_rz"]')
+    config = config.replace('kind = "tap"', 'kind = "shear"') + 'move_y = { column = "depth_m", unit = "m" }\n'
+    path = write_lab(tmp_path, config=config)
+    with pytest.raises(TactileDataError, match=r"move_z varies \(a slide that changes the depth.*would be dropped"):
+        check(load_config(path), tmp_path)

@@ -60,6 +60,11 @@ def replay_contact_share(config: ExperimentConfig, contact: str, poses: np.ndarr
     return float(np.mean(touched)) if touched else 0.0
 
 
+UNREPRESENTED = {"move_z": "a slide that changes the depth: the translator's shear input masks z, and the depth is "
+                            "the pose's"}
+"""Variables the chain has no place for, an error where they vary (not silently dropped)."""
+
+
 def frame_agreement(config: ExperimentConfig, name: str, train) -> FrameAgreement:
     """The frame check of dataset ``name`` on ``[check] frame_rows`` of its adapted training rows ``train``
     (spread over the split); raises ``TactileDataError`` naming the config key behind the first problem."""
@@ -115,6 +120,12 @@ def check(config: ExperimentConfig, root: Path, max_rows_per_split: int | None =
     for name, dataset in config.datasets.items():
         adapted = adapt_dataset(dataset, config.frame_for(name), root, name, max_rows_per_split)
         summaries = summarise_variables(dataset, adapted, name)
+        unrepresented = [s.name for s in summaries if s.varies and s.name in UNREPRESENTED]
+        if unrepresented:
+            raise TactileDataError(
+                f"dataset {name!r}: {unrepresented[0]} varies ({UNREPRESENTED[unrepresented[0]]}); neither the "
+                f"translators nor the GDNNs represent it, so it would be dropped: hold it fixed (value = 0.0) or "
+                f"check which lab variable [frame] maps onto it")
         train = adapted["train"].targets
         count = min(config.check.replay_rows, len(train))
         rows = np.linspace(0, len(train) - 1, count).round().astype(int)
