@@ -76,7 +76,7 @@ def frame_agreement(config: ExperimentConfig, name: str, train) -> FrameAgreemen
     poses = train.targets.iloc[rows][[f"pose_{i}" for i in range(1, 7)]].to_numpy(np.float64)
     with ReplayScene(dataset.contact, config.sensor, config.replay) as scene:
         found = check_frame(poses, train.images[rows], lambda batch: np.stack([scene.render(p) for p in batch]),
-                            dataset.contact)
+                            dataset.contact, shear=dataset.kind == "shear")
     frame = config.frame_for(name)
     frame_key = f"[datasets.{name}.frame]" if name in config.dataset_frames else "[frame]"
     strongest = max(found.variables, key=lambda result: result.real_r2, default=None)

@@ -192,14 +192,15 @@ class FrameAgreement:
         return max(better, key=better.get) if better else None
 
 
-def check_frame(poses: np.ndarray, images: np.ndarray, render, contact: str) -> FrameAgreement:
+def check_frame(poses: np.ndarray, images: np.ndarray, render, contact: str, shear: bool = False) -> FrameAgreement:
     """The :class:`FrameAgreement` of a data set's rows (see the module docstring).
 
     ``poses``: (N, 6) rows in the simulation's frame; ``images``: their (N, S, S) real images; ``render``: (M, 6)
     poses -> (M, S', S') renders; ``contact``: ``surface`` or ``edge``. A variable is ``flipped`` where its flip
     fits the real images better than the config (by :data:`MIN_T` standard errors, to at least
     :data:`MIN_AGREEMENT`); ``ignored`` where it explains :data:`MIN_REAL_R2` of the real change maps alone but its
-    flip changes the renders by less than :data:`MIN_RENDER_CHANGE` of their spread."""
+    flip changes the renders by less than :data:`MIN_RENDER_CHANGE` of their spread; except, in a ``shear`` set, the
+    sensor's turn Rz (it turns the shear into the sensor's frame, which the shear-free renders cannot show)."""
     real_maps = change_maps(images)
     base_renders = render_cells(render(poses))
     base = local_fit(base_renders, real_maps)
@@ -214,7 +215,8 @@ def check_frame(poses: np.ndarray, images: np.ndarray, render, contact: str) -> 
         real_r2 = explained_by(values, real_maps)
         if change < MIN_RENDER_CHANGE:
             flip, t = base.r2, 0.0
-            verdict = "ignored" if real_r2 >= MIN_REAL_R2 else "unchecked"
+            shear_turn = shear and variable == "pose_rz"
+            verdict = "ignored" if real_r2 >= MIN_REAL_R2 and not shear_turn else "unchecked"
         else:
             fit = local_fit(flip_renders, real_maps)
             flip, t = fit.r2, base.beaten_by(fit)
