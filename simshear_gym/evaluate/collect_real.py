@@ -2,7 +2,8 @@
 renders the configured stimulus, killed with SIGKILL at a random row and run again, per stimulus.
 
 For each stimulus (``surface``: depth 3-5 mm, shear x, y +-3 mm and Rz +-5 deg, the sensor turned +-20 deg;
-``edge``: offset +-6 mm, depth 3-5 mm, angle +-180 deg, the same shear), half taps: an emulator runs in this
+``edge``: offset +-6 mm, depth 3-5 mm, angle +-170 deg, the same shear: a flange turn ending next to the
+MG400's R = +-180 deg is refused by the queued-move planning), half taps: an emulator runs in this
 process (so its own record of every motion command outlives the killed collector), the collector runs as a child
 process (``--robot`` the emulator, ``--camera rehearsal``: the stimulus rendered from the arm's feedback), is killed
 when its ``targets.csv`` reaches a row drawn from ``--seed``, and is run again to the end. Then: rows (exactly the
@@ -31,7 +32,7 @@ from simshear_gym.machine import machine_info
 RANGES = {
     "surface": {"pose_z": [3.0, 5.0], "pose_rz": [-20.0, 20.0], "move_x": [-3.0, 3.0], "move_y": [-3.0, 3.0],
                 "move_rz": [-5.0, 5.0]},
-    "edge": {"pose_y": [-6.0, 6.0], "pose_z": [3.0, 5.0], "pose_rz": [-180.0, 180.0], "move_x": [-3.0, 3.0],
+    "edge": {"pose_y": [-6.0, 6.0], "pose_z": [3.0, 5.0], "pose_rz": [-170.0, 170.0], "move_x": [-3.0, 3.0],
              "move_y": [-3.0, 3.0], "move_rz": [-5.0, 5.0]},
 }
 CONFIG = """name = "rehearsal_{contact}"

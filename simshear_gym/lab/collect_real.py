@@ -82,16 +82,17 @@ def wait_arrived(client, pose: np.ndarray, timeout_s: float = 10.0, tolerance: f
 
 def move_to(client, pose: np.ndarray) -> None:
     """MovL to ``pose`` through the safe client, then wait for it; a turn larger than the safety layer lets one
-    queued move make is split into equal moves (position and turn together)."""
+    queued move make is made first, in place, in equal turns (the sensor is in the air then: a row's moves into
+    and along the contact turn a few degrees at most, :meth:`CollectProtocol.check_reach`)."""
     pose = np.asarray(pose, dtype=np.float64)
     limit_deg = 0.9 * float(client.safety.config.max_move_deg)
     start = np.asarray(client.measured_pose(), dtype=np.float64)[:4]
     turn_deg = float(wrap_deg(pose[3] - start[3]))
-    pieces = max(1, int(math.ceil(abs(turn_deg) / limit_deg)))
-    for piece in range(1, pieces + 1):
-        share = piece / pieces
-        target = start + share * (pose - start)
-        target[3] = start[3] + share * turn_deg
+    pieces = int(math.ceil(abs(turn_deg) / limit_deg))
+    targets = []
+    if pieces > 1:
+        targets = [np.array([*start[:3], start[3] + turn_deg * piece / pieces]) for piece in range(1, pieces + 1)]
+    for target in [*targets, pose]:
         client.mov_l(*(float(v) for v in target))
         client.sync()
         wait_arrived(client, target)
