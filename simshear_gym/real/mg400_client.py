@@ -56,6 +56,7 @@ from simshear_gym.real.safety import (
     MotionRefusedError,
     MotionStream,
     SafetyConfig,
+    SafetyError,
     SafetyLayer,
     StatusSnapshot,
     StopReason,
@@ -63,6 +64,7 @@ from simshear_gym.real.safety import (
 )
 from simshear_gym.robots.mg400.protocol import (
     DASHBOARD_PORT,
+    FEEDBACK_PERIOD_S,
     FEEDBACK_PORT,
     MOTION_PORT,
     SERVO_TIME_RANGE_S,
@@ -110,6 +112,11 @@ class MG400ConnectionError(ConnectionError):
 
 class MG400TimeoutError(TimeoutError):
     """No reply arrived within the timeout."""
+
+
+LATE_FEEDBACK_PERIODS = 5
+"""A servo command refused by the stream checks while the newest feedback is older than this many feedback periods
+is reported as stale feedback (the stall, not the command, is the cause)."""
 
 
 class FeedbackStaleError(RuntimeError):
@@ -811,7 +818,7 @@ class MG400Client:
                         now_s, target, duration_s, sample,
                         lambda candidate: self._check_cartesian(candidate, kind, duration_s, reference))
                 joints = self._check_cartesian(target, kind, duration_s, reference)
-                self.stream.check_servo(now_s, target, joints, duration_s, sample)
+                self._check_stream_servo(now_s, target, joints, duration_s, sample)
             else:
                 joints = self._check_cartesian(target, kind, duration_s, reference)
                 keywords = {**keywords, **self._queued_keywords(kind, reference, target, joints, sample)}
@@ -819,6 +826,21 @@ class MG400Client:
             self.stream.record(now_s, target, joints, duration_s, sample)
             self._send_motion(format_command(name, *params, **keywords), target, joints)
         return tuple(float(v) for v in target)  # type: ignore[return-value]
+
+    def _check_stream_servo(self, now_s: float, pose: np.ndarray, joints: np.ndarray, duration_s: float,
+                            sample: ArmSample) -> None:
+        """The stream checks of a servo command; a refusal while the newest feedback is more than
+        :data:`LATE_FEEDBACK_PERIODS` feedback periods old is reported as stale feedback (the stream could not place
+        the arm because the feedback stalled), not as the motion asking too much."""
+        try:
+            self.stream.check_servo(now_s, pose, joints, duration_s, sample)
+        except SafetyError as error:
+            age_s = now_s - sample.time_s
+            if self._feedback is not None and age_s > LATE_FEEDBACK_PERIODS * FEEDBACK_PERIOD_S:
+                raise MotionRefusedError(StopReason.STALE_FEEDBACK,
+                                         f"MG400 at {self.config.host}: feedback {age_s:.3f} s old, the stream cannot "
+                                         f"place the arm: {error}") from error
+            raise
 
     def _joint(self, name: str, joints_deg: Sequence[float], kind: MotionKind, duration_s: float | None = None,
                **keywords: float) -> None:
@@ -832,7 +854,7 @@ class MG400Client:
                 self.safety.check_joint_target(self._uncertain[1], target, kind, duration_s, self._uncertain[0])
             if kind is MotionKind.SERVO:
                 assert duration_s is not None
-                self.stream.check_servo(now_s, pose, target, duration_s, sample)
+                self._check_stream_servo(now_s, pose, target, duration_s, sample)
             else:
                 keywords = {**keywords, **self._queued_keywords(MotionKind.JOINT, reference, pose, target, sample)}
             self.stream.record(now_s, pose, target, duration_s, sample)
