@@ -14,6 +14,7 @@ import pytest
 from simshear_gym import cli
 from simshear_gym.contract import policy_spaces
 from simshear_gym.control.policy import SB3Controller
+from simshear_gym.control.policy_files import save_policy
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 from simshear_gym.real.rollout import sb3_algorithm
 
@@ -119,6 +120,7 @@ def _save_ppo(path: Path, image_size_px: int) -> Path:
 
     model = PPO("MultiInputPolicy", Spaces(), n_steps=8, batch_size=8, device="cpu", seed=0)
     model.save(path)
+    save_policy(model, path)  # the pickle-free files beside the .zip, as simshear train rl writes them
     return path
 
 
@@ -146,9 +148,9 @@ def test_sb3_policy_for_other_spaces_is_refused(emulator, raw_frames, tmp_path, 
     not_a_model.write_bytes(b"not a zip")
     with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
         sb3_algorithm(not_a_model)
-    with pytest.raises(ValueError, match="not a Stable-Baselines3 model"):
-        SB3Controller.load(not_a_model, *policy_spaces(64))
-    with pytest.raises(FileNotFoundError, match="no Stable-Baselines3 model file"):
+    with pytest.raises(ValueError, match=r"x\.zip: a Stable-Baselines3 \.zip without its pickle-free x\.pt"):
+        SB3Controller.load(not_a_model, *policy_spaces(64))  # a .zip alone is never unpickled
+    with pytest.raises(FileNotFoundError, match=r"no policy at .*missing\.zip.: expected <stem>\.pt"):
         SB3Controller.load(tmp_path / "missing.zip", *policy_spaces(64))
     # the command line names its flags (before anything moves: nothing reaches the robot)
     assert cli.main(rollout_args(emulator, raw_frames, str(model), tmp_path / "run", 2)) == 2
