@@ -28,3 +28,16 @@ class TickClock:
         now_s = self.now_s
         self.now_s += self.tick_s
         return now_s
+
+
+def wait_for(predicate, timeout_s: float = 10.0) -> bool:
+    """Poll ``predicate`` until it holds or ``timeout_s`` passes; returns whether it held. A generous timeout: a test
+    asserts what happens, not how fast (a loaded machine takes longer; only a failing test waits it out)."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return predicate()

@@ -27,6 +27,7 @@ from simshear_gym.real.env import (
 )
 from simshear_gym.real.mg400_emulator import EmulatorConfig, FaultConfig, MG400Emulator
 from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
+from tests.clocks import wait_for
 
 START = (300.0, 0.0, 0.0, 0.0)
 PERIOD_S = 0.05
@@ -51,15 +52,6 @@ def make_emulator() -> Iterator[Callable[..., MG400Emulator]]:
 def emulator(make_emulator) -> MG400Emulator:
     return make_emulator()
 
-
-def wait_for(predicate: Callable[[], bool], timeout_s: float = 10.0) -> bool:
-    """Poll ``predicate`` until it holds (a generous timeout: the test asserts what happens, not how fast)."""
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return predicate()
 
 
 def tactile_camera(size: int = 128) -> VirtualCamera:

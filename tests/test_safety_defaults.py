@@ -35,17 +35,10 @@ from simshear_gym.real.safety import (
 )
 from simshear_gym.robots.mg400.kinematics import forward
 from simshear_gym.robots.mg400.protocol import RobotMode
+from tests.clocks import wait_for
 
 INCONSISTENT = FaultConfig(corrupt_feedback_every=1, feedback_faults=(FeedbackFault.INCONSISTENT,))
 
-
-def wait_for(predicate: Callable[[], bool], timeout_s: float = 2.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return predicate()
 
 
 @pytest.fixture

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import socket
-import time
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -28,6 +27,7 @@ from simshear_gym.real.safety import (
 )
 from simshear_gym.robots.mg400.kinematics import inverse
 from simshear_gym.robots.mg400.protocol import RobotMode
+from tests.clocks import wait_for
 
 START = np.array(READY_POSE_MM_DEG)
 
@@ -41,14 +41,6 @@ def at_rest(pose, time_s: float = 0.0) -> ArmSample:
     pose = tuple(float(v) for v in pose)
     return ArmSample(pose, tuple(joints_of(pose)), time_s, pose, tuple(joints_of(pose)), moved_s=time_s - 10.0)
 
-
-def wait_for(predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return predicate()
 
 
 # -- the stream checks, with explicit times --------------------------------------------------------------------
