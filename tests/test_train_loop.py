@@ -253,7 +253,7 @@ COMMAND_FLAGS = {
          "--learning-rate", "--checkpoint-steps", "--seed", "--threads", "--resume", "--quiet", "--device", "--task",
          "--minutes", "--observation", "--history", "--no-randomise", "--vec", "--n-epochs", "--gamma", "--net-arch",
          "--no-normalize", "--residual-bound", "--asymmetric-critic", "--bc-steps", "--bc-rounds", "--bc-epochs",
-         "--bc-noise", "--eval-steps", "--eval-max-steps"},
+         "--bc-noise", "--eval-steps", "--eval-max-steps", "--preset"},
 }
 REQUIRED = {posenet: ["--source", "real", "--contact", "surface", "--paired", "p"],
             translator: ["--paired", "p"], rl: []}
@@ -274,7 +274,8 @@ def test_command_flags_keep_their_names_and_defaults_and_all_have_help(module):
     assert options == COMMAND_FLAGS[module]
     assert all(action.help for action in parser._actions)
     args = parser.parse_args(["--out", "o", *REQUIRED[module]])
-    config = flags.config_from_args(CONFIGS[module], args)
+    # train rl's flags read None when left out, so that --preset can fill them (rl.config_of)
+    config = rl.config_of(args) if module is rl else flags.config_from_args(CONFIGS[module], args)
     given = {posenet: {"source": "real", "contact": "surface", "paired_dirs": ("p",)},
              translator: {"paired_dirs": ("p",)}, rl: {}}[module]
     assert config == CONFIGS[module](**given)  # every other field at its dataclass default
