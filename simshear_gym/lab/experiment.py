@@ -134,7 +134,7 @@ class ExperimentConfig:
     speed_mm_s: float = 4.0
     rotation_deg: float = TrajectoryConfig().rotation_deg
     control_period_s: float = 0.1
-    servo_margin_s: float = 0.02
+    servo_margin_s: float = 0.08
     reference_depth_mm: float = 4.0
     start_offset_mm: tuple[float, float] = (0.0, 0.0)
     hover_mm: float = 5.0
