@@ -14,6 +14,13 @@ the servo controller (or an SB3 policy) through :class:`~simshear_gym.real.env.R
 each cycle sends the leader's next target, then the follower's action, then waits for the period and reads the
 camera and both arms' feedback.
 
+**The plan's clock** (``trajectory_s``) follows the wall clock but advances at most one servo command's ``t``
+(``control_period_s + servo_margin_s``) per cycle: after a late cycle (a busy computer, a slow frame) the leader
+goes on along its path from where it stopped instead of jumping ahead, so its next target never asks for more
+than the trajectory's own speed, even from rest (the safety layer's stream bounds would refuse the jump, and stop
+the run). ``experiment.json`` says how far the plan fell behind the wall clock (``plan_behind_s``) and in how
+many cycles (``late_cycles``).
+
 A run, in order: the follower lifts ``retreat_mm`` straight up (MovL) from wherever it is; the leader moves to its
 start pose (MovJ); the follower moves to hover ``hover_mm`` above the plate's point ``start_offset_mm`` (through
 the calibration) and descends ``approach_step_mm`` per cycle until its GDNN reads a touch (``touch_depth_mm``);
@@ -443,6 +450,7 @@ class ExperimentRun:
         self._T_follower_leader = calibration.leader_in_follower.T_follower_leader()
         self._T_flange_sensor = config.mount.T_flange_sensor()
         self.rows: list[dict[str, Any]] = []
+        self.late_cycles = 0  # tracking cycles whose plan clock advanced less than the wall clock
 
     # -- building ------------------------------------------------------------------------------------------------
 
@@ -532,7 +540,9 @@ class ExperimentRun:
         t0 = time.monotonic()
         descended_mm = 0.0
         phase = "approach"
-        settle_until = track_start = None
+        settle_until = None
+        plan_s, plan_wall_s = 0.0, math.nan  # the plan's clock and the wall time it last advanced at
+        late_cycles = 0
         leader_target = hold.copy()
         previous_target_r = float(hold[3])
         q_face: np.ndarray | None = None
@@ -540,7 +550,12 @@ class ExperimentRun:
         while True:
             now = time.monotonic()
             if phase == "track":
-                trajectory_s = now - track_start
+                advance_s = now - plan_wall_s
+                if advance_s > cfg.servo_time_s:
+                    advance_s, late_cycles = cfg.servo_time_s, late_cycles + 1
+                plan_s, plan_wall_s = plan_s + advance_s, now
+                self.late_cycles = late_cycles
+                trajectory_s = plan_s
                 leader_target = self.plan.flange_target(trajectory_s)
                 if trajectory_s > self.plan.duration_s + cfg.hold_s:
                     return "", "", phase
@@ -594,7 +609,7 @@ class ExperimentRun:
             else:
                 observation, _, terminated, _, info = env.step(action)
             if phase == "settle" and time.monotonic() >= settle_until and not terminated:
-                phase, track_start = "track", time.monotonic()
+                phase, plan_wall_s = "track", time.monotonic()
                 leader_pose = self._leader_feedback(leader)
                 if leader_pose is not None and info["flange_pose_mm_deg"] is not None:
                     sensor = self._sensor(info["flange_pose_mm_deg"])
@@ -731,6 +746,8 @@ class ExperimentRun:
             "compute_ms_median": _stat(compute, np.median, 3),
             "compute_ms_p95": _stat(compute, lambda a: np.percentile(a, 95), 3),
             "period_overruns": sum(1 for row in self.rows if row["overrun_s"] > 0.0),
+            "late_cycles": self.late_cycles,
+            "plan_behind_s": _plan_behind_s(tracking),
             "wall_s": round(wall_s, 2),
         }
         if self.truth is not None:
@@ -747,6 +764,15 @@ class ExperimentRun:
         mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
         error = "no tracking" if mean is None else f"contact error {mean:.2f} +- {std:.2f} mm"
         return f"{summary['trajectory']} ({summary['controller']}): {error}; {summary['stop'] or 'completed'}"
+
+
+def _plan_behind_s(tracking: list[dict[str, Any]]) -> float:
+    """How much more wall time than plan time passed between the first and the last cycle on the plan, s."""
+    rows = [row for row in tracking if math.isfinite(row["trajectory_s"])]
+    if len(rows) < 2:
+        return 0.0
+    wall_s = rows[-1]["time_s"] - rows[0]["time_s"]
+    return round(float(wall_s - (rows[-1]["trajectory_s"] - rows[0]["trajectory_s"])), 3)
 
 
 def _stat(values: np.ndarray, function, digits: int = 4) -> float | None:
