@@ -54,8 +54,8 @@ def command_line(args: argparse.Namespace) -> str:
 KEYS = ("completed", "stop", "stop_reason", "trajectory_duration_s", "tracking_cycles", "contact_error_mean_mm",
         "contact_error_std_mm", "contact_error_max_mm", "truth_contact_error_mean_mm", "truth_contact_error_std_mm",
         "truth_contact_error_max_mm", "cycles_out_of_contact", "truth_cycles_out_of_contact", "contact_lost",
-        "loop_rate_hz", "compute_ms_median", "compute_ms_p95", "period_overruns", "commands_outside_limits",
-        "wall_s")
+        "loop_rate_hz", "compute_ms_median", "compute_ms_p95", "period_overruns", "late_cycles", "plan_behind_s",
+        "commands_outside_limits", "wall_s")
 
 
 def plot(runs: dict, path: Path) -> Path:
