@@ -451,6 +451,7 @@ class ExperimentRun:
         self._T_flange_sensor = config.mount.T_flange_sensor()
         self.rows: list[dict[str, Any]] = []
         self.late_cycles = 0  # tracking cycles whose plan clock advanced less than the wall clock
+        self.plan_behind_s = 0.0  # how far the plan's clock fell behind the wall clock, s
 
     # -- building ------------------------------------------------------------------------------------------------
 
@@ -542,7 +543,6 @@ class ExperimentRun:
         phase = "approach"
         settle_until = None
         plan_s, plan_wall_s = 0.0, math.nan  # the plan's clock and the wall time it last advanced at
-        late_cycles = 0
         leader_target = hold.copy()
         previous_target_r = float(hold[3])
         q_face: np.ndarray | None = None
@@ -552,9 +552,10 @@ class ExperimentRun:
             if phase == "track":
                 advance_s = now - plan_wall_s
                 if advance_s > cfg.servo_time_s:
-                    advance_s, late_cycles = cfg.servo_time_s, late_cycles + 1
+                    self.late_cycles += 1
+                    self.plan_behind_s += advance_s - cfg.servo_time_s
+                    advance_s = cfg.servo_time_s
                 plan_s, plan_wall_s = plan_s + advance_s, now
-                self.late_cycles = late_cycles
                 trajectory_s = plan_s
                 leader_target = self.plan.flange_target(trajectory_s)
                 if trajectory_s > self.plan.duration_s + cfg.hold_s:
@@ -747,7 +748,7 @@ class ExperimentRun:
             "compute_ms_p95": _stat(compute, lambda a: np.percentile(a, 95), 3),
             "period_overruns": sum(1 for row in self.rows if row["overrun_s"] > 0.0),
             "late_cycles": self.late_cycles,
-            "plan_behind_s": _plan_behind_s(tracking),
+            "plan_behind_s": round(self.plan_behind_s, 3),
             "wall_s": round(wall_s, 2),
         }
         if self.truth is not None:
@@ -764,15 +765,6 @@ class ExperimentRun:
         mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
         error = "no tracking" if mean is None else f"contact error {mean:.2f} +- {std:.2f} mm"
         return f"{summary['trajectory']} ({summary['controller']}): {error}; {summary['stop'] or 'completed'}"
-
-
-def _plan_behind_s(tracking: list[dict[str, Any]]) -> float:
-    """How much more wall time than plan time passed between the first and the last cycle on the plan, s."""
-    rows = [row for row in tracking if math.isfinite(row["trajectory_s"])]
-    if len(rows) < 2:
-        return 0.0
-    wall_s = rows[-1]["time_s"] - rows[0]["time_s"]
-    return round(float(wall_s - (rows[-1]["trajectory_s"] - rows[0]["trajectory_s"])), 3)
 
 
 def _stat(values: np.ndarray, function, digits: int = 4) -> float | None:
