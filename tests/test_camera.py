@@ -133,6 +133,20 @@ def test_image_folder_source_reads_in_natural_order(tmp_path: Path) -> None:
         source.read()
 
 
+def test_image_folder_source_refuses_a_decompression_bomb_and_a_corrupt_image(tmp_path: Path) -> None:
+    from tests.test_bad_input import png_bomb
+
+    cv2.imwrite(str(tmp_path / "image_1.png"), np.full((8, 8, 3), 10, np.uint8))
+    (tmp_path / "image_2.png").write_bytes(png_bomb())
+    (tmp_path / "image_3.png").write_bytes(b"\x89PNG not really")
+    with CameraSource(tmp_path) as source:
+        source.read()
+        with pytest.raises(CameraError, match=r"image_2.png: its header claims 8000x8000 px"):
+            source.read()
+        with pytest.raises(CameraError, match=r"image_3.png: cannot decode image"):
+            source.read()
+
+
 def test_missing_or_empty_sources_raise(tmp_path: Path) -> None:
     with pytest.raises(CameraError, match="nothing_here"):
         CameraSource(tmp_path / "nothing_here")

@@ -28,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from simshear_gym.data.tactile_set import decode_image
 from simshear_gym.real.camera import (
     DEFAULT_CONFIG_PATH,
     PreprocessConfig,
@@ -306,10 +307,9 @@ class _Search:
 
 
 def _imread(path: Path, flags: int) -> np.ndarray:
-    image = cv2.imread(str(path), flags)
-    if image is None:
-        raise FileNotFoundError(f"cannot read image {path} (missing or not an image)")
-    return image
+    if not path.is_file():
+        raise FileNotFoundError(f"cannot read image {path} (missing)")
+    return decode_image(path, flags)  # the data sets' size guard; a TactileDataError names the file
 
 
 # --------------------------------------------------------------------------------------------------------------

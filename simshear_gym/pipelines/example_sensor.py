@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from simshear_gym.data.paths import data_root, real_set_dir
-from simshear_gym.data.tactile_set import read_set
+from simshear_gym.data.tactile_set import decode_image, read_set
 
 TOUCH_DEPTH_MM = 2.2  # the tactip331 labels' z at first touch (the surface's depth in their work frame)
 CANVAS_PX = (300, 280)  # (width, height)
@@ -49,7 +49,7 @@ def make_example(root: Path, out: Path, rows_per_split: int | None = None, seed:
         paths = real.image_paths()
         for row, pose in zip(rows, poses):
             name = f"frame_{len(records):05d}.png"
-            image = cv2.imread(str(paths[row]), cv2.IMREAD_GRAYSCALE)
+            image = decode_image(paths[row], cv2.IMREAD_GRAYSCALE)
             image = cv2.resize(image, (IMAGE_PX, IMAGE_PX), interpolation=cv2.INTER_LINEAR)
             canvas = np.full((CANVAS_PX[1], CANVAS_PX[0]), 40, dtype=np.uint8)
             canvas[OFFSET_PX[1]:OFFSET_PX[1] + IMAGE_PX, OFFSET_PX[0]:OFFSET_PX[0] + IMAGE_PX] = image

@@ -39,16 +39,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import torch
-
     from simshear_gym.models.translator import load_generator, save_generator
+    from simshear_gym.models.weights_io import read_weights
     from simshear_gym.train.translator_trainer import export_run
 
     export_run(args.run, args.to, card={"train_command": args.train_command, "contact": args.contact})
     check = check_figure(args.to, args.contact, args.check_rows, args.data)
     generator, card = load_generator(args.to)
     save_generator(args.to, generator, card={**card, "check": check})
-    torch.load(args.to, map_location="cpu", weights_only=True)  # readable as written
+    read_weights(args.to, "translator")  # readable as written (weights_only, its sha256 checked)
     print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.1f} MiB); check: {check}")
     words = ["simshear", "train", "export-translator", "--run", str(args.run), "--contact", args.contact,
              "--to", str(args.to)]

@@ -239,9 +239,9 @@ def posenet_card(weights: Path, contact: str, card: dict, manifest: dict, evalua
 
 
 def _parameters(weights: Path) -> int:
-    import torch
+    from simshear_gym.models.weights_io import read_weights
 
-    payload = torch.load(weights, map_location="cpu", weights_only=True)
+    payload = read_weights(weights, "model")  # weights_only, its sha256 checked, one clear error
     return sum(value.numel() for value in payload["state_dict"].values())
 
 

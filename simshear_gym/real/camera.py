@@ -26,6 +26,8 @@ from typing import Protocol, runtime_checkable
 import cv2
 import numpy as np
 
+from simshear_gym.data.tactile_set import TactileDataError, decode_image
+
 DEFAULT_CONFIG_PATH = Path(__file__).with_name("tactip_preprocess.json")
 IMAGE_SUFFIXES: tuple[str, ...] = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -386,10 +388,10 @@ class CameraSource(_SourceBase):
                 raise EndOfStream(f"{self.name}: no more images after {len(self._files)}")
             path = self._files[self._next_file]
             self._next_file += 1
-            frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
-            if frame is None:
-                raise CameraError(f"{self.name}: cannot decode image {path}")
-            return frame
+            try:  # the size guard of the data sets: a decompression bomb is refused unread
+                return decode_image(path, cv2.IMREAD_COLOR, where=f"{self.name}: ", unreadable="cannot decode image")
+            except TactileDataError as error:
+                raise CameraError(str(error)) from None
         ok, frame = self._capture.read()
         if not ok or frame is None:
             raise EndOfStream(f"{self.name}: no more frames")
