@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -205,8 +206,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     module = importlib.import_module(args._module)
+    from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
+
     try:
-        return int(module.run(args) or 0)
+        # SIGTERM (a scheduler, kill) and SIGINT become RunStopped: every command's finally blocks run (an arm's
+        # client closes, logs are written) and the worker processes it started end with it
+        with stop_on_signals():
+            return int(module.run(args) or 0)
+    except RunStopped as stopped:
+        ended = end_children()
+        print(f"simshear: stopped by {signal.Signals(stopped.signum).name}"
+              + (f"; {ended} worker process{'es' if ended != 1 else ''} ended" if ended else ""), file=sys.stderr)
+        return 128 + stopped.signum
     except Exception as error:  # library errors carry their own explanation; anything else is a bug: traceback
         if not is_input_error(error):
             raise
