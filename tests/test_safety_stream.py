@@ -11,6 +11,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
+from simshear_gym.data.labels import wrap_deg
 from simshear_gym.evaluate.safety_bursts import BurstConfig, make_sequence, run_bursts
 from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig
 from simshear_gym.real.mg400_emulator import READY_POSE_MM_DEG, EmulatorConfig, MG400Emulator
@@ -296,6 +297,38 @@ def test_queued_moves_from_the_client_stay_within_the_speed_and_acceleration_lim
         assert move.peak_speed_mm_s <= cfg.max_speed_mm_s * (1 + 1e-6), move
         assert max(move.peak_rotation_deg_s, move.peak_joint_deg_s) <= cfg.max_speed_deg_s * (1 + 1e-6), move
         assert move.accel_mm_s2 <= cfg.max_accel_mm_s2 * (1 + 1e-6), move
+
+
+def test_a_straight_move_across_r_180_turns_the_short_way_or_is_refused_at_j4s_end_stop(make_emulator):
+    """R = J1 + J4 wraps at +-180 deg. With J1 = 30 deg, R 175 -> -175 is J4 145 -> 155: a 10 deg turn (it was
+    refused as needing a 0.01 % ratio, the path taken through R = 0). With J1 = 0, R 179 -> -179 takes J4 across its
+    end stop: refused, saying so, nothing sent."""
+    layer = SafetyLayer()
+    j1 = math.radians(30.0)
+    start = np.array([300.0 * math.cos(j1), 300.0 * math.sin(j1), 0.0, 175.0])
+    end = start + [0.0, 3.0, 0.0, -350.0]
+    assert queued_ratios(layer, start, joints_of(start), end, joints_of(end), linear=True)[0] >= 1
+    across = (np.array([300.0, 0.0, 0.0, 179.0]), np.array([300.0, 5.0, 0.0, -179.0]))
+    with pytest.raises(SafetyError, match=r"takes J4 across its end stop \(-180, 180\) deg"):
+        queued_ratios(layer, across[0], joints_of(across[0]), across[1], joints_of(across[1]), linear=True)
+    cfg = SafetyConfig()
+    emulator = make_emulator(initial_joints_deg=tuple(float(v) for v in joints_of(start)))
+    with client_for(emulator) as robot:
+        robot.enable_robot()
+        robot.mov_l(*end)
+        robot.sync()
+        assert wait_for(lambda: emulator.queue_length == 0)
+        assert emulator.pose[:3] == pytest.approx(end[:3], abs=1e-6)
+        assert math.isclose(wrap_deg(emulator.pose[3] - end[3]), 0.0, abs_tol=1e-6)
+    move = [m for m in emulator.executed_motions() if m.command.startswith("MovL")][0]
+    assert move.peak_speed_mm_s <= cfg.max_speed_mm_s * (1 + 1e-6), move
+    assert max(move.peak_rotation_deg_s, move.peak_joint_deg_s) <= cfg.max_speed_deg_s * (1 + 1e-6), move
+    emulator = make_emulator(initial_joints_deg=tuple(float(v) for v in joints_of(across[0])))
+    with client_for(emulator) as robot:
+        robot.enable_robot()
+        with pytest.raises(SafetyError, match="J4 across its end stop"):
+            robot.mov_l(*across[1])
+    assert emulator.motion_records() == []
 
 
 # -- the vendor's commands -------------------------------------------------------------------------------------

@@ -853,6 +853,20 @@ def _profile_s(distance: float, speed: float, accel: float) -> float:
     return 2.0 * math.sqrt(distance / accel)
 
 
+def _refuse_j4_wrap(points: list[tuple[np.ndarray, np.ndarray]], start_pose: np.ndarray, target_pose: np.ndarray,
+                    cfg: SafetyConfig) -> None:
+    """Refuse a straight move whose R crosses J4's end stop (R = J1 + J4): J4 cannot turn through its limit, so
+    the arm would have to turn it the long way round mid-move."""
+    j4 = [float(joints[3]) for _, joints in points]
+    for a, b in zip(j4, j4[1:]):
+        if abs(b - a) > 180.0:
+            lower, upper = cfg.limits.j4_deg
+            raise SafetyError(f"queued straight move from R = {start_pose[3]:.2f} to {target_pose[3]:.2f} deg takes "
+                              f"J4 across its end stop ({lower:g}, {upper:g}) deg (J4 {j4[0]:.1f} -> {j4[-1]:.1f} "
+                              "deg): it would have to turn the long way round; turn R the other way (a MovJ, or "
+                              "a target R that keeps J4 inside its range)")
+
+
 def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.ndarray, target_pose: np.ndarray,
                   target_joints: np.ndarray, linear: bool, speed_factor_percent: int = 100) -> tuple[int, int]:
     """The ``(speed, acceleration)`` ratios (percent, 1..100) that keep a queued move within ``max_speed_*`` and
@@ -874,9 +888,11 @@ def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.n
     # Path derivatives per unit of path fraction, sampled: mm and deg per unit fraction.
     fractions = np.linspace(0.0, 1.0, 41)
     points = []
+    path_target = target_pose.copy()  # a straight move turns R the short way (as the emulator's, and ServoP)
+    path_target[3] = start_pose[3] + wrap_deg(target_pose[3] - start_pose[3])
     for fraction in fractions:
         if linear:
-            pose = start_pose + fraction * (target_pose - start_pose)
+            pose = start_pose + fraction * (path_target - start_pose)
             try:
                 joints = check_pose_reachable(pose, geometry, cfg.limits)
             except KinematicsError:
@@ -885,6 +901,8 @@ def queued_ratios(layer: SafetyLayer, start_pose: np.ndarray, start_joints: np.n
         else:
             joints = start_joints + fraction * joint_delta
             points.append((np.array(forward(joints, geometry)), joints))
+    if linear:
+        _refuse_j4_wrap(points, start_pose, target_pose, cfg)
     step = fractions[1]
     cart_per_fraction = max(float(np.linalg.norm(b[0][:3] - a[0][:3])) / step for a, b in zip(points, points[1:]))
     joint_per_fraction = max(float(np.max(np.abs(b[1] - a[1]))) / step for a, b in zip(points, points[1:]))
