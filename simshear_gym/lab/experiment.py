@@ -134,6 +134,8 @@ class ExperimentConfig:
         mount: the TacTip on the follower's flange.
         plate: the plate on the leader's flange.
         leader_start_pose_mm_deg: the leader's flange at the start (its base frame).
+        estimator_process_std_mm: the servo estimator's process noise, mm per cycle (None: the estimator's
+            default; co-lift: the co-lift env's).
     """
 
     trajectory: str = "circle"
@@ -165,11 +167,10 @@ class ExperimentConfig:
     mount: TacTipMount = TacTipMount()
     plate: PlateMount = PlateMount()
     leader_start_pose_mm_deg: tuple[float, float, float, float] = LEADER_START_POSE
+    estimator_process_std_mm: float | None = None
 
     def __post_init__(self) -> None:
-        if self.trajectory not in TRAJECTORIES:
-            raise ValueError(f"ExperimentConfig.trajectory must be one of {TRAJECTORIES}, got {self.trajectory!r}")
-        self.trajectory_config()
+        self._check_trajectory()
         if not (math.isfinite(self.control_period_s) and 0.02 <= self.control_period_s <= 1.0):
             raise ValueError(f"ExperimentConfig.control_period_s must be in [0.02, 1] s, got {self.control_period_s!r}")
         for name in ("hover_mm", "approach_step_mm", "max_approach_mm", "max_lift_mm", "max_contact_error_mm",
@@ -187,12 +188,7 @@ class ExperimentConfig:
         if self.min_depth_mm is not None and not self.min_depth_mm < self.reference_depth_mm:
             raise ValueError(f"ExperimentConfig.min_depth_mm must be below the reference depth, got "
                              f"{self.min_depth_mm!r}")
-        offset = tuple(float(v) for v in self.start_offset_mm)
-        half = self.plate.half_extents_mm
-        if len(offset) != 2 or not (abs(offset[0]) <= half[0] - 20.0 and abs(offset[1]) <= half[1] - 20.0):
-            raise ValueError(f"ExperimentConfig.start_offset_mm must be (x, y) at least 20 mm inside the plate "
-                             f"(|x| <= {half[0] - 20.0:g}, |y| <= {half[1] - 20.0:g} mm), got {self.start_offset_mm!r}")
-        object.__setattr__(self, "start_offset_mm", offset)
+        self._check_start_offset(20.0)
         if self.safety.dry_run:
             raise ValueError("ExperimentConfig.safety.dry_run: a two-arm run needs both arms moving (rehearse on the "
                              "rig instead: --rehearsal)")
@@ -200,6 +196,26 @@ class ExperimentConfig:
         if step_mm > self.action_scale.step_mm:
             raise ValueError(f"ExperimentConfig.approach_step_mm ({step_mm:g}) must not exceed the action's full "
                              f"scale ({self.action_scale.step_mm:g} mm)")
+        if self.estimator_process_std_mm is not None and not (math.isfinite(self.estimator_process_std_mm)
+                                                              and self.estimator_process_std_mm > 0.0):
+            raise ValueError(f"ExperimentConfig.estimator_process_std_mm must be None or > 0 mm, got "
+                             f"{self.estimator_process_std_mm!r}")
+
+    def _check_trajectory(self) -> None:
+        if self.trajectory not in TRAJECTORIES:
+            raise ValueError(f"ExperimentConfig.trajectory must be one of {TRAJECTORIES}, got {self.trajectory!r}")
+        self.trajectory_config()
+
+    def _check_start_offset(self, margin_mm: float) -> None:
+        """``start_offset_mm`` at least ``margin_mm`` inside the face (``plate``) the follower touches."""
+        name = type(self).__name__
+        offset = tuple(float(v) for v in self.start_offset_mm)
+        half = self.plate.half_extents_mm
+        if len(offset) != 2 or not (abs(offset[0]) <= half[0] - margin_mm and abs(offset[1]) <= half[1] - margin_mm):
+            raise ValueError(f"{name}.start_offset_mm must be (x, y) at least {margin_mm:g} mm inside the face "
+                             f"(|x| <= {half[0] - margin_mm:g}, |y| <= {half[1] - margin_mm:g} mm), got "
+                             f"{self.start_offset_mm!r}")
+        object.__setattr__(self, "start_offset_mm", offset)
 
     @property
     def servo_time_s(self) -> float:
@@ -487,7 +503,8 @@ class ExperimentRun:
             from simshear_gym.control.servo import ServoController
 
             controller = ServoController(cfg.reference_depth_mm, cfg.action_scale,
-                                         estimator=EstimatorConfig(posenet=self.posenet))
+                                         estimator=EstimatorConfig(posenet=self.posenet,
+                                                                   process_std_mm=cfg.estimator_process_std_mm))
         else:
             from simshear_gym.control.policy import SB3Controller
 
@@ -595,6 +612,8 @@ class ExperimentRun:
                     action = None
                     controller_error = error
                 estimate = getattr(controller, "last_estimate", None)
+                if action is not None:
+                    action = self._adapt_action(action)
             if action is not None and phase == "track" and cfg.rz_feedforward:
                 turn_deg = wrap_deg(float(leader_target[3]) - previous_target_r)  # about the vertical, up
                 action = np.asarray(action, dtype=np.float64).copy()
@@ -608,6 +627,8 @@ class ExperimentRun:
                     f"{controller_error}")
             else:
                 observation, _, terminated, _, info = env.step(action)
+            if phase == "settle" and not terminated:
+                self._settling(settle_until - time.monotonic())
             if phase == "settle" and time.monotonic() >= settle_until and not terminated:
                 phase, plan_wall_s = "track", time.monotonic()
                 leader_pose = self._leader_feedback(leader)
@@ -632,6 +653,13 @@ class ExperimentRun:
             if stop is not None:
                 return (*stop, phase)
             cycle += 1
+
+    def _settling(self, left_s: float) -> None:
+        """Called every settle cycle with the settle's time left, s (nothing to do on the plate)."""
+
+    def _adapt_action(self, action: np.ndarray) -> np.ndarray:
+        """The controller's action as the follower's mount can carry it out (all of it, on the plate)."""
+        return action
 
     def _leader_feedback(self, leader) -> np.ndarray | None:
         from simshear_gym.real.mg400_client import FeedbackStaleError
@@ -921,15 +949,18 @@ def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: fl
 
 def run_on_rig(rig, config: ExperimentConfig, out_dir: str | Path, controller: str = "servo",
                calibration: ArmsCalibration | None = None, posenet: str | None = None, command: str = "",
-               on_cycle: Callable[[dict[str, Any]], None] | None = None, plan=None) -> dict[str, Any]:
+               on_cycle: Callable[[dict[str, Any]], None] | None = None, plan=None,
+               experiment: type[ExperimentRun] | None = None) -> dict[str, Any]:
     """One run on a started rehearsal rig (:class:`~simshear_gym.lab.rig.RehearsalRig`) with a fresh rig camera
     (calibration default: the rig's true layout); the summary gains the emulators' audit (``audit``: every
-    command either emulator has received so far that the safe defaults refuse, per arm) and is written again."""
+    command either emulator has received so far that the safe defaults refuse, per arm) and is written again.
+    ``experiment``: the run's class (default :class:`ExperimentRun`; co-lift's subclass)."""
     calibration = calibration if calibration is not None else ArmsCalibration(rig.config.leader_in_follower,
                                                                               "fixture", command="rig truth")
     camera = rig.new_camera()
-    run_ = ExperimentRun(rig.leader_endpoint, rig.follower_endpoint, camera, calibration, controller, config,
-                         posenet, truth=camera, plan=plan, on_cycle=on_cycle)
+    experiment = experiment if experiment is not None else ExperimentRun
+    run_ = experiment(rig.leader_endpoint, rig.follower_endpoint, camera, calibration, controller, config,
+                      posenet, truth=camera, plan=plan, on_cycle=on_cycle)
     summary = run_.run(out_dir, command)
     summary["audit"] = rig.audit(SafetyConfig())
     summary["commands_outside_limits"] = sum(len(lines) for lines in summary["audit"].values())
