@@ -21,6 +21,7 @@ from simshear_gym.lab.endpoints import ArmEndpoint
 from simshear_gym.lab.experiment import rehearsal_safety
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
+from tests.test_lab import torch_one_thread  # noqa: F401 - the fixture
 
 # -- fast: layout, plan, settings ---------------------------------------------------------------------------------
 
@@ -138,18 +139,9 @@ def test_cli_bad_flags(capsys):
 SHORT = dict(scale=0.25, settle_s=2.0, hold_s=0.5, lift_mm=5.0, safety=rehearsal_safety())
 
 
-@pytest.fixture
-def torch_one_thread():
-    import torch
-
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
 @pytest.mark.slow
-def test_colift_rehearsal_end_to_end(tmp_path, torch_one_thread):
+@pytest.mark.usefixtures("torch_one_thread")
+def test_colift_rehearsal_end_to_end(tmp_path):
     """Grasp, lift, carry along the path, set down, release: no drop, the calibrated contact error is the rig's true
     one, no command outside the limits in either emulator's record, the follower backed off along the grip axis."""
     from simshear_gym.lab.colift import run_colift_rehearsal
@@ -178,7 +170,8 @@ def test_colift_rehearsal_end_to_end(tmp_path, torch_one_thread):
 
 
 @pytest.mark.slow
-def test_leader_alarm_mid_carry_stops_both_arms_and_a_rerun_works(tmp_path, torch_one_thread):
+@pytest.mark.usefixtures("torch_one_thread")
+def test_leader_alarm_mid_carry_stops_both_arms_and_a_rerun_works(tmp_path):
     from simshear_gym.lab.colift import run_colift_rehearsal
     from simshear_gym.lab.colift_rig import CoLiftRig, CoLiftRigConfig
 

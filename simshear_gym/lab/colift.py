@@ -69,6 +69,10 @@ from simshear_gym.lab.experiment import (
     LeaderPlan,
     _preprocess,
     _wait_still,
+    add_arm_arguments,
+    add_loop_arguments,
+    arm_words,
+    loop_words,
     rehearsal_safety,
     run_on_rig,
 )
@@ -286,56 +290,21 @@ def run_colift_rehearsal(config: CoLiftConfig, out_dir: str | Path, controller: 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``simshear experiment colift``."""
-    parser.add_argument("--leader", default=None, metavar="HOST[:PORTS]",
-                        help="the leader MG400 (holds the plate): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
-    parser.add_argument("--follower", default=None, metavar="HOST[:PORTS]",
-                        help="the follower MG400 (the horizontal TacTip): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
-    parser.add_argument("--camera", default=None, metavar="SRC", help="the TacTip camera: device index or video file")
-    parser.add_argument("--calibration", default=None, metavar="FILE",
-                        help="the arms' calibration (simshear calibrate-arms); with --rehearsal default: the rig's "
-                             "true layout")
-    parser.add_argument("--rehearsal", action="store_true",
-                        help="start the co-lift rehearsal rig (two loopback emulators, the co-lift scene's object "
-                             "between them, the rig camera) and run on it")
-    parser.add_argument("--rig-leader-base", type=float, nargs=4, default=list(COLIFT_LEADER_IN_FOLLOWER_MM_DEG),
-                        metavar=("X", "Y", "Z", "RZ"),
-                        help="--rehearsal: where the rig's leader base truly stands in the follower's frame (mm, "
-                             "deg; default the co-lift scene's)")
+    add_arm_arguments(parser, "holds the plate", "the horizontal TacTip",
+                      "the co-lift scene's object between them, the rig camera", COLIFT_LEADER_IN_FOLLOWER_MM_DEG,
+                      "the co-lift scene's")
     parser.add_argument("--trajectory", default="circular_wave", choices=COLIFT_TRAJECTORIES,
                         help="the leader's path")
     parser.add_argument("--object", default="prism", choices=OBJECT_NAMES, help="the object carried")
-    parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
-                        help="'servo' (co-lift GDNN + filter + PI law) or an SB3 model of simshear train rl")
-    parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped co-lift GDNN)")
     parser.add_argument("--speed-mm-s", type=float, default=5.0, help="the leader's speed along its path, mm/s")
     parser.add_argument("--lift-mm", type=float, default=10.0, help="lift off the support before the path, mm")
-    parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1: 10 Hz)")
-    parser.add_argument("--max-feedback-age-s", type=float, default=None,
-                        help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
-                             "camera's 0.5; 1.0 with --rehearsal: the emulators share this process)")
-    parser.add_argument("--preprocess", default="shipped",
-                        help="camera preprocessing JSON, 'shipped' (default) or 'none' (tactile images)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/colift/<time>)")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
+    add_loop_arguments(parser, "co-lift", "runs/colift")
 
 
 def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "experiment", "colift"]
-    for flag in ("leader", "follower", "camera", "calibration"):
-        value = getattr(args, flag)
-        if value is not None:
-            words += [f"--{flag}", str(value)]
-    if args.rehearsal:
-        words += ["--rehearsal", "--rig-leader-base", *(f"{v:g}" for v in args.rig_leader_base)]
-    words += ["--trajectory", args.trajectory, "--object", args.object, "--controller", str(args.controller),
-              "--speed-mm-s", f"{args.speed_mm_s:g}", "--lift-mm", f"{args.lift_mm:g}", "--period-s",
-              f"{args.period_s:g}", "--preprocess", str(args.preprocess), "--threads", str(args.threads)]
-    if args.max_feedback_age_s is not None:
-        words += ["--max-feedback-age-s", f"{args.max_feedback_age_s:g}"]
-    if args.posenet:
-        words += ["--posenet", str(args.posenet)]
-    if args.out is not None:
-        words += ["--out", str(args.out)]
+    words = ["simshear", "experiment", "colift", *arm_words(args), "--trajectory", args.trajectory, "--object",
+             args.object, "--speed-mm-s", f"{args.speed_mm_s:g}", "--lift-mm", f"{args.lift_mm:g}",
+             *loop_words(args)]
     return " ".join(shlex.quote(word) for word in words)
 
 

@@ -880,55 +880,80 @@ def plot_run(rows: list[dict[str, Any]], path: Path, title: str = "") -> Path:
 # Command line
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of ``simshear experiment tracking``."""
+def add_arm_arguments(parser: argparse.ArgumentParser, leader_holds: str = "moves the plate",
+                      sensor: str = "carries the TacTip", rig: str = "the rig camera",
+                      rig_leader_base: tuple[float, ...] = BaseToBase().as_tuple(), scene: str = "the sim scene's",
+                      ) -> None:
+    """The options every two-arm experiment takes: the arms, the camera, the calibration and the rehearsal rig."""
     parser.add_argument("--leader", default=None, metavar="HOST[:PORTS]",
-                        help="the leader MG400 (moves the plate): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
+                        help=f"the leader MG400 ({leader_holds}): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
     parser.add_argument("--follower", default=None, metavar="HOST[:PORTS]",
-                        help="the follower MG400 (carries the TacTip): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
+                        help=f"the follower MG400 ({sensor}): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
     parser.add_argument("--camera", default=None, metavar="SRC", help="the TacTip camera: device index or video file")
     parser.add_argument("--calibration", default=None, metavar="FILE",
                         help="the arms' calibration (simshear calibrate-arms); with --rehearsal default: the rig's "
                              "true layout")
     parser.add_argument("--rehearsal", action="store_true",
-                        help="start the rehearsal rig (two loopback emulators and the rig camera) and run on it")
-    parser.add_argument("--rig-leader-base", type=float, nargs=4, default=list(BaseToBase().as_tuple()),
+                        help=f"start the rehearsal rig (two loopback emulators and {rig}) and run on it")
+    parser.add_argument("--rig-leader-base", type=float, nargs=4, default=list(rig_leader_base),
                         metavar=("X", "Y", "Z", "RZ"),
                         help="--rehearsal: where the rig's leader base truly stands in the follower's frame (mm, "
-                             "deg; default the sim scene's)")
-    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
+                             f"deg; default {scene})")
+
+
+def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", out: str = "runs/experiment") -> None:
+    """The options of every two-arm experiment's loop: the controller, the period, the limits, the output."""
     parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law) or an SB3 model of simshear train rl")
-    parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped surface GDNN)")
-    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
+    parser.add_argument("--posenet", default=None, help=f"GDNN weights (default: the shipped {gdnn} GDNN)")
     parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1: 10 Hz)")
-    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
     parser.add_argument("--max-feedback-age-s", type=float, default=None,
                         help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
                              "camera's 0.5; 1.0 with --rehearsal: the emulators share this process)")
     parser.add_argument("--preprocess", default="shipped",
                         help="camera preprocessing JSON, 'shipped' (default) or 'none' (tactile images)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/experiment/<time>)")
+    parser.add_argument("--out", type=Path, default=None, help=f"output folder (default {out}/<time>)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
-def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "experiment", "tracking"]
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``simshear experiment tracking``."""
+    add_arm_arguments(parser)
+    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
+    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
+    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
+    add_loop_arguments(parser)
+
+
+def arm_words(args: argparse.Namespace) -> list[str]:
+    """The command line's words for :func:`add_arm_arguments`' options."""
+    words: list[str] = []
     for flag in ("leader", "follower", "camera", "calibration"):
         value = getattr(args, flag)
         if value is not None:
             words += [f"--{flag}", str(value)]
     if args.rehearsal:
         words += ["--rehearsal", "--rig-leader-base", *(f"{v:g}" for v in args.rig_leader_base)]
-    words += ["--trajectory", args.trajectory, "--controller", str(args.controller), "--speed-mm-s",
-              f"{args.speed_mm_s:g}", "--period-s", f"{args.period_s:g}", "--reference-depth-mm",
-              f"{args.reference_depth_mm:g}", "--preprocess", str(args.preprocess), "--threads", str(args.threads)]
+    return words
+
+
+def loop_words(args: argparse.Namespace) -> list[str]:
+    """The command line's words for :func:`add_loop_arguments`' options."""
+    words = ["--controller", str(args.controller), "--period-s", f"{args.period_s:g}", "--preprocess",
+             str(args.preprocess), "--threads", str(args.threads)]
     if args.max_feedback_age_s is not None:
         words += ["--max-feedback-age-s", f"{args.max_feedback_age_s:g}"]
     if args.posenet:
         words += ["--posenet", str(args.posenet)]
     if args.out is not None:
         words += ["--out", str(args.out)]
+    return words
+
+
+def command_line(args: argparse.Namespace) -> str:
+    words = ["simshear", "experiment", "tracking", *arm_words(args), "--trajectory", args.trajectory,
+             "--speed-mm-s", f"{args.speed_mm_s:g}", "--reference-depth-mm", f"{args.reference_depth_mm:g}",
+             *loop_words(args)]
     return " ".join(shlex.quote(word) for word in words)
 
 
