@@ -203,3 +203,30 @@ def test_leader_alarm_mid_carry_stops_both_arms_and_a_rerun_works(tmp_path):
         assert again["completed"], again["stop_reason"]
         assert again["commands_outside_limits"] == 0, again["audit"]
         assert not again["dropped"]
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("torch_one_thread")
+def test_a_drop_mid_carry_stops_both_arms(tmp_path):
+    """The object knocked out of the grip while carried: the run stops (the GDNN's grip lost or the rig's drop),
+    reports the drop, both arms stay where they were, nothing outside the limits."""
+    from simshear_gym.lab.colift import run_colift_rehearsal
+    from simshear_gym.lab.colift_rig import CoLiftRig, CoLiftRigConfig
+
+    config = CoLiftConfig(trajectory="circular_wave", object_name="prism", **SHORT)
+    injected: dict[str, int] = {}
+
+    def on_cycle(row) -> None:
+        if row["colift_phase"] == "carry" and "cycle" not in injected:
+            injected["cycle"] = row["cycle"]
+            rig.camera.knock((0.0, 0.0, -5000.0))
+
+    with CoLiftRig(CoLiftRigConfig(object_name="prism")) as rig:
+        summary = run_colift_rehearsal(config, tmp_path, on_cycle=on_cycle, rig=rig)
+        assert summary["stop"] in ("dropped", "follower_lost_contact", "lost_contact"), summary["stop_reason"]
+        assert summary["dropped"] and summary["truth_dropped"]
+        assert summary["rows"][-1]["cycle"] - injected["cycle"] <= 5
+        sent = len(rig.leader.motion_records()), len(rig.follower.motion_records())
+        time.sleep(0.3)
+        assert (len(rig.leader.motion_records()), len(rig.follower.motion_records())) == sent
+        assert summary["commands_outside_limits"] == 0, summary["audit"]

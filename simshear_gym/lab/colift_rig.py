@@ -18,7 +18,8 @@ undeformed dome (a visual copy of the object in the camera's own world, at the p
 on the skin's shear from the scene, translated by the shipped shPix2pix and embedded in a camera frame
 (:class:`~simshear_gym.lab.rig.RigCamera`). Ground truth per frame (:class:`CoLiftTruth`): the true contact error
 (the sensor against the point of the plate it stood on at the mark, carried with the plate), the penetration,
-contact, and once carried the drop, the object's slip on the plate and its depth in the dome.
+contact, and once carried the drop, the object's slip on the plate and its depth in the dome. Faults besides the
+rig's: :meth:`CoLiftCamera.knock` (the object is knocked out of the grip).
 """
 
 from __future__ import annotations
@@ -119,6 +120,13 @@ class CoLiftCamera(RigCamera):
             if self.carried:
                 self._T_plate_object = invert(self.scene.plate_pose()) @ self.scene.object_pose()
                 self.carried = False
+
+    def knock(self, velocity_mm_s=(0.0, 0.0, -500.0)) -> None:
+        """Fault: the carried object is knocked out of the grip (its velocity set, follower's base frame, mm/s)."""
+        with self._lock:
+            if not self.carried:
+                raise RuntimeError("CoLiftCamera.knock(): the object is on its support, not carried")
+            self.scene.push_object(velocity_mm_s)
 
     # -- RigCamera's hooks -----------------------------------------------------------------------------------------
 
