@@ -27,13 +27,23 @@ from tests.test_lab import torch_one_thread  # noqa: F401 - the fixture
 
 
 def test_the_lab_layout_is_the_colift_scenes():
-    from simshear_gym.envs.colift import FOLLOWER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE
+    from simshear_gym.envs.colift import (
+        FOLLOWER_T_WORLD_BASE,
+        LEADER_START_POSE_MM_DEG,
+        SQUEEZE_MM,
+        T_FLANGE_PLATE,
+        SimShearCoLiftEnv,
+    )
+    from simshear_gym.sim.replay import SURFACE_DEPTH_MM
     from simshear_gym.transforms import invert
 
     assert np.allclose(ObjectFace().T_flange_plate(), T_FLANGE_PLATE)
     assert COLIFT_LEADER_START_POSE_MM_DEG == pytest.approx(LEADER_START_POSE_MM_DEG)
     assert np.allclose(BaseToBase(*COLIFT_LEADER_IN_FOLLOWER_MM_DEG).T_follower_leader(),
                        invert(FOLLOWER_T_WORLD_BASE))
+    config = CoLiftConfig()
+    assert config.reference_depth_mm == pytest.approx(SURFACE_DEPTH_MM + SQUEEZE_MM["light"])
+    assert config.estimator_process_std_mm == SimShearCoLiftEnv.estimator_process_std_mm
 
 
 @pytest.mark.parametrize("name", sorted(OBJECT_FACE_MM))

@@ -92,6 +92,11 @@ class CoLiftConfig(ExperimentConfig):
     """Settings of a co-lift run: :class:`~simshear_gym.lab.experiment.ExperimentConfig`'s (the same meaning,
     the face being the object's: ``plate`` is an :class:`ObjectFace`) with the co-lift's defaults, and:
 
+    The co-lift's defaults: the env's path speed (5 mm/s), no turn, its squeeze (reference depth 5.2 mm) and its
+    estimator's process noise (1.5 mm); the touch at a co-lift GDNN depth of 2.9 mm (out of contact it reads about
+    2.6 mm on the rig's images), the grip lost below 3.0 mm, the kinematic contact loss 2 mm off the object's face
+    (a curved object's face is known to about a millimetre), a 2 s squeeze.
+
     Attributes:
         object_name: the object carried (:data:`OBJECT_NAMES`); sets ``plate`` when that is None.
         lift_mm: the leader lifts the object this far off its support before the trajectory and sets it down
