@@ -32,7 +32,7 @@ from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.models.translator_runtime import DEFAULT_THREADS as DEFAULT_TRANSLATOR_THREADS
 from simshear_gym.models.translator_runtime import RUNTIMES as TRANSLATOR_RUNTIMES
 from simshear_gym.tables import read_toml
-from simshear_gym.transforms import pose_to_matrix
+from simshear_gym.transforms import pose_to_matrix, rz_matrix
 
 OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
 TRANSLATED_MODES: tuple[str, ...] = ("real", "oracle_real")
@@ -66,6 +66,31 @@ class TacTipMount:
     def T_flange_sensor(self) -> np.ndarray:
         return pose_to_matrix(np.array([0.0, 0.0, -self.tcp_offset_mm, 0.0, 0.0, self.mount_rz_deg])) @ np.diag(
             [1.0, -1.0, -1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class HorizontalTacTipMount(TacTipMount):
+    """The TacTip lying horizontally under the follower's level flange on an L-bracket: its axis (sensor +z) along
+    the flange's +x, ``drop_mm`` below the flange, the dome apex ``tcp_offset_mm`` ahead of the flange's axis;
+    sensor +y points down (image rows run down the world), sensor +x = flange -y. ``mount_rz_deg`` turns the
+    sensor about its own axis.
+
+    Attributes:
+        tcp_offset_mm: flange axis to dome apex along the sensor axis (TacTip body 85 mm plus a 10 mm adapter).
+        drop_mm: sensor axis below the flange.
+    """
+
+    drop_mm: float = 60.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not (math.isfinite(self.drop_mm) and self.drop_mm >= 0):
+            raise ValueError(f"HorizontalTacTipMount.drop_mm must be >= 0, got {self.drop_mm!r}")
+
+    def T_flange_sensor(self) -> np.ndarray:
+        T_flange_sensor = np.array([[0.0, 0.0, 1.0, self.tcp_offset_mm], [-1.0, 0.0, 0.0, 0.0],
+                                    [0.0, -1.0, 0.0, -self.drop_mm], [0.0, 0.0, 0.0, 1.0]])
+        return T_flange_sensor @ rz_matrix(self.mount_rz_deg)
 
 
 @dataclass(frozen=True)

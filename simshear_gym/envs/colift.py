@@ -4,13 +4,13 @@ horizontal TacTip, by friction alone."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, TacTipMount
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount
 from simshear_gym.envs.base import (
     ContactState,
     SimShearEnv,
@@ -52,31 +52,6 @@ COLIFT_TERMINATION = TerminationConfig(max_contact_error_mm=50.0, max_penetratio
 SQUEEZE_MM = {"light": 3.0, "heavy": 4.0}  # the default squeeze per payload (reference depth - face depth)
 _PHYSICS_RATE_HZ = 240.0  # nominal; the env picks substeps so that a control period is a whole number of them
 _T_SENSOR_TURN = np.diag([1.0, -1.0, -1.0, 1.0])  # the scene's plate -> sensor turn (180 deg about x)
-
-
-@dataclass(frozen=True)
-class HorizontalTacTipMount(TacTipMount):
-    """The TacTip lying horizontally under the follower's level flange on an L-bracket: its axis (sensor +z) along
-    the flange's +x, ``drop_mm`` below the flange, the dome apex ``tcp_offset_mm`` ahead of the flange's axis;
-    sensor +y points down (image rows run down the world), sensor +x = flange -y. ``mount_rz_deg`` turns the
-    sensor about its own axis.
-
-    Attributes:
-        tcp_offset_mm: flange axis to dome apex along the sensor axis (TacTip body 85 mm plus a 10 mm adapter).
-        drop_mm: sensor axis below the flange.
-    """
-
-    drop_mm: float = 60.0
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not (math.isfinite(self.drop_mm) and self.drop_mm >= 0):
-            raise ValueError(f"HorizontalTacTipMount.drop_mm must be >= 0, got {self.drop_mm!r}")
-
-    def T_flange_sensor(self) -> np.ndarray:
-        T_flange_sensor = np.array([[0.0, 0.0, 1.0, self.tcp_offset_mm], [-1.0, 0.0, 0.0, 0.0],
-                                    [0.0, -1.0, 0.0, -self.drop_mm], [0.0, 0.0, 0.0, 1.0]])
-        return T_flange_sensor @ rz_matrix(self.mount_rz_deg)
 
 
 def heading_deg(axis_world: np.ndarray) -> float:

@@ -134,6 +134,8 @@ class ExperimentConfig:
         mount: the TacTip on the follower's flange.
         plate: the plate on the leader's flange.
         leader_start_pose_mm_deg: the leader's flange at the start (its base frame).
+        estimator_process_std_mm: the servo estimator's process noise, mm per cycle (None: the estimator's
+            default; co-lift: the co-lift env's).
     """
 
     trajectory: str = "circle"
@@ -165,11 +167,10 @@ class ExperimentConfig:
     mount: TacTipMount = TacTipMount()
     plate: PlateMount = PlateMount()
     leader_start_pose_mm_deg: tuple[float, float, float, float] = LEADER_START_POSE
+    estimator_process_std_mm: float | None = None
 
     def __post_init__(self) -> None:
-        if self.trajectory not in TRAJECTORIES:
-            raise ValueError(f"ExperimentConfig.trajectory must be one of {TRAJECTORIES}, got {self.trajectory!r}")
-        self.trajectory_config()
+        self._check_trajectory()
         if not (math.isfinite(self.control_period_s) and 0.02 <= self.control_period_s <= 1.0):
             raise ValueError(f"ExperimentConfig.control_period_s must be in [0.02, 1] s, got {self.control_period_s!r}")
         for name in ("hover_mm", "approach_step_mm", "max_approach_mm", "max_lift_mm", "max_contact_error_mm",
@@ -187,12 +188,7 @@ class ExperimentConfig:
         if self.min_depth_mm is not None and not self.min_depth_mm < self.reference_depth_mm:
             raise ValueError(f"ExperimentConfig.min_depth_mm must be below the reference depth, got "
                              f"{self.min_depth_mm!r}")
-        offset = tuple(float(v) for v in self.start_offset_mm)
-        half = self.plate.half_extents_mm
-        if len(offset) != 2 or not (abs(offset[0]) <= half[0] - 20.0 and abs(offset[1]) <= half[1] - 20.0):
-            raise ValueError(f"ExperimentConfig.start_offset_mm must be (x, y) at least 20 mm inside the plate "
-                             f"(|x| <= {half[0] - 20.0:g}, |y| <= {half[1] - 20.0:g} mm), got {self.start_offset_mm!r}")
-        object.__setattr__(self, "start_offset_mm", offset)
+        self._check_start_offset(20.0)
         if self.safety.dry_run:
             raise ValueError("ExperimentConfig.safety.dry_run: a two-arm run needs both arms moving (rehearse on the "
                              "rig instead: --rehearsal)")
@@ -200,6 +196,26 @@ class ExperimentConfig:
         if step_mm > self.action_scale.step_mm:
             raise ValueError(f"ExperimentConfig.approach_step_mm ({step_mm:g}) must not exceed the action's full "
                              f"scale ({self.action_scale.step_mm:g} mm)")
+        if self.estimator_process_std_mm is not None and not (math.isfinite(self.estimator_process_std_mm)
+                                                              and self.estimator_process_std_mm > 0.0):
+            raise ValueError(f"ExperimentConfig.estimator_process_std_mm must be None or > 0 mm, got "
+                             f"{self.estimator_process_std_mm!r}")
+
+    def _check_trajectory(self) -> None:
+        if self.trajectory not in TRAJECTORIES:
+            raise ValueError(f"ExperimentConfig.trajectory must be one of {TRAJECTORIES}, got {self.trajectory!r}")
+        self.trajectory_config()
+
+    def _check_start_offset(self, margin_mm: float) -> None:
+        """``start_offset_mm`` at least ``margin_mm`` inside the face (``plate``) the follower touches."""
+        name = type(self).__name__
+        offset = tuple(float(v) for v in self.start_offset_mm)
+        half = self.plate.half_extents_mm
+        if len(offset) != 2 or not (abs(offset[0]) <= half[0] - margin_mm and abs(offset[1]) <= half[1] - margin_mm):
+            raise ValueError(f"{name}.start_offset_mm must be (x, y) at least {margin_mm:g} mm inside the face "
+                             f"(|x| <= {half[0] - margin_mm:g}, |y| <= {half[1] - margin_mm:g} mm), got "
+                             f"{self.start_offset_mm!r}")
+        object.__setattr__(self, "start_offset_mm", offset)
 
     @property
     def servo_time_s(self) -> float:
@@ -488,7 +504,8 @@ class ExperimentRun:
             from simshear_gym.control.servo import ServoController
 
             controller = ServoController(cfg.reference_depth_mm, cfg.action_scale,
-                                         estimator=EstimatorConfig(posenet=self.posenet))
+                                         estimator=EstimatorConfig(posenet=self.posenet,
+                                                                   process_std_mm=cfg.estimator_process_std_mm))
         else:
             from simshear_gym.control.policy import SB3Controller
 
@@ -596,6 +613,8 @@ class ExperimentRun:
                     action = None
                     controller_error = error
                 estimate = getattr(controller, "last_estimate", None)
+                if action is not None:
+                    action = self._adapt_action(action)
             if action is not None and phase == "track" and cfg.rz_feedforward:
                 turn_deg = wrap_deg(float(leader_target[3]) - previous_target_r)  # about the vertical, up
                 action = np.asarray(action, dtype=np.float64).copy()
@@ -609,6 +628,8 @@ class ExperimentRun:
                     f"{controller_error}")
             else:
                 observation, _, terminated, _, info = env.step(action)
+            if phase == "settle" and not terminated:
+                self._settling(settle_until - time.monotonic())
             if phase == "settle" and time.monotonic() >= settle_until and not terminated:
                 phase, plan_wall_s = "track", time.monotonic()
                 leader_pose = self._leader_feedback(leader)
@@ -633,6 +654,13 @@ class ExperimentRun:
             if stop is not None:
                 return (*stop, phase)
             cycle += 1
+
+    def _settling(self, left_s: float) -> None:
+        """Called every settle cycle with the settle's time left, s (nothing to do on the plate)."""
+
+    def _adapt_action(self, action: np.ndarray) -> np.ndarray:
+        """The controller's action as the follower's mount can carry it out (all of it, on the plate)."""
+        return action
 
     def _leader_feedback(self, leader) -> np.ndarray | None:
         from simshear_gym.real.mg400_client import FeedbackStaleError
@@ -844,55 +872,80 @@ def plot_run(rows: list[dict[str, Any]], path: Path, title: str = "") -> Path:
 # Command line
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options of ``simshear experiment tracking``."""
+def add_arm_arguments(parser: argparse.ArgumentParser, leader_holds: str = "moves the plate",
+                      sensor: str = "carries the TacTip", rig: str = "the rig camera",
+                      rig_leader_base: tuple[float, ...] = BaseToBase().as_tuple(), scene: str = "the sim scene's",
+                      ) -> None:
+    """The options every two-arm experiment takes: the arms, the camera, the calibration and the rehearsal rig."""
     parser.add_argument("--leader", default=None, metavar="HOST[:PORTS]",
-                        help="the leader MG400 (moves the plate): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
+                        help=f"the leader MG400 ({leader_holds}): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
     parser.add_argument("--follower", default=None, metavar="HOST[:PORTS]",
-                        help="the follower MG400 (carries the TacTip): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
+                        help=f"the follower MG400 ({sensor}): HOST or HOST:DASHBOARD,MOTION,FEEDBACK")
     parser.add_argument("--camera", default=None, metavar="SRC", help="the TacTip camera: device index or video file")
     parser.add_argument("--calibration", default=None, metavar="FILE",
                         help="the arms' calibration (simshear calibrate-arms); with --rehearsal default: the rig's "
                              "true layout")
     parser.add_argument("--rehearsal", action="store_true",
-                        help="start the rehearsal rig (two loopback emulators and the rig camera) and run on it")
-    parser.add_argument("--rig-leader-base", type=float, nargs=4, default=list(BaseToBase().as_tuple()),
+                        help=f"start the rehearsal rig (two loopback emulators and {rig}) and run on it")
+    parser.add_argument("--rig-leader-base", type=float, nargs=4, default=list(rig_leader_base),
                         metavar=("X", "Y", "Z", "RZ"),
                         help="--rehearsal: where the rig's leader base truly stands in the follower's frame (mm, "
-                             "deg; default the sim scene's)")
-    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
+                             f"deg; default {scene})")
+
+
+def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", out: str = "runs/experiment") -> None:
+    """The options of every two-arm experiment's loop: the controller, the period, the limits, the output."""
     parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law) or an SB3 model of simshear train rl")
-    parser.add_argument("--posenet", default=None, help="GDNN weights (default: the shipped surface GDNN)")
-    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
+    parser.add_argument("--posenet", default=None, help=f"GDNN weights (default: the shipped {gdnn} GDNN)")
     parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1: 10 Hz)")
-    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
     parser.add_argument("--max-feedback-age-s", type=float, default=None,
                         help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
                              "camera's 0.5; 1.0 with --rehearsal: the emulators share this process)")
     parser.add_argument("--preprocess", default="shipped",
                         help="camera preprocessing JSON, 'shipped' (default) or 'none' (tactile images)")
-    parser.add_argument("--out", type=Path, default=None, help="output folder (default runs/experiment/<time>)")
+    parser.add_argument("--out", type=Path, default=None, help=f"output folder (default {out}/<time>)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
-def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "experiment", "tracking"]
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``simshear experiment tracking``."""
+    add_arm_arguments(parser)
+    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
+    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
+    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
+    add_loop_arguments(parser)
+
+
+def arm_words(args: argparse.Namespace) -> list[str]:
+    """The command line's words for :func:`add_arm_arguments`' options."""
+    words: list[str] = []
     for flag in ("leader", "follower", "camera", "calibration"):
         value = getattr(args, flag)
         if value is not None:
             words += [f"--{flag}", str(value)]
     if args.rehearsal:
         words += ["--rehearsal", "--rig-leader-base", *(f"{v:g}" for v in args.rig_leader_base)]
-    words += ["--trajectory", args.trajectory, "--controller", str(args.controller), "--speed-mm-s",
-              f"{args.speed_mm_s:g}", "--period-s", f"{args.period_s:g}", "--reference-depth-mm",
-              f"{args.reference_depth_mm:g}", "--preprocess", str(args.preprocess), "--threads", str(args.threads)]
+    return words
+
+
+def loop_words(args: argparse.Namespace) -> list[str]:
+    """The command line's words for :func:`add_loop_arguments`' options."""
+    words = ["--controller", str(args.controller), "--period-s", f"{args.period_s:g}", "--preprocess",
+             str(args.preprocess), "--threads", str(args.threads)]
     if args.max_feedback_age_s is not None:
         words += ["--max-feedback-age-s", f"{args.max_feedback_age_s:g}"]
     if args.posenet:
         words += ["--posenet", str(args.posenet)]
     if args.out is not None:
         words += ["--out", str(args.out)]
+    return words
+
+
+def command_line(args: argparse.Namespace) -> str:
+    words = ["simshear", "experiment", "tracking", *arm_words(args), "--trajectory", args.trajectory,
+             "--speed-mm-s", f"{args.speed_mm_s:g}", "--reference-depth-mm", f"{args.reference_depth_mm:g}",
+             *loop_words(args)]
     return " ".join(shlex.quote(word) for word in words)
 
 
@@ -913,15 +966,18 @@ def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: fl
 
 def run_on_rig(rig, config: ExperimentConfig, out_dir: str | Path, controller: str = "servo",
                calibration: ArmsCalibration | None = None, posenet: str | None = None, command: str = "",
-               on_cycle: Callable[[dict[str, Any]], None] | None = None, plan=None) -> dict[str, Any]:
+               on_cycle: Callable[[dict[str, Any]], None] | None = None, plan=None,
+               experiment: type[ExperimentRun] | None = None) -> dict[str, Any]:
     """One run on a started rehearsal rig (:class:`~simshear_gym.lab.rig.RehearsalRig`) with a fresh rig camera
     (calibration default: the rig's true layout); the summary gains the emulators' audit (``audit``: every
-    command either emulator has received so far that the safe defaults refuse, per arm) and is written again."""
+    command either emulator has received so far that the safe defaults refuse, per arm) and is written again.
+    ``experiment``: the run's class (default :class:`ExperimentRun`; co-lift's subclass)."""
     calibration = calibration if calibration is not None else ArmsCalibration(rig.config.leader_in_follower,
                                                                               "fixture", command="rig truth")
     camera = rig.new_camera()
-    run_ = ExperimentRun(rig.leader_endpoint, rig.follower_endpoint, camera, calibration, controller, config,
-                         posenet, truth=camera, plan=plan, on_cycle=on_cycle)
+    experiment = experiment if experiment is not None else ExperimentRun
+    run_ = experiment(rig.leader_endpoint, rig.follower_endpoint, camera, calibration, controller, config,
+                      posenet, truth=camera, plan=plan, on_cycle=on_cycle)
     summary = run_.run(out_dir, command)
     summary["audit"] = rig.audit(SafetyConfig())
     summary["commands_outside_limits"] = sum(len(lines) for lines in summary["audit"].values())

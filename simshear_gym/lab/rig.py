@@ -112,7 +112,7 @@ class RigCamera:
         self._stimulus = stimuli.FlatSurface(size_mm=tuple(face_size_mm)) if stimulus is None else stimulus
         self.world = World()
         self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
-        self._body = stimuli.spawn(self.world, self._stimulus, T_follower_face())
+        self._body = self._spawn(T_follower_face())
         self._tracker = ShearTracker()
         self._t0: float | None = None
         self._target_face_mm: np.ndarray | None = None
@@ -164,26 +164,42 @@ class RigCamera:
                 self._t0 = now
             flange = np.asarray(self._follower_pose(), dtype=np.float64)[:4]
             T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
-            T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
-            stimuli.move(self.world, self._body, T_base_face, self._stimulus)
-            T_face_sensor = invert(T_base_face) @ T_base_sensor
-            penetration_mm = -float(T_face_sensor[2, 3])
-            on_face = (abs(T_face_sensor[0, 3]) <= self._half_extents_mm[0]
-                       and abs(T_face_sensor[1, 3]) <= self._half_extents_mm[1])
-            in_contact = bool(on_face and penetration_mm > 0.0)
-            shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_face_sensor), in_contact)
-            self._last_sensor_face_mm = T_face_sensor[:3, 3].copy()
+            T_base_face, penetration_mm, in_contact, shear = self._touch(T_base_sensor)
+            self._last_sensor_face_mm = (invert(T_base_face) @ T_base_sensor)[:3, 3].copy()
             target = error = None
             if self._target_face_mm is not None:
                 target = T_base_face[:3, :3] @ self._target_face_mm + T_base_face[:3, 3]
                 error = float(np.linalg.norm(T_base_sensor[:3, 3] - target))
             image = finish_tactile(self.tactip.render(T_base_sensor)[None], shear[None], "real", RENDER_SIZE_PX,
                                    self.contact)[0]
-            self.history.append(RigTruth(now - self._t0, flange, T_base_sensor[:3, 3].copy(), target,
-                                         penetration_mm, in_contact, math.nan if error is None else error))
+            self.history.append(self._truth(now - self._t0, flange, T_base_sensor[:3, 3].copy(), target,
+                                            penetration_mm, in_contact, math.nan if error is None else error))
             frame = image if self.raw_frame_layout is None else self._frame(image)
             self._last_frame = frame
             return frame.copy()
+
+    # -- what the sensor touches (a subclass's scene overrides these) ----------------------------------------------
+
+    def _spawn(self, T_base_face: np.ndarray) -> int:
+        """The rendered body in the camera's world."""
+        return stimuli.spawn(self.world, self._stimulus, T_base_face)
+
+    def _touch(self, T_base_sensor: np.ndarray) -> tuple[np.ndarray, float, bool, np.ndarray]:
+        """Place the scene for this frame: (the face frame the truth's target is carried by, penetration mm, in
+        contact, the shear (6,) that conditions the translator)."""
+        T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
+        stimuli.move(self.world, self._body, T_base_face, self._stimulus)
+        T_face_sensor = invert(T_base_face) @ T_base_sensor
+        penetration_mm = -float(T_face_sensor[2, 3])
+        on_face = (abs(T_face_sensor[0, 3]) <= self._half_extents_mm[0]
+                   and abs(T_face_sensor[1, 3]) <= self._half_extents_mm[1])
+        in_contact = bool(on_face and penetration_mm > 0.0)
+        shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_face_sensor), in_contact)
+        return T_base_face, penetration_mm, in_contact, shear
+
+    def _truth(self, time_s: float, flange: np.ndarray, sensor_mm: np.ndarray, target_mm: np.ndarray | None,
+               penetration_mm: float, in_contact: bool, contact_error_mm: float) -> RigTruth:
+        return RigTruth(time_s, flange, sensor_mm, target_mm, penetration_mm, in_contact, contact_error_mm)
 
     def _frame(self, image: np.ndarray) -> np.ndarray:
         frame = embed_in_frame(image, self.raw_frame_layout)

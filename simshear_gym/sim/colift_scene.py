@@ -532,6 +532,13 @@ class CoLiftScene:
             self._dropped = self.object_slip_mm() > self.config.drop_threshold_mm or not (tip or plate)
         return self._dropped
 
+    def push_object(self, velocity_mm_s) -> None:
+        """Set the object's velocity (world, mm/s; a knock, for fault tests: the grip must lose it)."""
+        if self._world is None:
+            raise RuntimeError("call reset() before push_object()")
+        velocity = np.asarray(velocity_mm_s, dtype=np.float64).reshape(3) / 1000.0
+        self.world.client.resetBaseVelocity(self._object, velocity.tolist(), [0.0, 0.0, 0.0])
+
     def render_tactile(self, size_px: int | None = None) -> np.ndarray:
         """uint8 (H, W) TacTip image at the sensor's current pose (default size: ``config.tactip``)."""
         size_px = self.config.tactip.image_size_px if size_px is None else size_px
