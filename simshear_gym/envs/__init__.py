@@ -6,6 +6,8 @@ until ``gymnasium.make``):
   processes, their images translated in batches) unless ``vectorization_mode`` is ``"sync"`` or ``"async"``.
 - ``SimShearCoLift-v0`` (:class:`simshear_gym.envs.colift.SimShearCoLiftEnv`), 500 steps per episode; the same
   batched vector env.
+- ``SimShearEdgeFollow-v0`` (:class:`simshear_gym.envs.edge_follow.SimShearEdgeFollowEnv`), 1000 steps per
+  episode: once round the edge of a flat object; the same batched vector env.
 - ``SimShearTracking6D-v0`` (:class:`simshear_gym.envs.tracking6d.SimShearTracking6DEnv`), 500 steps per episode: a
   tilting plate, a 6-DoF (Panda) follower; gymnasium's own vector envs (not in :data:`ENV_IDS`, the envs with the
   batched one).
@@ -13,7 +15,7 @@ until ``gymnasium.make``):
 
 from gymnasium.envs.registration import register, registry
 
-ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0")
+ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0", "SimShearEdgeFollow-v0")
 
 if "SimShearTracking-v0" not in registry:
     register(
@@ -36,4 +38,12 @@ if "SimShearTracking6D-v0" not in registry:
         id="SimShearTracking6D-v0",
         entry_point="simshear_gym.envs.tracking6d:SimShearTracking6DEnv",
         max_episode_steps=500,
+    )
+
+if "SimShearEdgeFollow-v0" not in registry:
+    register(
+        id="SimShearEdgeFollow-v0",
+        entry_point="simshear_gym.envs.edge_follow:SimShearEdgeFollowEnv",
+        vector_entry_point="simshear_gym.envs.edge_follow:make_edge_follow_vector_env",
+        max_episode_steps=1000,
     )
