@@ -67,6 +67,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "contact error of the oracle controller on every tracking trajectory (--tasks colift: every co-lift run)"),
     (("evaluate", "servo"), "simshear_gym.evaluate.servo",
      "closed-loop tracking and co-lift benchmarks of the tactile servo controller"),
+    (("evaluate", "edge-follow"), "simshear_gym.evaluate.edge_follow",
+     "edge following on SimShearEdgeFollow-v0: the edge servo (translated images, edge GDNN) once round four outlines"),
     (("evaluate", "servo6d"), "simshear_gym.evaluate.servo6d",
      "6-DoF servo (Panda) against the 4-DoF MG400 servo on the tilting plate of SimShearTracking6D-v0"),
     (("evaluate", "env-speed"), "simshear_gym.evaluate.env_speed",

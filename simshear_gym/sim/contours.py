@@ -21,11 +21,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-import pybullet
+from typing import TYPE_CHECKING
 
-from simshear_gym.sim.world import World
+import numpy as np
+
 from simshear_gym.transforms import matrix_to_pybullet
+
+if TYPE_CHECKING:
+    from simshear_gym.sim.world import World
 
 OUTLINES: tuple[str, ...] = ("disk", "rounded_square", "clover", "wavy")
 
@@ -162,6 +165,8 @@ def _thin(curve: np.ndarray, max_sag_mm: float) -> np.ndarray:
 def spawn_contour_object(world: World, contour: Contour, T_world_object: np.ndarray) -> int:
     """The object as a static visual body (the TacTip's renderer sees visual shapes): its top face (a fan from the
     centre, which the outline is star-shaped about) and side walls; returns its id."""
+    import pybullet
+
     points = contour.points_mm
     count = len(points)
     height = contour.spec.height_mm
