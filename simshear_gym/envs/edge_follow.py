@@ -11,7 +11,7 @@ from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.base import ContactState, SimShearEnv
 from simshear_gym.envs.tracking import FOLLOWER_T_WORLD_BASE
-from simshear_gym.sim.contours import OUTLINES, Contour, ContourObject, spawn_contour_object
+from simshear_gym.sim.contours import OUTLINES, Contour, ContourObject, edge_contact, spawn_contour_object
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.shear import ShearTrackerConfig
 from simshear_gym.transforms import invert, pose_from_matrix_fast, pose_to_matrix
@@ -175,27 +175,19 @@ class SimShearEdgeFollowEnv(SimShearEnv):
     def _measure(self) -> ContactState:
         T_world_sensor = self.follower.T_world_tool()
         T_object_sensor = self._T_object_world @ T_world_sensor
-        arc, signed_mm, point, tangent = self.contour.nearest(T_object_sensor[:2, 3])
-        T_edge_sensor = invert(self.contour.T_object_edge(point, tangent)) @ T_object_sensor
-        label = pose_from_matrix_fast(self._T_work_edge @ T_edge_sensor)
-        offset = label[1] - EDGE_GEOMETRY.edge_y_mm  # signed_mm, seen from the edge frame
-        penetration = -float(T_edge_sensor[2, 3])
-        dome_mm = self.tactip.config.dome_radius_mm
-        footprint_mm = math.sqrt(max(2.0 * dome_mm * penetration - penetration ** 2, 0.0))
-        on_edge = abs(offset) <= self.max_offset_mm
-        in_contact = penetration > 0.0 and offset > -footprint_mm
-        pose_object = pose_from_matrix_fast(self.T_work_face @ T_object_sensor)
-        shear = self.shear_tracker.update(pose_object, in_contact)
+        edge = edge_contact(self.contour, T_object_sensor, self._T_work_edge, EDGE_GEOMETRY.edge_y_mm)
+        in_contact = edge.touches(self.tactip.config.dome_radius_mm)
+        shear = self.shear_tracker.update(pose_from_matrix_fast(self.T_work_face @ T_object_sensor), in_contact)
         if self._arc_mm is not None:  # clockwise (decreasing ccw arc) is forward
-            step = (self._arc_mm - arc + self.contour.perimeter_mm / 2.0) % self.contour.perimeter_mm
-            self._progress_mm += step - self.contour.perimeter_mm / 2.0
-        self._arc_mm = arc
-        angle = float(wrap_deg(label[5]))
+            half = self.contour.perimeter_mm / 2.0
+            self._progress_mm += (self._arc_mm - edge.arc_mm + half) % self.contour.perimeter_mm - half
+        self._arc_mm = edge.arc_mm
+        angle = float(wrap_deg(edge.label_pose[5]))
         along_mm = float(np.cos(np.radians(angle)) * shear[0] - np.sin(np.radians(angle)) * shear[1])
-        self._edge = (float(offset), (T_WORLD_OBJECT[:3, :3] @ np.r_[point, 0.0] + T_WORLD_OBJECT[:3, 3]), angle,
-                      along_mm)
-        return ContactState(label, penetration, bool(on_edge), bool(in_contact), shear, abs(float(signed_mm)),
-                            angle, T_world_sensor)
+        point_world = T_WORLD_OBJECT[:3, :3] @ np.r_[edge.point_mm, 0.0] + T_WORLD_OBJECT[:3, 3]
+        self._edge = (edge.offset_mm, point_world, angle, along_mm)
+        return ContactState(edge.label_pose, edge.penetration_mm, abs(edge.offset_mm) <= self.max_offset_mm,
+                            in_contact, shear, abs(edge.offset_mm), angle, T_world_sensor)
 
     def _oracle_variables(self, state: ContactState) -> np.ndarray:
         offset, _, angle, along = self._edge

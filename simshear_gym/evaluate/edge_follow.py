@@ -209,11 +209,11 @@ def run(args: argparse.Namespace) -> int:
                     runs.append(r)
                 env.close()
             s = results[variant][outline] = {**summarise(runs), "per_run": runs}
-            print(f"{variant:7s} {outline:15s} laps {s['laps_completed']}/{s['runs']}, offset {s['offset_mean_mm']:.3f} "
-                  f"mm (worst run {s['offset_mean_worst_run_mm']:.3f}, max {s['offset_max_mm']:.2f}), depth error "
-                  f"{s['depth_error_mean_mm']:.3f} mm (worst run {s['depth_error_mean_worst_run_mm']:.3f}), "
-                  f"{s['terminations'] or 'no early end'}, control {s['control_ms_median']:.2f} ms, env step "
-                  f"{s['env_step_ms_median']:.2f} ms")
+            print(f"{variant:7s} {outline:15s} laps {s['laps_completed']}/{s['runs']}, "
+                  f"offset {s['offset_mean_mm']:.3f} mm (worst run {s['offset_mean_worst_run_mm']:.3f}, "
+                  f"max {s['offset_max_mm']:.2f}), depth error {s['depth_error_mean_mm']:.3f} mm "
+                  f"(worst run {s['depth_error_mean_worst_run_mm']:.3f}), {s['terminations'] or 'no early end'}, "
+                  f"control {s['control_ms_median']:.2f} ms, env step {s['env_step_ms_median']:.2f} ms")
     png = args.out / f"{args.name}.png"
     figure(panels, outlines_world, png, f"{ENV_ID}: once round the edge (nominal runs)")
     goals = {variant: {"offset_mean_mm_max": GOAL_OFFSET_MM, "depth_error_mean_mm_max": GOAL_DEPTH_MM,

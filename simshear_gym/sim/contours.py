@@ -20,12 +20,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from simshear_gym.transforms import matrix_to_pybullet
+from simshear_gym.transforms import invert, matrix_to_pybullet, pose_from_matrix_fast
 
 if TYPE_CHECKING:
     from simshear_gym.sim.world import World
@@ -138,6 +137,45 @@ class Contour:
         return transform
 
 
+@dataclass(frozen=True)
+class EdgeContact:
+    """Where a sensor is against an outline's edge (mm, deg).
+
+    Attributes:
+        label_pose: (6,) the sensor's pose as an edge label (x, y = the edge line's y + the offset, z = the depth,
+            Rx, Ry, Rz = the edge angle), in the labels' work frame of the nearest edge point.
+        offset_mm: the apex's distance from the outline in the top face's plane, + over the material.
+        penetration_mm: the apex below the top face (negative: above it).
+        arc_mm: the nearest outline point's arc length from the first point, counter-clockwise.
+        point_mm: (2,) that point, object frame.
+    """
+
+    label_pose: np.ndarray
+    offset_mm: float
+    penetration_mm: float
+    arc_mm: float
+    point_mm: np.ndarray
+
+    def touches(self, dome_radius_mm: float) -> bool:
+        """Whether a dome of that radius, pressed this deep, reaches the material: the edge lies within the
+        circle where the dome cuts the top face's plane."""
+        depth = self.penetration_mm
+        footprint_mm = math.sqrt(max(2.0 * dome_radius_mm * depth - depth * depth, 0.0))
+        return depth > 0.0 and self.offset_mm > -footprint_mm
+
+
+def edge_contact(contour: Contour, T_object_sensor: np.ndarray, T_work_edge: np.ndarray,
+                 edge_y_mm: float) -> EdgeContact:
+    """The sensor (pose in the object frame, 4x4 mm) against the outline's nearest edge; ``T_work_edge`` and
+    ``edge_y_mm``: where the edge lies in the labels' work frame (``ReplayGeometry.T_work_stimulus()`` and its
+    ``edge_y_mm``)."""
+
+    arc, _, point, tangent = contour.nearest(T_object_sensor[:2, 3])
+    T_edge_sensor = invert(contour.T_object_edge(point, tangent)) @ T_object_sensor
+    label = pose_from_matrix_fast(T_work_edge @ T_edge_sensor)
+    return EdgeContact(label, float(label[1] - edge_y_mm), -float(T_edge_sensor[2, 3]), arc, point)
+
+
 def _thin(curve: np.ndarray, max_sag_mm: float) -> np.ndarray:
     """Points of a dense closed curve (M, 2) kept so that every dropped point lies within ``max_sag_mm`` of the
     chord that replaces it (greedy, walking round once)."""
@@ -184,4 +222,4 @@ def spawn_contour_object(world: World, contour: Contour, T_world_object: np.ndar
                                   baseOrientation=quaternion)
 
 
-__all__ = ["OUTLINES", "Contour", "ContourObject", "spawn_contour_object"]
+__all__ = ["OUTLINES", "Contour", "ContourObject", "EdgeContact", "edge_contact", "spawn_contour_object"]
