@@ -147,6 +147,8 @@ class EdgeServoController:
     """
 
     name = "edge_servo"
+    state_names: tuple[str, ...] = ("y_mm", "depth_mm", "edge_angle_deg")
+    """The state estimate's names, for logs (the GDNN's y, z and edge angle)."""
 
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  step_mm: float = 0.5, gains: EdgeGains = EdgeGains(),

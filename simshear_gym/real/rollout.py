@@ -6,7 +6,9 @@
     simshear rollout --robot 127.0.0.1 --camera sim-surface --policy runs/rl/ppo/model.zip --dry-run
 
 Controllers: ``--controller servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter +
-PI law, ``--posenet`` weights, default the shipped ``surface`` GDNN) or ``--policy MODEL.zip`` (or ``--controller
+PI law, ``--posenet`` weights, default the shipped ``surface`` GDNN), ``--controller edge``
+(:class:`~simshear_gym.control.edge_servo.EdgeServoController`: edge following at ``--edge-speed-mm-s``, default
+the shipped ``edge`` GDNN) or ``--policy MODEL.zip`` (or ``--controller
 MODEL.zip``): a Stable-Baselines3 PPO / SAC agent of ``simshear train rl``, loaded with its run folder's
 ``config.json`` and ``VecNormalize`` statistics (:meth:`~simshear_gym.control.policy.SB3Controller.load`): the
 env gives it the observation it was trained on (observation, history, image size; an estimate observation reads
@@ -17,7 +19,9 @@ added to the servo law. A bare ``.zip`` (no ``config.json``) gets the ``tactile`
 Camera (``--camera``): a device index, a video file or an image folder (:class:`~simshear_gym.real.camera.
 CameraSource`, preprocessed with ``--preprocess``), or ``sim-surface``: the hardware-in-the-loop camera
 (:class:`~simshear_gym.real.hil.SimSurfaceCamera`) rendering the simulated TacTip at the pose the robot's feedback
-reports, on a surface moving at ``--surface-velocity`` (use it with ``simshear mg400-emulator``).
+reports, on a surface moving at ``--surface-velocity`` (use it with ``simshear mg400-emulator``), or ``sim-edge``:
+the same over the edge of a still flat object (``--outline``; :class:`~simshear_gym.real.hil_edge.SimEdgeCamera`),
+the rehearsal of edge following.
 
 Output in ``--out``: ``steps.csv`` (one row per step: time, measured and commanded TCP and flange poses, action,
 the controller's state estimate, timing, robot mode, safety events; with ``sim-surface`` also the simulated ground
@@ -51,7 +55,10 @@ from simshear_gym.io import atomic_write, write_json
 logger = logging.getLogger(__name__)
 
 SIM_SURFACE_CAMERA = "sim-surface"
+SIM_EDGE_CAMERA = "sim-edge"
+SIM_CAMERAS = (SIM_SURFACE_CAMERA, SIM_EDGE_CAMERA)
 STATE_NAMES = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
+"""The state estimate's columns, unless the controller names its own (``state_names``)."""
 POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
 
 
@@ -65,13 +72,13 @@ def _vector(value, size: int = 4) -> list[float]:
     return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
 
 
-def _columns(with_estimate: bool, with_truth: bool) -> list[str]:
+def _columns(with_estimate: bool, with_truth: bool, state_names: tuple[str, ...] = STATE_NAMES) -> list[str]:
     columns = ["step", "time_s"]
     columns += [f"tcp_{n}" for n in POSE_NAMES] + [f"tcp_target_{n}" for n in POSE_NAMES]
     columns += [f"flange_{n}" for n in POSE_NAMES] + [f"flange_target_{n}" for n in POSE_NAMES]
     columns += [f"action_{i}" for i in range(4)]
     if with_estimate:
-        columns += [f"estimate_{n}" for n in STATE_NAMES] + [f"estimate_std_{n}" for n in STATE_NAMES]
+        columns += [f"estimate_{n}" for n in state_names] + [f"estimate_std_{n}" for n in state_names]
     columns += ["policy_ms", "overrun_s", "robot_mode", "feedback_age_s", "camera_frame_age_s", "in_contact",
                 "commands_sent", "termination", "safety_event"]
     if with_truth:
@@ -79,7 +86,8 @@ def _columns(with_estimate: bool, with_truth: bool) -> list[str]:
     return columns
 
 
-def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: float, truth) -> dict[str, Any]:
+def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: float, truth,
+         state_names: tuple[str, ...] = STATE_NAMES) -> dict[str, Any]:
     row: dict[str, Any] = {"step": step, "time_s": round(float(info["time_s"]), 4)}
     tcp = observation["tcp_pose"] if "tcp_pose" in observation else info.get("tcp_pose")  # estimate observations
     for prefix, value in (("tcp", tcp), ("tcp_target", info["tcp_target"]),
@@ -89,7 +97,7 @@ def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: 
     for index, number in enumerate(_vector(action)):
         row[f"action_{index}"] = round(number, 5)
     if estimate is not None:
-        for name, mean, std in zip(STATE_NAMES, _vector(estimate[0]), _vector(estimate[1])):
+        for name, mean, std in zip(state_names, _vector(estimate[0]), _vector(estimate[1])):
             row[f"estimate_{name}"] = round(mean, 4)
             row[f"estimate_std_{name}"] = round(std, 4)
     row.update(policy_ms=round(policy_ms, 3), overrun_s=round(float(info["overrun_s"]), 4),
@@ -119,7 +127,8 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     controller.reset()
     truth_source = getattr(env.camera, "history", None)
     with_estimate = isinstance(controller, EstimatingController)
-    rows = [_row(0, observation, info, np.zeros(4), None, 0.0, truth_source[-1] if truth_source else None)]
+    names = tuple(getattr(controller, "state_names", STATE_NAMES))
+    rows = [_row(0, observation, info, np.zeros(4), None, 0.0, truth_source[-1] if truth_source else None, names)]
     termination, policy_ms = "", []
     for step in range(1, steps + 1):
         start = time.perf_counter()
@@ -135,12 +144,12 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
             observation, _, terminated, truncated, info = env.step(action)
         truth = truth_source[-1] if truth_source else None
         estimate = controller.last_estimate if with_estimate else None
-        rows.append(_row(step, observation, info, action, estimate, policy_ms[-1], truth))
+        rows.append(_row(step, observation, info, action, estimate, policy_ms[-1], truth, names))
         if terminated or truncated:
             termination = info["termination"]
             break
     events = list(env.safety_events)
-    columns = _columns(with_estimate, truth_source is not None)
+    columns = _columns(with_estimate, truth_source is not None, names)
     _write_csv(out_dir / "steps.csv", columns, rows)
     figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{name}: {termination or 'completed'}")
     overruns = np.array([row["overrun_s"] for row in rows[1:]]) if len(rows) > 1 else np.zeros(0)
@@ -165,6 +174,9 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
         summary["truth_contact_error_mm"] = {"mean": round(float(np.mean(truth)), 4),
                                              "max": round(float(np.max(truth)), 4),
                                              "final": round(float(truth[-1]), 4)}
+    progress = getattr(env.camera, "progress_mm", None)
+    if progress is not None:  # a simulated edge: how far along it the run went
+        summary["truth_progress_mm"] = round(float(progress), 3)
     write_json(out_dir / "rollout.json", summary)
     return summary
 
@@ -240,10 +252,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("--robot", required=True, metavar="IP", help="MG400 controller address")
     parser.add_argument("--camera", required=True, metavar="SRC",
-                        help=f"camera device index, video file, image folder, or '{SIM_SURFACE_CAMERA}' (simulated "
-                             "TacTip on a moving surface at the robot's reported pose)")
-    parser.add_argument("--controller", default=None, metavar="servo|MODEL.zip",
-                        help="'servo' (GDNN + filter + PI law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
+                        help=f"camera device index, video file, image folder, '{SIM_SURFACE_CAMERA}' (simulated "
+                             f"TacTip on a moving surface at the robot's reported pose) or '{SIM_EDGE_CAMERA}' (the "
+                             "same over a still object's edge: the edge following rehearsal)")
+    parser.add_argument("--controller", default=None, metavar="servo|edge|MODEL.zip",
+                        help="'servo' (GDNN + filter + PI law), 'edge' (edge following: the edge GDNN + filter + the "
+                             "edge law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
     parser.add_argument("--policy", default=None, metavar="MODEL.zip",
                         help="a PPO/SAC/TQC agent of simshear train rl (model.zip, best_model.zip or a checkpoint), "
                              "with its run's settings and VecNormalize statistics; instead of --controller")
@@ -282,6 +296,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"{SIM_SURFACE_CAMERA} camera: surface velocity in the base frame, mm/s")
     parser.add_argument("--surface-travel-mm", type=float, default=20.0,
                         help=f"{SIM_SURFACE_CAMERA} camera: the surface stops after this travel, mm")
+    parser.add_argument("--outline", default="disk",
+                        help=f"{SIM_EDGE_CAMERA} camera: the object's outline (disk, rounded_square, clover, wavy)")
+    parser.add_argument("--edge-speed-mm-s", type=float, default=5.0,
+                        help="edge controller: speed along the edge, mm/s (default 5, as SimShearEdgeFollow-v0)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
@@ -305,6 +323,10 @@ def command_line(args: argparse.Namespace) -> str:
         words += ["--sensor", str(args.sensor)]
     if args.min_depth_mm is not None:
         words += ["--min-depth-mm", f"{args.min_depth_mm:g}"]
+    if args.controller == "edge":
+        words += ["--edge-speed-mm-s", f"{args.edge_speed_mm_s:g}"]
+    if args.camera == SIM_EDGE_CAMERA:
+        words += ["--outline", str(args.outline)]
     if args.camera == SIM_SURFACE_CAMERA:
         words += ["--surface-velocity", *(f"{v:g}" for v in args.surface_velocity),
                   "--surface-travel-mm", f"{args.surface_travel_mm:g}"]
@@ -333,7 +355,7 @@ def _policy_path(args: argparse.Namespace) -> str | None:
         if not Path(args.policy).is_file() and not has_policy_files(args.policy):
             raise FileNotFoundError(f"--policy {args.policy!r}: no such SB3 .zip file")
         return args.policy
-    if args.controller == "servo":
+    if args.controller in ("servo", "edge"):
         return None
     if not Path(args.controller).is_file() and not has_policy_files(args.controller):
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
@@ -347,6 +369,22 @@ def _load_sb3(path: str, env, flag: str = "--controller") -> SB3Controller:
         return SB3Controller.for_env(path, env)
     except ValueError as error:  # trained on other spaces
         raise ValueError(f"{flag} {error}; check --image-size") from None
+
+
+def _sim_camera(args: argparse.Namespace, config, flange_pose):
+    """The hardware-in-the-loop camera of ``--camera sim-surface|sim-edge`` at the env's start pose and mount."""
+    if args.camera == SIM_EDGE_CAMERA:
+        from simshear_gym.real.hil_edge import EdgeObjectConfig, SimEdgeCamera
+
+        edge_object = EdgeObjectConfig(outline=args.outline, reference_depth_mm=args.reference_depth_mm)
+        return SimEdgeCamera(flange_pose, config.start_pose_mm_deg, edge_object, config.mount,
+                             raw_frame_layout=config.preprocess)
+    from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
+
+    surface = MovingSurfaceConfig(velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
+                                  reference_depth_mm=args.reference_depth_mm)
+    return SimSurfaceCamera(flange_pose, config.start_pose_mm_deg, surface, config.mount,
+                            raw_frame_layout=config.preprocess)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -367,7 +405,11 @@ def run(args: argparse.Namespace) -> int:
     image_size_px = args.image_size or (settings.image_size_px if settings else 128)
     if args.sensor and args.posenet:
         raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
-    posenet = load_sensor(args.sensor).posenet("surface") if args.sensor else args.posenet
+    edge = args.controller == "edge"
+    if edge and args.min_depth_mm is not None:
+        raise ValueError("--min-depth-mm reads the surface GDNN's depth; the edge controller has none of its own "
+                         "yet: leave --min-depth-mm out with --controller edge")
+    posenet = load_sensor(args.sensor).posenet("edge" if edge else "surface") if args.sensor else args.posenet
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
     preprocess_config = _preprocess_config(args.preprocess)
     safety_type = UnsafeSafetyConfig if args.unsafe_limits else SafetyConfig
@@ -383,23 +425,24 @@ def run(args: argparse.Namespace) -> int:
         observation=settings.observation if settings else "tactile", history=settings.history if settings else 1,
         reference_depth_mm=args.reference_depth_mm, posenet=posenet, safety=safety, dry_run=args.dry_run,
         # a simulated camera has no noise: equal frames in a row are no sign of a frozen driver
-        frozen_frame_limit=None if args.camera == SIM_SURFACE_CAMERA else RealEnvConfig.frozen_frame_limit)
-    if args.camera != SIM_SURFACE_CAMERA:
+        frozen_frame_limit=None if args.camera in SIM_CAMERAS else RealEnvConfig.frozen_frame_limit)
+    if args.camera not in SIM_CAMERAS:
         env = RealTactileEnv(config)  # the camera is opened on the first reset
-    else:
-        from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
-
-        surface = MovingSurfaceConfig(velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
-                                      reference_depth_mm=args.reference_depth_mm)
+    else:  # the simulated camera renders where the arm's feedback says the flange is
         holder: list[RealTactileEnv] = []
-        camera = SimSurfaceCamera(lambda: holder[0].client.measured_pose(), config.start_pose_mm_deg, surface,
-                                  config.mount, raw_frame_layout=preprocess_config)
+        camera = _sim_camera(args, config, lambda: holder[0].client.measured_pose())
         env = RealTactileEnv(config, camera=camera)
         holder.append(env)
     estimator_config = EstimatorConfig(posenet=posenet)
     try:
         controller: Controller
-        if policy is None:
+        if edge:
+            from simshear_gym.control.edge_servo import EdgeServoController
+
+            edge_servo = EdgeServoController(args.reference_depth_mm, config.action_scale,
+                                             args.edge_speed_mm_s * args.period_s, estimator=estimator_config)
+            controller, estimator = edge_servo, None
+        elif policy is None:
             servo = ServoController(args.reference_depth_mm, config.action_scale, estimator=estimator_config)
             controller, estimator = servo, servo.estimator
         else:
