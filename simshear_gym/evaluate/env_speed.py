@@ -1,7 +1,9 @@
-"""Throughput of ``SimShearTracking-v0`` with translated ("real") 128 px images: one process and vectorised.
+"""Throughput of an env (``SimShearTracking-v0``, or ``--env`` another) with translated ("real") 128 px images: one
+process and vectorised.
 
-``simshear evaluate env-speed`` steps the env with the oracle controller (driven from ``info``, so the env runs
-in ``obs_mode="real"``, translating every image) and writes ``results/env_speed.json``:
+``simshear evaluate env-speed`` steps the env with its oracle controller (driven from ``info``, so the env runs
+in ``obs_mode="real"``, translating every image; ``SimShearEdgeFollow-v0``: the edge law on the true offset, depth
+and angle) and writes ``results/env_speed.json``:
 
 - single process: ``gymnasium.make`` and a loop, per translator runtime of ``--runtimes``: torch on each of the
   ``--threads`` settings, ONNX Runtime (:mod:`simshear_gym.models.translator_runtime`) on each of the
@@ -43,22 +45,41 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def single_process(obs_mode: str, steps: int, warmup: int = 20) -> dict:
+ENV_CONTACTS = {"SimShearTracking-v0": "surface", "SimShearEdgeFollow-v0": "edge"}
+"""The envs measured (``--env``) and the contact type of their translator."""
+
+
+def oracle_from_info(env_id: str, env):
+    """(controller, info -> its observation) of an env's oracle, driven from ``info`` in any observation mode (one
+    env's info, or a vector env's batched info row by row through ``numpy`` indexing)."""
+    if env_id == "SimShearEdgeFollow-v0":
+        from simshear_gym.control.edge_servo import EdgeOracleController
+
+        def edge_state(info: dict) -> dict:
+            return {"true_pose_shear": np.stack([np.asarray(info[k], dtype=np.float64) for k in (
+                "edge_offset_mm", "depth_mm", "shear_along_edge_mm", "edge_angle_deg")], axis=-1)}
+
+        return EdgeOracleController.for_env(env), edge_state
+    from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
+
+    return OracleController.for_env(env), lambda info: {"true_pose_shear": true_pose_shear_from_info(info)}
+
+
+def single_process(obs_mode: str, steps: int, warmup: int = 20, env_id: str = "SimShearTracking-v0") -> dict:
     """Steps per second of one env driven by the oracle from ``info`` (episodes reset as they end)."""
     import gymnasium as gym
 
     import simshear_gym.envs  # noqa: F401
-    from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
 
     load = _load()
-    env = gym.make("SimShearTracking-v0", obs_mode=obs_mode)
-    controller = OracleController.for_env(env)
+    env = gym.make(env_id, obs_mode=obs_mode)
+    controller, state_of = oracle_from_info(env_id, env)
     _, info = env.reset(seed=0)
     done_steps, start = 0, None
     for index in range(steps + warmup):
         if index == warmup:
             start, cpu_start = time.perf_counter(), time.process_time()
-        action = controller({"true_pose_shear": true_pose_shear_from_info(info)})
+        action = controller(state_of(info))
         _, _, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             _, info = env.reset()
@@ -71,23 +92,25 @@ def single_process(obs_mode: str, steps: int, warmup: int = 20) -> dict:
             "cpu_ms_per_step": round(1000 * cpu_seconds / done_steps, 3), "load_average_before": load}
 
 
-def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmup: int = 5) -> dict:
+def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmup: int = 5,
+               env_id: str = "SimShearTracking-v0") -> dict:
     """Steps per second (summed over sub-envs) of ``make_vec`` in "real" mode."""
     import gymnasium as gym
 
     import simshear_gym.envs  # noqa: F401
-    from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
 
     load = _load()
-    envs = gym.make_vec("SimShearTracking-v0", num_envs=num_envs, obs_mode="real", workers=workers,
-                        translate_in=translate_in)
-    controllers = [OracleController() for _ in range(num_envs)]
+    probe = gym.make(env_id, obs_mode="sim")  # the oracles' settings (reference depth, scale, speed)
+    pairs = [oracle_from_info(env_id, probe) for _ in range(num_envs)]
+    probe.close()
+    controllers, state_of = [pair[0] for pair in pairs], pairs[0][1]
+    envs = gym.make_vec(env_id, num_envs=num_envs, obs_mode="real", workers=workers, translate_in=translate_in)
     _, info = envs.reset(seed=0)
     start = None
     for index in range(steps + warmup):
         if index == warmup:
             start = time.perf_counter()
-        variables = true_pose_shear_from_info(info)
+        variables = state_of(info)["true_pose_shear"]
         actions = np.stack([controller({"true_pose_shear": v}) for controller, v in zip(controllers, variables)])
         _, _, terminated, truncated, info = envs.step(actions)
         for env_index in np.flatnonzero(terminated | truncated):
@@ -125,27 +148,29 @@ def translator_runtime(runtime: str, translator: str = "full", threads: int = 1)
         yield
 
 
-def surface_translator(runtime: str, translator: str = "full", threads: int = 1):
-    """The shipped surface translator ("full", or its "student") on ``runtime`` (ONNX Runtime on ``threads``
-    threads), as the envs load it."""
+def surface_translator(runtime: str, translator: str = "full", threads: int = 1, contact: str = "surface"):
+    """The shipped translator of a contact type (surface by default; "full", or its "student") on ``runtime`` (ONNX
+    Runtime on ``threads`` threads), as the envs load it."""
     from simshear_gym.contract import shipped_student_weights, shipped_translator, translator_from
 
     if translator == "student":
-        return translator_from(shipped_student_weights("surface"), runtime, threads=threads)
-    return shipped_translator("surface", runtime=runtime, threads=threads)
+        return translator_from(shipped_student_weights(contact), runtime, threads=threads)
+    return shipped_translator(contact, runtime=runtime, threads=threads)
 
 
 def translator_batch1_ms(runtime: str = "torch", repeats: int = 200, translator: str = "full",
-                         threads: int = 1) -> float:
-    """Median batch-1 latency (ms) of the shipped surface translator (or its student) on ``runtime`` (ONNX Runtime
-    on ``threads`` threads)."""
+                         threads: int = 1, contact: str = "surface") -> float:
+    """Median batch-1 latency (ms) of a shipped translator (surface by default, or its student) on ``runtime`` (ONNX
+    Runtime on ``threads`` threads)."""
     from simshear_gym.evaluate.translator_speed import latency_ms
 
-    return round(latency_ms(surface_translator(runtime, translator, threads), 1, repeats,
+    return round(latency_ms(surface_translator(runtime, translator, threads, contact), 1, repeats,
                             np.random.default_rng(0)), 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--env", default="SimShearTracking-v0", choices=tuple(ENV_CONTACTS),
+                        help="the env measured (default SimShearTracking-v0)")
     parser.add_argument("--steps", type=int, default=500, help="measured steps of the single-process runs")
     parser.add_argument("--vector-steps", type=int, default=40, help="measured steps of each vectorised run")
     parser.add_argument("--num-envs", type=int, nargs="+", default=[8, 16, 32], help="sub-envs of the vectorised runs")
@@ -181,7 +206,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     runtimes = list(dict.fromkeys(args.runtimes))
     translators = list(dict.fromkeys(args.translators))
-    single = {"sim": single_process("sim", args.steps), "real": []}
+    contact = ENV_CONTACTS[args.env]
+    single = {"sim": single_process("sim", args.steps, env_id=args.env), "real": []}
     sim_row = single["sim"]
     print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")
     # (translator, runtime, torch threads of the main process, ONNX Runtime's intra-op threads)
@@ -193,9 +219,9 @@ def run(args: argparse.Namespace) -> int:
         with translator_runtime(runtime, translator, onnx_threads):
             row = {"translator": translator, "torch_threads": threads, "translator_runtime": runtime,
                    **({"onnx_threads": onnx_threads} if runtime == "onnx" else {}),
-                   **single_process("real", args.steps),
+                   **single_process("real", args.steps, env_id=args.env),
                    "translator_ms_batch1": translator_batch1_ms(runtime, translator=translator,
-                                                                threads=onnx_threads)}
+                                                                threads=onnx_threads, contact=contact)}
         row["translator_share_of_step"] = round(row["translator_ms_batch1"] / row["ms_per_step"], 3)
         row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_row["ms_per_step"], 3)
         row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_row["steps_per_s"], 3)
@@ -219,14 +245,15 @@ def run(args: argparse.Namespace) -> int:
         if (row["translator"], row["translator_runtime"]) == (translator, runtime))
         for translator in translators for runtime in runtimes}
     payload = {
-        "command": (f"simshear evaluate env-speed --steps {args.steps} --vector-steps {args.vector_steps} "
+        "command": ("simshear evaluate env-speed " + ("" if args.env == "SimShearTracking-v0" else f"--env {args.env} ")
+                    + f"--steps {args.steps} --vector-steps {args.vector_steps} "
                     f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
                     f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
                     + (f"--onnx-threads {' '.join(map(str, args.onnx_threads))} " if args.onnx_threads != [1] else "")
                     + f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
                     + (f" --out {args.out.as_posix()} --name {args.name}" if args.name != "env_speed" else "")),
         "machine": machine_info(),
-        "env": ("SimShearTracking-v0, obs_mode='real' (the shipped shPix2pix surface translator, 'full', or its "
+        "env": (f"{args.env}, obs_mode='real' (the shipped shPix2pix {contact} translator, 'full', or its "
                 "distilled 'student'; runtime per row: torch, or ONNX Runtime on the .onnx beside the weights), "
                 "128 px, oracle actions"),
         "single_process": single, "vectorised": vector,
@@ -257,7 +284,7 @@ def _vector_rows(args: argparse.Namespace, translator: str, num_envs: int, reque
         torch.set_num_threads(threads)  # the main process's (workers use one thread each)
         with translator_runtime(requested, translator):
             row = {"translator": translator, "torch_threads_main": threads, "translator_runtime": runtime,
-                   **vectorised(num_envs, args.workers, translate_in, args.vector_steps)}
+                   **vectorised(num_envs, args.workers, translate_in, args.vector_steps, env_id=args.env)}
         rows.append(row)
         print(f"make_vec {num_envs} envs, {args.workers} workers, {translator} translator, {runtime}, translating in "
               f"{translate_in}"
