@@ -165,3 +165,43 @@ def test_make_vec_translates_the_sub_envs_images_in_a_batch():
         assert np.all(info["in_contact"]) and set(info["outline"]) == {"disk"}
     finally:
         envs.close()
+
+
+def test_the_edge_estimate_fills_the_policies_four_slots_and_comes_back():
+    from simshear_gym.contract import estimate_features, filter_mean_from_estimate
+    from simshear_gym.control.edge_servo import edge_estimate_slots, edge_state_from_slots
+
+    mean, std = edge_estimate_slots(np.array([1.25, 4.3, 150.0]), np.array([0.4, 0.1, 6.0]))
+    np.testing.assert_allclose(mean[:2], [4.3, 1.5])  # depth, then the offset from the edge line (y + 0.25)
+    features = estimate_features((mean, std), (mean, std), 4.0)
+    np.testing.assert_allclose(features[2:4], [np.cos(np.radians(150)), np.sin(np.radians(150))], atol=1e-6)
+    state = edge_state_from_slots(filter_mean_from_estimate(features, 4.0))
+    np.testing.assert_allclose(state, [1.5, 4.3, 150.0], atol=1e-4)
+
+
+def test_an_edge_policy_run_clones_the_edge_law_from_its_estimate_observation(tmp_path):
+    """``simshear train rl --task edge``: the edge env's estimate observation (the edge estimator's), the teacher
+    the edge law on its filter mean, evaluation on the four outlines."""
+    from simshear_gym.contract import filter_mean_from_estimate
+    from simshear_gym.control.edge_servo import EdgeGains, EdgeLaw, edge_state_from_slots
+    from simshear_gym.train.rl import RLTrainConfig, train
+    from simshear_gym.train.rl_imitation import EdgeTeacher, teacher_for
+    from simshear_gym.train.rl_trainer import evaluation_settings, make_env
+
+    config = RLTrainConfig(task="edge", observation="estimate", history=2, image_size_px=64, timesteps=32,
+                           n_steps=16, batch_size=16, n_epochs=1, checkpoint_steps=32, bc_steps=32, bc_epochs=2)
+    assert set(evaluation_settings(config)) == set(OUTLINES)
+    env = make_env(config)
+    teacher = teacher_for(env)
+    assert isinstance(teacher, EdgeTeacher)
+    law = EdgeLaw(4.0, env.unwrapped.action_scale.as_array(), 0.5, EdgeGains(ki_offset=0.0, ki_depth=0.0))
+    observation, _ = env.reset(seed=2)
+    for _ in range(3):
+        action = teacher(observation)
+        expected = law(edge_state_from_slots(filter_mean_from_estimate(observation["estimate"], 4.0)))
+        np.testing.assert_allclose(action, expected, atol=1e-6)
+        observation, *_ = env.step(action)
+    env.close()
+    summary = train(config, tmp_path / "edge", progress=False)
+    assert summary["task"] == "edge" and summary["imitation"]["steps"] == 32
+    assert (tmp_path / "edge" / "model.pt").is_file()

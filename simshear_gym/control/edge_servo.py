@@ -135,6 +135,47 @@ class EdgeEstimator(TactileEstimator):
         return np.array([math.sin(angle) * dx + math.cos(angle) * dy, dz, drz])
 
 
+EDGE_SLOT_SCALE = 7.5
+"""The estimate observation's unit of the shear slots (:data:`~simshear_gym.contract.ESTIMATE_SCALE`): the edge
+angle's cosine and sine are written there times this, so they come out of the normalisation as they are."""
+
+
+def edge_estimate_slots(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An edge estimate (y, z mm, edge angle deg) in the four slots of the policies' ``estimate`` observation
+    (:func:`~simshear_gym.contract.estimate_features`: depth, then three slots in units of
+    :data:`EDGE_SLOT_SCALE`): (depth, offset from the edge, 7.5 cos(angle), 7.5 sin(angle)); the angle's std
+    (rad, times 7.5) on both of its slots."""
+    y, z, angle = np.asarray(mean, dtype=np.float64)
+    std_y, std_z, std_angle = np.asarray(std, dtype=np.float64)
+    radians = math.radians(angle)
+    angle_std = EDGE_SLOT_SCALE * math.radians(std_angle)
+    return (np.array([z, y - EDGE_Y_MM, EDGE_SLOT_SCALE * math.cos(radians), EDGE_SLOT_SCALE * math.sin(radians)]),
+            np.array([std_z, std_y, angle_std, angle_std]))
+
+
+def edge_state_from_slots(slots: np.ndarray) -> np.ndarray:
+    """(offset mm, depth mm, edge angle deg) of an estimate's four slots (:func:`edge_estimate_slots`)."""
+    depth, offset, cos, sin = np.asarray(slots, dtype=np.float64)
+    return np.array([offset, depth, math.degrees(math.atan2(sin, cos))])
+
+
+class EdgeReadingEstimator(EdgeEstimator):
+    """The edge estimator of ``SimShearEdgeFollow-v0``'s ``estimate`` observations: its filter state and the GDNN's
+    reading of the last image (``last_reading``), both in the observation's four slots
+    (:func:`edge_estimate_slots`), at one GDNN pass per image."""
+
+    last_reading: tuple[np.ndarray, np.ndarray] | None = None
+
+    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        reading = super().read(tactile)
+        self.last_reading = edge_estimate_slots(*reading)
+        return reading
+
+    def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        return edge_estimate_slots(*super().__call__(tactile, commanded_move))
+
+
 class EdgeServoController:
     """Tactile image -> action: :class:`EdgeEstimator` then :class:`EdgeLaw`. Call :meth:`reset` per episode.
 
@@ -226,4 +267,5 @@ class EdgeOracleController:
         return self.law(np.array([offset, depth, angle]))
 
 
-__all__ = ["EDGE_STATE", "EdgeEstimator", "EdgeGains", "EdgeLaw", "EdgeOracleController", "EdgeServoController"]
+__all__ = ["EDGE_STATE", "EdgeEstimator", "EdgeGains", "EdgeLaw", "EdgeOracleController", "EdgeReadingEstimator",
+           "EdgeServoController", "edge_estimate_slots", "edge_state_from_slots"]

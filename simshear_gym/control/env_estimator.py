@@ -33,7 +33,14 @@ class ReadingEstimator(TactileEstimator):
 
 def env_estimator(env) -> ReadingEstimator:
     """The estimator :meth:`ServoController.for_env <simshear_gym.control.servo.ServoController.for_env>` builds
-    for ``env`` (the GDNN the env names, its process noise), keeping its readings."""
+    for ``env`` (the GDNN the env names, its process noise), keeping its readings; for an edge env
+    (``SimShearEdgeFollow-v0``), the edge controller's, its estimate in the observation's four slots
+    (:class:`~simshear_gym.control.edge_servo.EdgeReadingEstimator`)."""
+    if getattr(env.unwrapped, "translator_contact", "surface") == "edge":
+        from simshear_gym.control.edge_servo import EdgeReadingEstimator, EdgeServoController
+
+        controller = EdgeServoController.for_env(env)
+        return EdgeReadingEstimator(controller.estimator.config, controller.law.gains.angle_process_std_deg)
     return ReadingEstimator(ServoController.for_env(env).estimator.config)
 
 

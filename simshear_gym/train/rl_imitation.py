@@ -69,13 +69,41 @@ class ServoTeacher:
         return self.law(mean)
 
 
+class EdgeTeacher:
+    """The edge servo's law, proportional only (a function of the observation alone: no integral to carry), on the
+    filter mean an edge env's estimate observation carries (:func:`~simshear_gym.control.edge_servo.
+    edge_state_from_slots`); one per env stream."""
+
+    def __init__(self, env) -> None:
+        from simshear_gym.control.edge_servo import EdgeGains, EdgeLaw
+
+        base = env.unwrapped
+        self.reference_depth_mm = float(base.reference_depth_mm)
+        self.law = EdgeLaw(self.reference_depth_mm, base.action_scale.as_array(), base.speed_mm_s * base.dt_s,
+                           EdgeGains(ki_offset=0.0, ki_depth=0.0))
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        from simshear_gym.control.edge_servo import edge_state_from_slots
+
+        return self.law(edge_state_from_slots(filter_mean_from_estimate(observation["estimate"],
+                                                                         self.reference_depth_mm)))
+
+
+def teacher_for(env) -> ServoTeacher | EdgeTeacher:
+    """The env's teacher: the edge law for an edge env, else the servo law."""
+    return EdgeTeacher(env) if getattr(env.unwrapped, "translator_contact", "surface") == "edge" else ServoTeacher(env)
+
+
 def collect(envs: list, steps: int, noise: float, seed: int, actor=None) -> dict:
     """``steps`` steps over ``envs`` in turn (module docstring, 2), the teacher's action executed (plus noise) or,
     given an ``actor`` (observation -> action), the actor's, the teacher labelling every step either way (DAgger):
     {"observations": {key: (N, ...)}, "actions": (N, 4) teacher labels, "rewards": (N,), "stream": (N,) env index,
     "starts": (N,) bool: first step of an episode}, in step order per env."""
     rng = np.random.default_rng(seed)
-    teachers = [ServoTeacher(env) for env in envs]
+    teachers = [teacher_for(env) for env in envs]
     episodes = [0] * len(envs)
     current = []
     for index, (env, teacher) in enumerate(zip(envs, teachers)):

@@ -88,8 +88,9 @@ def env_settings(config: RLTrainConfig, rank: int, training: bool = True) -> dic
     obs_mode = config.obs_mode
     if training and config.asymmetric_critic:
         obs_mode = {"real": "oracle_real", "sim": "oracle"}[config.obs_mode]
-    kwargs = {"trajectory": "random", "randomise": config.randomise, "obs_mode": obs_mode,
-              "image_size_px": config.image_size_px, "observation": config.observation, "history": config.history}
+    kwargs = {"outline" if config.task == "edge" else "trajectory": "random", "randomise": config.randomise,
+              "obs_mode": obs_mode, "image_size_px": config.image_size_px, "observation": config.observation,
+              "history": config.history}
     if config.observation in ESTIMATE_OBSERVATIONS:
         kwargs["estimator"] = env_estimator
     if config.task == "colift":
@@ -115,6 +116,10 @@ def evaluation_settings(config: RLTrainConfig) -> dict[str, dict]:
     """Name -> ``gym.make`` overrides of the nominal evaluation episodes."""
     if config.task == "tracking":
         return {name: {"trajectory": name, "randomise": False} for name in TRACKING_EVAL}
+    if config.task == "edge":
+        from simshear_gym.sim.contours import OUTLINES
+
+        return {name: {"outline": name, "randomise": False} for name in OUTLINES}
     from simshear_gym.envs.colift import OBJECT_NAMES
 
     return {name: {"trajectory": COLIFT_EVAL_TRAJECTORY, "object_name": name, "randomise": False}
