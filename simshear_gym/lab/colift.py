@@ -74,6 +74,7 @@ from simshear_gym.lab.experiment import (
     arm_words,
     loop_words,
     rehearsal_safety,
+    report_run,
     run_on_rig,
 )
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
@@ -349,14 +350,9 @@ def run(args: argparse.Namespace) -> int:
                          args.posenet or str(shipped_posenet_path("colift")))
         summary = run_.run(out_dir, command_line(args))
     mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
-    print(f"{summary['trajectory']} with the {summary['object']}: {summary['tracking_cycles']} cycles at "
-          f"{summary['loop_rate_hz']} Hz, contact error {mean} +- {std} mm, dropped: {summary['dropped']}, compute "
-          f"{summary['compute_ms_median']} ms median; "
-          f"{'completed' if summary['completed'] else 'stopped: ' + summary['stop'] + ': ' + summary['stop_reason']}")
-    if "commands_outside_limits" in summary:
-        print(f"emulators' audit: {summary['commands_outside_limits']} commands outside the safety limits")
-    print(f"wrote {out_dir / 'log.csv'}, {out_dir / 'experiment.json'}, {out_dir / 'experiment.png'}")
-    return 0 if summary["completed"] else 1
+    return report_run(summary, out_dir, f"{summary['trajectory']} with the {summary['object']}: "
+                      f"{summary['tracking_cycles']} cycles at {summary['loop_rate_hz']} Hz, contact error {mean} +- "
+                      f"{std} mm, dropped: {summary['dropped']}, compute {summary['compute_ms_median']} ms median")
 
 
 __all__ = ["COLIFT_STOPS", "OBJECT_NAMES", "CoLiftConfig", "CoLiftPlan", "CoLiftRun", "ObjectFace",

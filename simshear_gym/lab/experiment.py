@@ -1001,6 +1001,17 @@ def run_tracking_rehearsal(config: ExperimentConfig, out_dir: str | Path, contro
     return summary
 
 
+def report_run(summary: dict[str, Any], out_dir: Path, headline: str) -> int:
+    """Print a two-arm run's result (``headline``; completed or why it stopped; the emulators' audit where the
+    summary has one; the files written to ``out_dir``); 0 when it completed, 1 when a stop ended it early."""
+    print(f"{headline}; "
+          f"{'completed' if summary['completed'] else 'stopped: ' + summary['stop'] + ': ' + summary['stop_reason']}")
+    if "commands_outside_limits" in summary:
+        print(f"emulators' audit: {summary['commands_outside_limits']} commands outside the safety limits")
+    print(f"wrote {out_dir / 'log.csv'}, {out_dir / 'experiment.json'}, {out_dir / 'experiment.png'}")
+    return 0 if summary["completed"] else 1
+
+
 def run(args: argparse.Namespace) -> int:
     """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
     import torch
@@ -1035,14 +1046,10 @@ def run(args: argparse.Namespace) -> int:
                              config, args.posenet)
         summary = run_.run(out_dir, command_line(args))
     mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
-    print(f"{summary['trajectory']}: {summary['tracking_cycles']} tracking cycles at {summary['loop_rate_hz']} Hz, "
-          f"contact error {mean} +- {std} mm, compute {summary['compute_ms_median']} ms median; "
-          f"{'completed' if summary['completed'] else 'stopped: ' + summary['stop'] + ': ' + summary['stop_reason']}")
-    if "commands_outside_limits" in summary:
-        print(f"emulators' audit: {summary['commands_outside_limits']} commands outside the safety limits")
-    print(f"wrote {out_dir / 'log.csv'}, {out_dir / 'experiment.json'}, {out_dir / 'experiment.png'}")
-    return 0 if summary["completed"] else 1
+    return report_run(summary, out_dir, f"{summary['trajectory']}: {summary['tracking_cycles']} tracking cycles at "
+                      f"{summary['loop_rate_hz']} Hz, contact error {mean} +- {std} mm, compute "
+                      f"{summary['compute_ms_median']} ms median")
 
 
 __all__ = ["STOPS", "BaseToBase", "ExperimentConfig", "ExperimentError", "ExperimentRun", "LeaderPlan",
-           "follower_hover_pose", "prepare_arms", "run_on_rig", "run_tracking_rehearsal"]
+           "follower_hover_pose", "prepare_arms", "report_run", "run_on_rig", "run_tracking_rehearsal"]

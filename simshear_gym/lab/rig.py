@@ -44,7 +44,7 @@ from simshear_gym.lab.frames import (
     sensor_on_face,
 )
 from simshear_gym.real.camera import CameraError, PreprocessConfig, default_config
-from simshear_gym.real.hil import embed_in_frame
+from simshear_gym.real.hil import embed_in_frame, touch_face
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator, MotionRecord
 from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyError, SafetyLayer
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
@@ -55,7 +55,7 @@ from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
 from simshear_gym.sim.world import World
-from simshear_gym.transforms import invert, pose_from_matrix_fast
+from simshear_gym.transforms import invert
 
 
 @dataclass(frozen=True)
@@ -188,13 +188,9 @@ class RigCamera:
         """Place the scene for this frame: (the face frame the truth's target is carried by, penetration mm, in
         contact, the shear (6,) that conditions the translator)."""
         T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
-        stimuli.move(self.world, self._body, T_base_face, self._stimulus)
-        T_face_sensor = invert(T_base_face) @ T_base_sensor
-        penetration_mm = -float(T_face_sensor[2, 3])
-        on_face = (abs(T_face_sensor[0, 3]) <= self._half_extents_mm[0]
-                   and abs(T_face_sensor[1, 3]) <= self._half_extents_mm[1])
-        in_contact = bool(on_face and penetration_mm > 0.0)
-        shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_face_sensor), in_contact)
+        penetration_mm, in_contact, shear = touch_face(self.world, self._body, self._stimulus, T_base_face,
+                                                       T_base_sensor, self._half_extents_mm, self._T_work_face,
+                                                       self._tracker)
         return T_base_face, penetration_mm, in_contact, shear
 
     def _truth(self, time_s: float, flange: np.ndarray, sensor_mm: np.ndarray, target_mm: np.ndarray | None,

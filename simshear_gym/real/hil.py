@@ -88,6 +88,21 @@ class MovingSurfaceConfig:
         return velocity * min(max(time_s, 0.0), self.max_travel_mm / speed)
 
 
+def touch_face(world: World, body: int, stimulus: stimuli.Stimulus, T_base_face: np.ndarray, T_base_sensor: np.ndarray,
+               half_extents_mm: tuple[float, float], T_work_face: np.ndarray, tracker: ShearTracker
+               ) -> tuple[float, bool, np.ndarray]:
+    """Move the flat face's ``body`` to ``T_base_face`` and touch it with the sensor at ``T_base_sensor``:
+    (penetration mm, in contact (on the face's ``half_extents_mm`` and pressed in), the (6,) shear ``tracker``
+    gives for the sensor's pose in the work frame, ``T_work_face`` the face in it)."""
+    stimuli.move(world, body, T_base_face, stimulus)
+    T_face_sensor = invert(T_base_face) @ T_base_sensor
+    penetration_mm = -float(T_face_sensor[2, 3])
+    on_face = abs(T_face_sensor[0, 3]) <= half_extents_mm[0] and abs(T_face_sensor[1, 3]) <= half_extents_mm[1]
+    in_contact = bool(on_face and penetration_mm > 0.0)
+    shear = tracker.update(pose_from_matrix_fast(T_work_face @ T_face_sensor), in_contact)
+    return penetration_mm, in_contact, shear
+
+
 @dataclass(frozen=True)
 class ContactTruth:
     """What the simulation knows at one read (base frame, mm)."""
@@ -163,13 +178,9 @@ class SimSurfaceCamera:
             flange = np.asarray(self._flange_pose(), dtype=np.float64)[:4]
             T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
             T_base_face = self.T_base_face(time_s)
-            stimuli.move(self.world, self._body, T_base_face, self._stimulus)
-            T_face_sensor = invert(T_base_face) @ T_base_sensor
-            penetration_mm = -float(T_face_sensor[2, 3])
-            on_face = (abs(T_face_sensor[0, 3]) <= self._half_extents_mm[0]
-                       and abs(T_face_sensor[1, 3]) <= self._half_extents_mm[1])
-            in_contact = bool(on_face and penetration_mm > 0.0)
-            shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_face_sensor), in_contact)
+            penetration_mm, in_contact, shear = touch_face(self.world, self._body, self._stimulus, T_base_face,
+                                                           T_base_sensor, self._half_extents_mm, self._T_work_face,
+                                                           self._tracker)
             target_base = T_base_face[:3, :3] @ self._target_face_mm + T_base_face[:3, 3]
             error_mm = float(np.linalg.norm(T_base_sensor[:3, 3] - target_base))
             sim = self.tactip.render(T_base_sensor)
