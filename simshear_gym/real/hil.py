@@ -116,55 +116,47 @@ class ContactTruth:
     shear_sensor: np.ndarray
 
 
-class SimSurfaceCamera:
-    """A frame source rendering the simulated TacTip on a moving surface (see the module docstring).
+class SimTacTipCamera:
+    """What the simulated cameras share: the lock, the clock, the world with its TacTip, the history, the image
+    finishing and the frame. A subclass builds its scene and implements :meth:`_touch`; ``read()`` places the TacTip
+    at the arm's flange pose, asks ``_touch`` for the contact's shear and ground truth, renders and translates.
 
     Args:
         flange_pose: returns the arm's current flange pose ``(x, y, z mm, R deg)`` in its base frame.
-        start_flange_pose_mm_deg: the flange pose at which the sensor touches the surface at the reference depth.
-        config: the surface and its motion.
+        contact: the translator's contact type; ``translate``: False gives the raw sim image.
         mount: the TacTip on the flange (as the env's).
         raw_frame_layout: a preprocessing config to emit 640x480 frames for (the image fills its crop box);
             None: emit the 128 px tactile image itself.
         clock: monotonic time source, s.
     """
 
-    def __init__(self, flange_pose: Callable[[], object], start_flange_pose_mm_deg, config: MovingSurfaceConfig =
-                 MovingSurfaceConfig(), mount: TacTipMount = TacTipMount(),
-                 raw_frame_layout: PreprocessConfig | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, flange_pose: Callable[[], object], contact: str, translate: bool, mount: TacTipMount,
+                 raw_frame_layout: PreprocessConfig | None, clock: Callable[[], float], name: str) -> None:
         if not callable(flange_pose):
             raise ValueError(f"flange_pose must be callable, got {type(flange_pose).__name__}")
-        self.name = "simulated TacTip camera"
-        self.config = config
+        self.name = name
         self.mount = mount
         self.raw_frame_layout = raw_frame_layout
+        self._contact = contact
+        self._mode = "real" if translate else "sim"
         self._flange_pose = flange_pose
         self._clock = clock
         self._lock = threading.Lock()
         self._T_flange_sensor = mount.T_flange_sensor()
-        self._T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
-        self._T_work_face[2, 3] = SURFACE_DEPTH_MM
-        start = np.asarray(start_flange_pose_mm_deg, dtype=np.float64)
-        T_base_sensor = pose_to_T_base_flange(start) @ self._T_flange_sensor
-        T_work_sensor = pose_to_matrix(np.array([0.0, 0.0, config.reference_depth_mm, 0.0, 0.0, 0.0]))
-        # T_base_sensor = T_base_face @ T_face_work @ T_work_sensor
-        self._T_base_face_start = T_base_sensor @ invert(T_work_sensor) @ self._T_work_face
-        self._target_face_mm = (invert(self._T_base_face_start) @ T_base_sensor)[:3, 3]
-        self._half_extents_mm = (config.size_mm[0] / 2.0, config.size_mm[1] / 2.0)
-        self._stimulus = stimuli.FlatSurface(size_mm=config.size_mm)
         self.world = World()
         self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
-        self._body = stimuli.spawn(self.world, self._stimulus, self._T_base_face_start)
-        self._tracker = ShearTracker()
         self._t0: float | None = None
         self._closed = False
         self.history: list[ContactTruth] = []
 
-    def T_base_face(self, time_s: float) -> np.ndarray:
-        """The surface's face frame in the base frame at ``time_s`` after the first read."""
-        T = self._T_base_face_start.copy()
-        T[:3, 3] += self.config.offset_at(time_s)
-        return T
+    def T_base_sensor_at(self, flange_pose_mm_deg) -> np.ndarray:
+        """The TacTip's pose in the base frame for a flange pose."""
+        return pose_to_T_base_flange(np.asarray(flange_pose_mm_deg, dtype=np.float64)[:4]) @ self._T_flange_sensor
+
+    def _touch(self, time_s: float, flange: np.ndarray, T_base_sensor: np.ndarray
+               ) -> tuple[np.ndarray, ContactTruth]:
+        """Move the scene to ``time_s`` and touch it with the sensor: (the (6,) sensor-frame shear, the truth)."""
+        raise NotImplementedError
 
     def read(self) -> np.ndarray:
         """The tactile image (uint8 128x128, or a 640x480 frame with ``raw_frame_layout``) at the arm's pose now."""
@@ -174,20 +166,12 @@ class SimSurfaceCamera:
             now = self._clock()
             if self._t0 is None:
                 self._t0 = now
-            time_s = now - self._t0
             flange = np.asarray(self._flange_pose(), dtype=np.float64)[:4]
-            T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
-            T_base_face = self.T_base_face(time_s)
-            penetration_mm, in_contact, shear = touch_face(self.world, self._body, self._stimulus, T_base_face,
-                                                           T_base_sensor, self._half_extents_mm, self._T_work_face,
-                                                           self._tracker)
-            target_base = T_base_face[:3, :3] @ self._target_face_mm + T_base_face[:3, 3]
-            error_mm = float(np.linalg.norm(T_base_sensor[:3, 3] - target_base))
+            T_base_sensor = self.T_base_sensor_at(flange)
+            shear, truth = self._touch(now - self._t0, flange, T_base_sensor)
             sim = self.tactip.render(T_base_sensor)
-            mode = "real" if self.config.translate else "sim"
-            image = finish_tactile(sim[None], shear[None], mode, RENDER_SIZE_PX, self.config.contact)[0]
-            self.history.append(ContactTruth(time_s, flange, T_base_face[:3, 3] - self._T_base_face_start[:3, 3],
-                                             penetration_mm, in_contact, error_mm, shear.copy()))
+            image = finish_tactile(sim[None], shear[None], self._mode, RENDER_SIZE_PX, self._contact)[0]
+            self.history.append(truth)
         if self.raw_frame_layout is None:
             return image
         return embed_in_frame(image, self.raw_frame_layout)
@@ -198,11 +182,57 @@ class SimSurfaceCamera:
                 self._closed = True
                 self.world.close()
 
-    def __enter__(self) -> SimSurfaceCamera:
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc_info: object) -> None:
         self.close()
+
+
+class SimSurfaceCamera(SimTacTipCamera):
+    """A frame source rendering the simulated TacTip on a moving surface (see the module docstring).
+
+    Args:
+        flange_pose: returns the arm's current flange pose ``(x, y, z mm, R deg)`` in its base frame.
+        start_flange_pose_mm_deg: the flange pose at which the sensor touches the surface at the reference depth.
+        config: the surface and its motion.
+        mount, raw_frame_layout, clock: see :class:`SimTacTipCamera`.
+    """
+
+    def __init__(self, flange_pose: Callable[[], object], start_flange_pose_mm_deg, config: MovingSurfaceConfig =
+                 MovingSurfaceConfig(), mount: TacTipMount = TacTipMount(),
+                 raw_frame_layout: PreprocessConfig | None = None, clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__(flange_pose, config.contact, config.translate, mount, raw_frame_layout, clock,
+                         "simulated TacTip camera")
+        self.config = config
+        self._T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
+        self._T_work_face[2, 3] = SURFACE_DEPTH_MM
+        T_base_sensor = self.T_base_sensor_at(start_flange_pose_mm_deg)
+        T_work_sensor = pose_to_matrix(np.array([0.0, 0.0, config.reference_depth_mm, 0.0, 0.0, 0.0]))
+        # T_base_sensor = T_base_face @ T_face_work @ T_work_sensor
+        self._T_base_face_start = T_base_sensor @ invert(T_work_sensor) @ self._T_work_face
+        self._target_face_mm = (invert(self._T_base_face_start) @ T_base_sensor)[:3, 3]
+        self._half_extents_mm = (config.size_mm[0] / 2.0, config.size_mm[1] / 2.0)
+        self._stimulus = stimuli.FlatSurface(size_mm=config.size_mm)
+        self._body = stimuli.spawn(self.world, self._stimulus, self._T_base_face_start)
+        self._tracker = ShearTracker()
+
+    def T_base_face(self, time_s: float) -> np.ndarray:
+        """The surface's face frame in the base frame at ``time_s`` after the first read."""
+        T = self._T_base_face_start.copy()
+        T[:3, 3] += self.config.offset_at(time_s)
+        return T
+
+    def _touch(self, time_s: float, flange: np.ndarray, T_base_sensor: np.ndarray
+               ) -> tuple[np.ndarray, ContactTruth]:
+        T_base_face = self.T_base_face(time_s)
+        penetration_mm, in_contact, shear = touch_face(self.world, self._body, self._stimulus, T_base_face,
+                                                       T_base_sensor, self._half_extents_mm, self._T_work_face,
+                                                       self._tracker)
+        target_base = T_base_face[:3, :3] @ self._target_face_mm + T_base_face[:3, 3]
+        error_mm = float(np.linalg.norm(T_base_sensor[:3, 3] - target_base))
+        return shear, ContactTruth(time_s, flange, T_base_face[:3, 3] - self._T_base_face_start[:3, 3],
+                                   penetration_mm, in_contact, error_mm, shear.copy())
 
 
 def embed_in_frame(image: np.ndarray, layout: PreprocessConfig, frame_size_px: tuple[int, int] = RAW_FRAME_SIZE_PX

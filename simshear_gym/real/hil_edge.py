@@ -19,23 +19,19 @@ distance from the edge, as the env's) and advances :attr:`SimEdgeCamera.progress
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from simshear_gym.contract import RENDER_SIZE_PX, TacTipMount, finish_tactile
+from simshear_gym.contract import TacTipMount
 from simshear_gym.envs.edge_follow import EDGE_GEOMETRY, EDGE_SHEAR
-from simshear_gym.real.camera import CameraError, PreprocessConfig
-from simshear_gym.real.hil import ContactTruth, embed_in_frame
-from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
+from simshear_gym.real.camera import PreprocessConfig
+from simshear_gym.real.hil import ContactTruth, SimTacTipCamera
 from simshear_gym.sim.contours import OUTLINES, Contour, ContourObject, edge_contact, spawn_contour_object
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker
-from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.world import World
 from simshear_gym.transforms import invert, pose_from_matrix_fast, pose_to_matrix
 
 
@@ -68,92 +64,50 @@ class EdgeObjectConfig:
         ContourObject(self.outline, self.size_mm)  # checks the size
 
 
-class SimEdgeCamera:
+class SimEdgeCamera(SimTacTipCamera):
     """A frame source rendering the simulated TacTip over a flat object's edge (see the module docstring).
 
     Args:
         flange_pose: returns the arm's current flange pose ``(x, y, z mm, R deg)`` in its base frame.
         start_flange_pose_mm_deg: the flange pose at which the sensor sits on the edge at the reference depth.
         config: the object.
-        mount: the TacTip on the flange (as the env's).
-        raw_frame_layout: a preprocessing config to emit 640x480 frames for; None: the 128 px tactile image.
-        clock: monotonic time source, s.
+        mount, raw_frame_layout, clock: see :class:`~simshear_gym.real.hil.SimTacTipCamera`.
     """
 
     def __init__(self, flange_pose: Callable[[], object], start_flange_pose_mm_deg,
                  config: EdgeObjectConfig = EdgeObjectConfig(), mount: TacTipMount = TacTipMount(),
                  raw_frame_layout: PreprocessConfig | None = None, clock: Callable[[], float] = time.monotonic) -> None:
-        if not callable(flange_pose):
-            raise ValueError(f"flange_pose must be callable, got {type(flange_pose).__name__}")
-        self.name = "simulated TacTip camera (edge)"
+        super().__init__(flange_pose, "edge", config.translate, mount, raw_frame_layout, clock,
+                         "simulated TacTip camera (edge)")
         self.config = config
-        self.mount = mount
-        self.raw_frame_layout = raw_frame_layout
-        self._flange_pose = flange_pose
-        self._clock = clock
-        self._lock = threading.Lock()
-        self._T_flange_sensor = mount.T_flange_sensor()
         self._T_work_edge = EDGE_GEOMETRY.T_work_stimulus()
         self._T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])  # the object's top face, the labels' surface frame
         self._T_work_face[2, 3] = SURFACE_DEPTH_MM
         self.contour = Contour(ContourObject(config.outline, config.size_mm))
         point, tangent = self.contour.point_at(config.start_arc_mm)
         label = pose_to_matrix(np.array([0.0, EDGE_GEOMETRY.edge_y_mm, config.reference_depth_mm, 0.0, 0.0, 0.0]))
-        T_base_sensor = pose_to_T_base_flange(np.asarray(start_flange_pose_mm_deg, dtype=np.float64)) \
-            @ self._T_flange_sensor
         # T_base_sensor = T_base_object @ T_object_edge @ T_edge_work @ label
-        self.T_base_object = T_base_sensor @ invert(label) @ self._T_work_edge @ invert(
-            self.contour.T_object_edge(point, tangent))
+        self.T_base_object = self.T_base_sensor_at(start_flange_pose_mm_deg) @ invert(label) @ self._T_work_edge \
+            @ invert(self.contour.T_object_edge(point, tangent))
         self._T_object_base = invert(self.T_base_object)
-        self.world = World()
-        self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
         spawn_contour_object(self.world, self.contour, self.T_base_object)
         self._tracker = ShearTracker(EDGE_SHEAR)
-        self._t0: float | None = None
         self._arc_mm: float | None = None
-        self._closed = False
         self.progress_mm = 0.0
         """How far along the edge (clockwise, seen from above) the sensor has gone since the first read, mm."""
-        self.history: list[ContactTruth] = []
 
-    def read(self) -> np.ndarray:
-        """The tactile image (uint8 128x128, or a 640x480 frame with ``raw_frame_layout``) at the arm's pose now."""
-        with self._lock:
-            if self._closed:
-                raise CameraError(f"{self.name}: read() after close()")
-            now = self._clock()
-            if self._t0 is None:
-                self._t0 = now
-            flange = np.asarray(self._flange_pose(), dtype=np.float64)[:4]
-            T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
-            T_object_sensor = self._T_object_base @ T_base_sensor
-            edge = edge_contact(self.contour, T_object_sensor, self._T_work_edge, EDGE_GEOMETRY.edge_y_mm)
-            in_contact = edge.touches(self.tactip.config.dome_radius_mm)
-            shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_object_sensor), in_contact)
-            if self._arc_mm is not None:
-                half = self.contour.perimeter_mm / 2.0
-                self.progress_mm += (self._arc_mm - edge.arc_mm + half) % self.contour.perimeter_mm - half
-            self._arc_mm = edge.arc_mm
-            sim = self.tactip.render(T_base_sensor)
-            mode = "real" if self.config.translate else "sim"
-            image = finish_tactile(sim[None], shear[None], mode, RENDER_SIZE_PX, "edge")[0]
-            self.history.append(ContactTruth(now - self._t0, flange, np.zeros(3), edge.penetration_mm, in_contact,
-                                             abs(edge.offset_mm), shear.copy()))
-        if self.raw_frame_layout is None:
-            return image
-        return embed_in_frame(image, self.raw_frame_layout)
-
-    def close(self) -> None:
-        with self._lock:
-            if not self._closed:
-                self._closed = True
-                self.world.close()
-
-    def __enter__(self) -> SimEdgeCamera:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
+    def _touch(self, time_s: float, flange: np.ndarray, T_base_sensor: np.ndarray
+               ) -> tuple[np.ndarray, ContactTruth]:
+        T_object_sensor = self._T_object_base @ T_base_sensor
+        edge = edge_contact(self.contour, T_object_sensor, self._T_work_edge, EDGE_GEOMETRY.edge_y_mm)
+        in_contact = edge.touches(self.tactip.config.dome_radius_mm)
+        shear = self._tracker.update(pose_from_matrix_fast(self._T_work_face @ T_object_sensor), in_contact)
+        if self._arc_mm is not None:
+            half = self.contour.perimeter_mm / 2.0
+            self.progress_mm += (self._arc_mm - edge.arc_mm + half) % self.contour.perimeter_mm - half
+        self._arc_mm = edge.arc_mm
+        return shear, ContactTruth(time_s, flange, np.zeros(3), edge.penetration_mm, in_contact,
+                                   abs(edge.offset_mm), shear.copy())
 
 
 __all__ = ["EdgeObjectConfig", "SimEdgeCamera"]
