@@ -69,6 +69,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "closed-loop tracking and co-lift benchmarks of the tactile servo controller"),
     (("evaluate", "edge-follow"), "simshear_gym.evaluate.edge_follow",
      "edge following on SimShearEdgeFollow-v0: the edge servo (translated images, edge GDNN) once round four outlines"),
+    (("evaluate", "push"), "simshear_gym.evaluate.push",
+     "pushing on SimShearPush-v0: the push servo (translated images, surface GDNN) with and without its shear term"),
     (("evaluate", "servo6d"), "simshear_gym.evaluate.servo6d",
      "6-DoF servo (Panda) against the 4-DoF MG400 servo on the tilting plate of SimShearTracking6D-v0"),
     (("evaluate", "env-speed"), "simshear_gym.evaluate.env_speed",

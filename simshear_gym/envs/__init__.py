@@ -11,6 +11,9 @@ until ``gymnasium.make``):
 - ``SimShearTracking6D-v0`` (:class:`simshear_gym.envs.tracking6d.SimShearTracking6DEnv`), 500 steps per episode: a
   tilting plate, a 6-DoF (Panda) follower; gymnasium's own vector envs (not in :data:`ENV_IDS`, the envs with the
   batched one).
+- ``SimShearPush-v0`` (:class:`simshear_gym.envs.push.SimShearPushEnv`), 800 steps per episode: push an object to a
+  target along a straight path (a horizontal TacTip); gymnasium's own vector envs (its ``goal`` observation is not
+  in the batched env's yet).
 """
 
 from gymnasium.envs.registration import register, registry
@@ -46,4 +49,11 @@ if "SimShearEdgeFollow-v0" not in registry:
         entry_point="simshear_gym.envs.edge_follow:SimShearEdgeFollowEnv",
         vector_entry_point="simshear_gym.envs.edge_follow:make_edge_follow_vector_env",
         max_episode_steps=1000,
+    )
+
+if "SimShearPush-v0" not in registry:
+    register(
+        id="SimShearPush-v0",
+        entry_point="simshear_gym.envs.push:SimShearPushEnv",
+        max_episode_steps=800,
     )

@@ -16,11 +16,12 @@ How a task plugs in (``SimShearTracking-v0`` in :mod:`simshear_gym.envs.tracking
 - ``_sync_scene()``: move bodies that follow arms (a held plate or object) to where the arms now are.
 - ``_T_world_face()``: the touched face's frame (origin on the face, z out of the face, like a stimulus frame).
 
-Optionally override ``_task_info()`` (extra info entries), ``_reward``/``_termination``, and for a horizontal
-sensor (co-lift) ``_sensor_target`` (the action's rotation about the vertical, as a level flange allows) and
-``_oracle_variables`` (which four pose/shear variables the oracle sees), passing the horizontal mount to
-``_add_follower``. Everything else (actions, observations and translation, shear, contact error, reward,
-termination, render, pickling, the batched vector env of :mod:`simshear_gym.envs.vector`) comes with the base.
+Optionally override ``_task_info()`` (extra info entries), ``_reward``/``_termination`` and ``_oracle_variables``
+(which four pose/shear variables the oracle sees). A horizontal sensor (co-lift, pushing) passes a
+:class:`~simshear_gym.contract.HorizontalTacTipMount` as ``mount``: the action's turn is then about the vertical,
+as a level flange allows (``_sensor_target``). Everything else (actions, observations and translation, shear,
+contact error, reward, termination, render, pickling, the batched vector env of :mod:`simshear_gym.envs.vector`)
+comes with the base.
 
 Frames: the **sensor** frame is the TacTip's (apex origin, +z out of the dome into the face); the **work** frame
 of a face is the labels' frame (z into the face, at the face plus ``ReplayGeometry.surface_depth_mm``), so the
@@ -51,6 +52,7 @@ from simshear_gym.contract import (
     TRANSLATED_MODES,
     TRUE_POSE_SHEAR_LIMIT,
     ActionScale,
+    HorizontalTacTipMount,
     TacTipMount,
     action_space,
     action_to_move,
@@ -310,8 +312,14 @@ class SimShearEnv(gym.Env, EzPickle):
 
     def _sensor_target(self, T_world_sensor: np.ndarray, move: np.ndarray) -> np.ndarray:
         """Where a scaled action ``(dx, dy, dz mm, dRz deg)`` sends the sensor: a move in the sensor frame and a
-        turn about its axis (vertical for a downward sensor). A horizontal-sensor task overrides this to turn
-        about the vertical instead, the only rotation a level MG400 flange has."""
+        turn about its axis (vertical for a downward sensor); a horizontal sensor
+        (:class:`~simshear_gym.contract.HorizontalTacTipMount`) turns about the vertical through the apex instead,
+        the only rotation a level MG400 flange has."""
+        if isinstance(self.mount, HorizontalTacTipMount):
+            target = T_world_sensor.copy()
+            target[:3, 3] += T_world_sensor[:3, :3] @ move[:3]
+            target[:3, :3] = rz_matrix(move[3])[:3, :3] @ T_world_sensor[:3, :3]
+            return target
         T_move = rz_matrix(move[3])
         T_move[:3, 3] = move[:3]
         return T_world_sensor @ T_move

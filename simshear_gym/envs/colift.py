@@ -348,13 +348,6 @@ class SimShearCoLiftEnv(SimShearEnv):
     def _T_world_face(self) -> np.ndarray:
         return self.leader.T_world_tool() @ self._T_plate_face
 
-    def _sensor_target(self, T_world_sensor: np.ndarray, move: np.ndarray) -> np.ndarray:
-        """Move in the sensor frame, then turn about the vertical through the apex (a level flange's only turn)."""
-        target = T_world_sensor.copy()
-        target[:3, 3] += T_world_sensor[:3, :3] @ move[:3]
-        target[:3, :3] = rz_matrix(move[3])[:3, :3] @ T_world_sensor[:3, :3]
-        return target
-
     def _measure(self) -> ContactState:
         """The base's measures relative to the object's face as carried by the plate (depth, contact error), with
         the physical contact and the shear over the object itself from the scene."""

@@ -203,23 +203,31 @@ def _thin(curve: np.ndarray, max_sag_mm: float) -> np.ndarray:
 def spawn_contour_object(world: World, contour: Contour, T_world_object: np.ndarray) -> int:
     """The object as a static visual body (the TacTip's renderer sees visual shapes): its top face (a fan from the
     centre, which the outline is star-shaped about) and side walls; returns its id."""
+    return spawn_extruded(world, contour.points_mm, contour.spec.height_mm, T_world_object)
+
+
+def spawn_extruded(world: World, points_mm: np.ndarray, height_mm: float, T_world_object: np.ndarray,
+                   rgba: tuple[float, float, float, float] = (0.7, 0.7, 0.7, 1.0)) -> int:
+    """A static visual body extruded from a closed outline (``points_mm`` (N, 2), counter-clockwise, star-shaped
+    about the origin): its top face at z = 0 (a fan from the origin) and side walls down to ``-height_mm``; returns
+    its id."""
     import pybullet
 
-    points = contour.points_mm
+    points = np.asarray(points_mm, dtype=np.float64)
     count = len(points)
-    height = contour.spec.height_mm
     vertices = np.vstack([[0.0, 0.0, 0.0], np.c_[points, np.zeros(count)],
-                          np.c_[points, np.full(count, -height)]]) / 1000.0
+                          np.c_[points, np.full(count, -float(height_mm))]]) / 1000.0
     indices = []
     for i in range(count):
         j = (i + 1) % count
         indices += [0, 1 + i, 1 + j, 1 + i, 1 + count + i, 1 + j, 1 + j, 1 + count + i, 1 + count + j]
     client = world.client
     visual = client.createVisualShape(pybullet.GEOM_MESH, vertices=vertices.tolist(), indices=indices,
-                                      rgbaColor=[0.7, 0.7, 0.7, 1.0])
+                                      rgbaColor=list(rgba))
     position_m, quaternion = matrix_to_pybullet(np.asarray(T_world_object, dtype=np.float64))
     return client.createMultiBody(baseMass=0.0, baseVisualShapeIndex=visual, basePosition=position_m,
                                   baseOrientation=quaternion)
 
 
-__all__ = ["OUTLINES", "Contour", "ContourObject", "EdgeContact", "edge_contact", "spawn_contour_object"]
+__all__ = ["OUTLINES", "Contour", "ContourObject", "EdgeContact", "edge_contact", "spawn_contour_object",
+           "spawn_extruded"]

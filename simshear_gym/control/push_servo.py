@@ -1,0 +1,246 @@
+"""Pushing by touch: keep the TacTip square to the pushed face, steer the object onto its path, correct with shear.
+
+State (``SimShearPush-v0``'s oracle holds the same, with the path's bearing)::
+
+    (depth mm, shear x mm, face yaw deg)
+
+``depth``: the labels' z; ``shear x``: the skin's stretch along the face (sensor x, horizontal); ``face yaw``: the
+face's turn against the sensor about the vertical (the surface labels' Ry). The task's ``goal`` (the env's
+observation: the target and the path's direction in the sensor frame, from the arm's pose) gives the rest.
+
+The law, per step, in the sensor frame (z the pushing direction, x along the face), after the published
+pose-based pushing controllers (a normal-alignment term and a target-alignment term):
+
+* estimate the object's centre ``half_width_mm`` ahead of the apex; aim at the point of the path (produced
+  past the target) ``lookahead_mm`` ahead of the centre's projection on it (pure pursuit); ``bearing`` = the
+  aim's angle from the sensor's axis (+ towards sensor +x), ``side`` = the path's distance from the centre;
+* ``dRz = k_yaw * face_yaw`` turns the sensor square to the face (its axis along the face's normal);
+* ``dx = -k_bearing * bearing - ki_side * sum(side) - k_shear * shear_x`` moves the sensor across the push: the
+  object, held by the skin, is dragged and turned with it; pushing off the object's centre of pressure turns it
+  away from the contact's side, so a move towards -x turns the push towards +x (the other sign diverges). The
+  shear, the skin's stretch, is the tangential force on the object: it shows which way the object turns before
+  the face's yaw does;
+* ``dz = step_mm``: push on at the set speed (the indentation follows from the object's friction).
+
+:class:`PushServoController` reads (depth, shear, face yaw) from the tactile image with the surface GDNN and the
+Bayesian filter (:class:`~simshear_gym.control.servo6d.TiltEstimator`: depth, shear x, y, Rz, Rx, Ry);
+:class:`PushOracleController` from the oracle. ``use_shear=False`` is the ablation: the same law with the shear
+term off.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from simshear_gym.contract import ActionScale
+from simshear_gym.control.estimator import EstimatorConfig
+from simshear_gym.control.policy import as_action_scale
+
+
+@dataclass(frozen=True)
+class PushGains:
+    """Gains of :class:`PushLaw`.
+
+    Attributes:
+        k_yaw: turn per degree of face yaw (deg/deg), the normal alignment.
+        k_bearing: slide along the face per degree of bearing to the aim point (mm/deg).
+        k_shear: slide along the face per mm of shear (mm/mm); 0: the ablation without shear.
+        ki_side: slide per mm of the path side's running sum (mm per mm step): an object pushed off its centre of
+            pressure needs a steady slide to go straight, which leaves the bearing near zero off the path; the
+            integral of the centre's distance from the path supplies it.
+        integral_limit_mm: the integral term's largest slide per step.
+        max_slide_mm: the largest move across the push per step (a larger one drags the object off sideways).
+        align_deg: the push slows by ``|face yaw| / align_deg`` (to a fifth at most): square up first.
+        lookahead_mm: how far ahead along the path the law aims.
+        half_width_mm: the object's nominal half width (its centre this far ahead of the apex).
+    """
+
+    k_yaw: float = 1.0
+    k_bearing: float = 0.05
+    k_shear: float = 0.3
+    ki_side: float = 0.0005
+    integral_limit_mm: float = 0.5
+    max_slide_mm: float = 1.0
+    align_deg: float = 1e9
+    k_shear_centre: float = 0.0
+    lookahead_mm: float = 40.0
+    half_width_mm: float = 25.0
+
+    def __post_init__(self) -> None:
+        for name in ("k_yaw", "k_bearing", "k_shear", "ki_side", "integral_limit_mm", "k_shear_centre"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and abs(value) <= 50.0):
+                raise ValueError(f"PushGains.{name} must be finite and within +-2, got {value!r}")
+        if not (self.lookahead_mm > 0 and self.half_width_mm >= 0 and self.max_slide_mm > 0 and self.align_deg > 0):
+            raise ValueError(f"PushGains: lookahead_mm > 0 and half_width_mm >= 0, got {self}")
+
+
+def aim_bearing_deg(goal: np.ndarray, half_width_mm: float, lookahead_mm: float,
+                    centre_x_mm: float = 0.0) -> tuple[float, float]:
+    """(bearing deg, path side mm) from ``goal`` (target x, z mm and the path's direction x, z in the sensor frame):
+    the bearing (+ towards sensor +x) from the sensor's axis to the path's point ``lookahead_mm`` ahead of the
+    object's estimated centre (``half_width_mm`` ahead of the apex), the path produced past the target so the aim
+    does not swing at the end; the path side: how far the path lies from the centre, + towards sensor +x."""
+    target = np.array([goal[0], goal[1]], dtype=np.float64)
+    direction = np.array([goal[2], goal[3]], dtype=np.float64)
+    direction /= max(float(np.linalg.norm(direction)), 1e-9)
+    centre = np.array([centre_x_mm, half_width_mm])
+    projection = target - float((target - centre) @ direction) * direction
+    aim = projection + lookahead_mm * direction
+    to_path = projection - centre
+    side = float(np.sign(to_path[0]) * np.linalg.norm(to_path))
+    return math.degrees(math.atan2(aim[0] - centre[0], aim[1] - centre[1])), side
+
+
+class PushLaw:
+    """(depth, shear x, face yaw) and the goal -> action in [-1, 1]^4: the law of the module docstring."""
+
+    def __init__(self, action_scale: np.ndarray, step_mm: float, gains: PushGains = PushGains(),
+                 use_shear: bool = True) -> None:
+        self._scale = np.asarray(action_scale, dtype=np.float64)
+        if self._scale.shape != (4,) or not np.all(self._scale > 0):
+            raise ValueError(f"action_scale must be 4 positive full-scale moves, got {action_scale}")
+        if not (math.isfinite(step_mm) and 0.0 <= step_mm <= self._scale[2]):
+            raise ValueError(f"the push per step must be in [0, {self._scale[2]:g}] mm (the action's full scale), "
+                             f"got {step_mm!r}")
+        self.step_mm = float(step_mm)
+        self.gains = gains
+        self.use_shear = bool(use_shear)
+        self._integral = 0.0
+
+    def reset(self) -> None:
+        self._integral = 0.0
+
+    def __call__(self, state: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        values = np.asarray(state, dtype=np.float64)
+        goal = np.asarray(goal, dtype=np.float64)
+        if values.shape != (3,) or not np.all(np.isfinite(values)):
+            raise ValueError(f"state must be 3 finite values (depth mm, shear x mm, face yaw deg), got {values}")
+        if goal.shape != (4,) or not np.all(np.isfinite(goal)):
+            raise ValueError(f"goal must be 4 finite values (target x, z mm, path direction x, z), got {goal}")
+        depth, shear_x, face_yaw = values
+        g = self.gains
+        centre_x = 0.0
+        if self.use_shear and g.k_shear_centre:
+            centre_x = min(max(g.k_shear_centre * shear_x / max(depth - 2.2, 0.2), -10.0), 10.0)
+        bearing, side_mm = aim_bearing_deg(goal, g.half_width_mm, g.lookahead_mm, centre_x)
+        if g.ki_side > 0:
+            limit = g.integral_limit_mm / g.ki_side
+            self._integral = min(max(self._integral + side_mm, -limit), limit)
+        dx = (-g.k_bearing * bearing - g.ki_side * self._integral
+              - (g.k_shear * shear_x if self.use_shear else 0.0))
+        dx = min(max(dx, -g.max_slide_mm), g.max_slide_mm)
+        dz = self.step_mm * max(0.2, 1.0 - abs(face_yaw) / g.align_deg)
+        move = np.array([dx, 0.0, dz, g.k_yaw * face_yaw])
+        return np.clip(move / self._scale, -1.0, 1.0).astype(np.float32)
+
+
+def _push_estimator(config: EstimatorConfig):
+    """The surface GDNN + filter over (depth, shear x, y, Rz, Rx, Ry) with the pushing motion model: the sensor's
+    turn about the vertical turns the face's yaw (Ry) back by as much; a push or a slide moves the object too (how
+    much, its friction decides), so depth and shear are left to the readings (a random walk)."""
+    from simshear_gym.control.servo6d import TiltEstimator
+
+    class PushEstimator(TiltEstimator):
+        @staticmethod
+        def _state_delta(commanded_move: np.ndarray) -> np.ndarray:
+            return np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(commanded_move[3])])
+
+    return PushEstimator(config)
+
+
+def _check_goal(observation: dict, who: str) -> np.ndarray:
+    if "goal" not in observation:
+        raise ValueError(f"{who} needs the observation's 'goal' (SimShearPush-v0's); got {sorted(observation)}")
+    return np.asarray(observation["goal"], dtype=np.float64)
+
+
+class PushServoController:
+    """Tactile image and goal -> action: the surface GDNN + filter (depth, shear x, face yaw), then
+    :class:`PushLaw`. Call :meth:`reset` per episode.
+
+    Args:
+        action_scale: the env's :class:`~simshear_gym.contract.ActionScale`.
+        step_mm: the push per step (the env's speed over its control rate).
+        gains: :class:`PushGains`.
+        use_shear: False: the law without its shear term (the ablation).
+        estimator: the GDNN (``posenet``; None: the shipped ``surface`` one) and the filter's settings.
+    """
+
+    name = "push_servo"
+    state_names: tuple[str, ...] = ("depth_mm", "shear_x_mm", "face_yaw_deg")
+
+    def __init__(self, action_scale: ActionScale = ActionScale(), step_mm: float = 0.5,
+                 gains: PushGains = PushGains(), use_shear: bool = True,
+                 estimator: EstimatorConfig = EstimatorConfig()) -> None:
+        self.action_scale = as_action_scale(action_scale, "PushServoController")
+        self._scale = self.action_scale.as_array()
+        self.estimator = _push_estimator(estimator)
+        self.law = PushLaw(self._scale, step_mm, gains, use_shear)
+        self.name = "push_servo" if use_shear else "push_servo_no_shear"
+        self._last_move: np.ndarray | None = None
+        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
+
+    @classmethod
+    def for_env(cls, env, gains: PushGains = PushGains(), use_shear: bool = True,
+                estimator: EstimatorConfig = EstimatorConfig()) -> PushServoController:
+        """A controller matched to a pushing env's action scale, speed and GDNN."""
+        from dataclasses import replace
+
+        base = env.unwrapped
+        if estimator.posenet is None and base.estimator_posenet.endswith(".pt"):  # a sensor's own GDNN
+            estimator = replace(estimator, posenet=base.estimator_posenet)
+        if estimator.process_std_mm is None:
+            estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
+        return cls(base.action_scale, base.speed_mm_s * base.dt_s, gains, use_shear, estimator)
+
+    def reset(self) -> None:
+        self.estimator.reset()
+        self.law.reset()
+        self._last_move = None
+        self.last_estimate = None
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        if "tactile" not in observation:
+            raise ValueError(f"the push servo controller needs the observation's 'tactile' image; got "
+                             f"{sorted(observation)}")
+        goal = _check_goal(observation, "the push servo controller")
+        mean, std = self.estimator(observation["tactile"], self._last_move)
+        # TiltEstimator's state: depth, shear x, y, Rz, Rx, Ry
+        state = np.array([mean[0], mean[1], mean[5]])
+        self.last_estimate = (state, np.array([std[0], std[1], std[5]]))
+        action = self.law(state, goal)
+        self._last_move = action.astype(np.float64) * self._scale
+        return action
+
+
+class PushOracleController:
+    """The oracle's true (depth, shear x, face yaw) (``obs_mode="oracle"`` of ``SimShearPush-v0``) into
+    :class:`PushLaw`: what the law does with a perfect reading."""
+
+    def __init__(self, action_scale: ActionScale = ActionScale(), step_mm: float = 0.5,
+                 gains: PushGains = PushGains(), use_shear: bool = True) -> None:
+        self.action_scale = as_action_scale(action_scale, "PushOracleController")
+        self.law = PushLaw(self.action_scale.as_array(), step_mm, gains, use_shear)
+        self.name = "push_oracle" if use_shear else "push_oracle_no_shear"
+
+    @classmethod
+    def for_env(cls, env, gains: PushGains = PushGains(), use_shear: bool = True) -> PushOracleController:
+        base = env.unwrapped
+        return cls(base.action_scale, base.speed_mm_s * base.dt_s, gains, use_shear)
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        if "true_pose_shear" not in observation:
+            raise ValueError("the push oracle needs obs_mode='oracle' (or 'oracle_real'): the observation has only "
+                             f"{sorted(observation)}")
+        depth, shear_x, face_yaw, _ = np.asarray(observation["true_pose_shear"], dtype=np.float64)
+        return self.law(np.array([depth, shear_x, face_yaw]), _check_goal(observation, "the push oracle"))
+
+
+__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "aim_bearing_deg"]
