@@ -18,7 +18,13 @@ import torch
 from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
-from simshear_gym.pipelines.export_policy import POLICY_WEIGHTS_DIR, SHIPPED_FILES, export, source_files
+from simshear_gym.pipelines.export_policy import (
+    ENV_MODELS,
+    POLICY_WEIGHTS_DIR,
+    SHIPPED_FILES,
+    export,
+    source_files,
+)
 from simshear_gym.train.rl import RLTrainConfig, train
 
 torch.set_num_threads(1)
@@ -97,14 +103,14 @@ def test_shipped_policies_load_in_their_env():
     """Every folder under models/weights/policies is a complete, pickle-free policy that loads against its own env,
     trained on the observations of the shipped translator and GDNN."""
     folders = sorted(p for p in POLICY_WEIGHTS_DIR.glob("*") if p.is_dir()) if POLICY_WEIGHTS_DIR.is_dir() else []
-    assert {folder.name for folder in folders} >= {"tracking_ppo", "colift_ppo"}
+    assert {folder.name for folder in folders} >= {"tracking_ppo", "colift_ppo", "edge_ppo"}
     for folder in folders:
         assert {p.name for p in folder.iterdir()} == set(SHIPPED_FILES), folder  # no pickle
         assert (folder / "model.pt").stat().st_size <= 10 * 2**20, folder
         # a new shipped translator or GDNN ships with the policies retrained on its observations
         assert stale_estimator_models(folder / "model.pt") == [], folder
         settings = PolicySettings.of_model(folder / "model.pt")
-        env_id = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0"}[settings.task]
+        env_id = ENV_MODELS[settings.task][0]
         env = gym.make(env_id, **env_kwargs(settings))
         controller = SB3Controller.for_env(folder / "model.pt", env)
         observation, _ = env.reset(seed=0)

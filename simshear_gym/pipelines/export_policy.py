@@ -27,6 +27,7 @@ from pathlib import Path
 
 from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.pipelines.ship import WEIGHTS_DIR
+from simshear_gym.train.rl_config import ended_early
 
 POLICY_WEIGHTS_DIR = WEIGHTS_DIR / "policies"
 """Where the package's policies live: ``policies/<name>/model.pt`` (+ ``model.json``) with its card ``model.md``."""
@@ -36,8 +37,10 @@ PICKLES = ("model.zip", "vecnormalize.pkl")
 CONVERTED = "- Converted to pickle-free files"
 """The pickle-bearing files of older shipped policies (removed by a conversion)."""
 MODEL_CHOICES = ("best", "final")
-ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift")}
-"""task -> (env id, the shipped GDNN its estimate observation reads)."""
+ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift"),
+              "edge": ("SimShearEdgeFollow-v0", "edge")}
+"""task -> (env id, the shipped GDNN its estimate observation reads; the translator is of the same contact: edge
+for the edge GDNN, surface otherwise)."""
 
 
 def source_files(run: Path, model: str) -> tuple[Path, Path | None]:
@@ -143,7 +146,9 @@ def model_hashes(task: str) -> dict[str, str]:
     from simshear_gym.control.policy import shipped_estimator_file
     from simshear_gym.models.translator_runtime import file_sha256
 
-    names = ("translator_shpix2pix_surface", f"posenet_{ENV_MODELS[task][1]}")
+    posenet = ENV_MODELS[task][1]
+    contact = "edge" if posenet == "edge" else "surface"
+    names = (f"translator_shpix2pix_{contact}", f"posenet_{posenet}")
     return {name: file_sha256(shipped_estimator_file(name)) for name in names}
 
 
@@ -192,7 +197,9 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
         "",
         files_line(to),
         f"- Date: {date}",
-        f"- Env: `{env_id}`, randomised episodes (random trajectories; scale, speed, turn and start drawn per reset), "
+        f"- Env: `{env_id}`, randomised episodes ("
+        + ("random outlines; size, start point, offset and turn" if config["task"] == "edge" else
+           "random trajectories; scale, speed, turn and start") + " drawn per reset), "
         f"`obs_mode={config['obs_mode']}` ({config['image_size_px']} px images through the shipped shPix2pix), "
         f"{config['n_envs']} sub-envs ({config['vec']}).",
         f"- Observation: {observation}; history {config['history']} frames"
@@ -218,11 +225,19 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
         lines += ["", f"## Training evaluation ({model} model)", "",
                   f"At {chosen['timesteps']} env steps ({chosen['wall_s'] / 60:.1f} min), the deterministic policy on "
                   f"the nominal episodes: mean contact error {chosen['contact_error_mean_mm']:.3f} mm, "
-                  f"{chosen['ended_early']} ended early; "
+                  f"{ended_early(chosen['episodes'])} ended early; "
                   + ", ".join(f"{name} {run['contact_error_mean_mm']:.3f} mm ({run['steps']} steps)"
                               for name, run in chosen["episodes"].items()) + "."]
     section = servo.get("results", {}).get(variant, {})
-    if section:
+    if section and servo.get("env") == "SimShearEdgeFollow-v0":
+        lines += ["", "## Closed loop (`simshear evaluate edge-follow`)", "", f"From `{servo.get('command')}`:", "",
+                  "| outline | laps | offset mean (mm) | worst run (mm) | max (mm) | depth error mean (mm) |",
+                  "|---|---|---|---|---|---|"]
+        for name, row in section.items():
+            lines.append(f"| {name} | {row['laps_completed']}/{row['runs']} | {row['offset_mean_mm']:.3f} | "
+                         f"{row['offset_mean_worst_run_mm']:.3f} | {row['offset_max_mm']:.2f} | "
+                         f"{row['depth_error_mean_mm']:.3f} |")
+    elif section:
         lines += ["", "## Closed loop (`simshear evaluate servo`)", "", f"From `{servo.get('command')}`:", "",
                   "| run | contact error mean +- std over runs (mm) | max (mm) | runs | ended early | contact losses "
                   "| drops |", "|---|---|---|---|---|---|---|"]

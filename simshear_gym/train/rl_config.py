@@ -146,3 +146,13 @@ def latest_checkpoint(run_dir: Path) -> Path | None:
     if found:
         return max(found)[1]
     return Path(run_dir) / "model.zip" if (Path(run_dir) / "model.zip").is_file() else None
+SUCCESS_TERMINATIONS: tuple[str, ...] = ("lap", "target")
+"""Terminations that are a task done (an edge lap, a push at its target), not an early end."""
+
+
+def ended_early(episodes: dict[str, dict]) -> int:
+    """How many evaluation episodes ended early (a termination other than a task's success)."""
+    return int(sum(bool(r["termination"]) and r["termination"] not in SUCCESS_TERMINATIONS
+                   for r in episodes.values()))
+
+

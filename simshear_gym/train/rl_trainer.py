@@ -41,7 +41,7 @@ from simshear_gym.control.servo import SERVO_GAINS
 from simshear_gym.io import atomic_write, write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.models.device import resolve_device
-from simshear_gym.train.rl_config import RESUME_FREE, RLTrainConfig, latest_checkpoint
+from simshear_gym.train.rl_config import RESUME_FREE, RLTrainConfig, ended_early, latest_checkpoint
 from simshear_gym.train.runs import check_same_settings
 
 TRACKING_EVAL = ("circle", "tilted_square", "spiral", "loop")
@@ -183,7 +183,7 @@ class EvaluationCallback(BaseCallback):
         errors = [r["contact_error_mean_mm"] for r in results.values()]
         record = {"timesteps": int(self.num_timesteps), "wall_s": round(time.perf_counter() - self.started, 1),
                   "contact_error_mean_mm": float(np.mean(errors)),
-                  "ended_early": int(sum(bool(r["termination"]) for r in results.values())), "episodes": results}
+                  "ended_early": ended_early(results), "episodes": results}
         for name, result in results.items():
             self.logger.record(f"eval/contact_error_mm/{name}", result["contact_error_mean_mm"])
             self.logger.record(f"eval/steps/{name}", result["steps"])
