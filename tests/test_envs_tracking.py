@@ -25,7 +25,7 @@ def make(obs_mode="sim", **kwargs):
 
 
 def test_every_env_id_is_registered_with_a_time_limit():
-    steps = {"SimShearEdgeFollow-v0": 1000}  # a lap at 5 mm/s: 37-75 s at 10 Hz
+    steps = {"SimShearEdgeFollow-v0": 1000, "SimShearPush-v0": 800}  # a lap at 5 mm/s: 37-75 s at 10 Hz; a push 60 s
     for env_id in ENV_IDS:
         spec = gym.spec(env_id)
         assert isinstance(spec.entry_point, str) and spec.max_episode_steps == steps.get(env_id, 500)

@@ -12,13 +12,12 @@ until ``gymnasium.make``):
   tilting plate, a 6-DoF (Panda) follower; gymnasium's own vector envs (not in :data:`ENV_IDS`, the envs with the
   batched one).
 - ``SimShearPush-v0`` (:class:`simshear_gym.envs.push.SimShearPushEnv`), 800 steps per episode: push an object to a
-  target along a straight path (a horizontal TacTip); gymnasium's own vector envs (its ``goal`` observation is not
-  in the batched env's yet).
+  target along a straight path (a horizontal TacTip); the same batched vector env.
 """
 
 from gymnasium.envs.registration import register, registry
 
-ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0", "SimShearEdgeFollow-v0")
+ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0", "SimShearEdgeFollow-v0", "SimShearPush-v0")
 
 if "SimShearTracking-v0" not in registry:
     register(
@@ -55,5 +54,6 @@ if "SimShearPush-v0" not in registry:
     register(
         id="SimShearPush-v0",
         entry_point="simshear_gym.envs.push:SimShearPushEnv",
+        vector_entry_point="simshear_gym.envs.push:make_push_vector_env",
         max_episode_steps=800,
     )

@@ -68,8 +68,9 @@ class SimShearPushEnv(SimShearEnv):
     (``"off_path"``), the dome 5 mm off the object (``"contact_lost"``), deeper than 4 mm (``"too_deep"``), an arm
     refusing a target (``"arm_limit"``). **Truncation**: ``max_episode_steps`` (800 = 80 s at 10 Hz).
 
-    ``info`` adds ``shape``, ``object_world_mm`` (x, y, yaw deg), ``target_world_mm``, ``target_distance_mm``,
-    ``path_deviation_mm``, ``progress_mm``, ``slipping``, ``mass_kg``, ``table_friction``, ``contact_friction``.
+    ``info`` adds ``shape``, ``object_world_mm`` (x, y, yaw deg), ``goal`` (as the observation's),
+    ``target_distance_mm``, ``path_deviation_mm``, ``progress_mm``, ``slipping``, ``mass_kg``, ``table_friction``,
+    ``contact_friction``.
 
     Args:
         shape: one of :data:`~simshear_gym.sim.pushing.PUSH_SHAPES` or ``"random"`` (one per reset).
@@ -345,6 +346,7 @@ class SimShearPushEnv(SimShearEnv):
     def _task_info(self) -> dict:
         obj = self.object
         return {"shape": obj.shape.name, "object_world_mm": np.array([*obj.pose[:2], math.degrees(obj.pose[2])]),
+                "goal": self.goal_in_sensor(self.follower.T_world_tool()),
                 "target_distance_mm": self.target_distance_mm(), "path_deviation_mm": self._state_deviation(),
                 "progress_mm": self._progress_mm, "slipping": obj.slipping, "mass_kg": obj.config.mass_kg,
                 "table_friction": obj.config.table_friction, "contact_friction": obj.config.contact_friction}
@@ -358,5 +360,15 @@ _PARKED = np.eye(4)
 _PARKED[2, 3] = -5000.0  # out of every camera's sight
 
 
+def make_push_vector_env(num_envs: int = 1, max_episode_steps: int | None = 800, workers: int | None = None,
+                         translate_in: str = "workers", start_method: str | None = None, **env_kwargs):
+    """The ``vector_entry_point`` of ``SimShearPush-v0``: a :class:`~simshear_gym.envs.vector.SimShearVectorEnv`
+    of pushing sub-envs (batched translation; the ``goal`` stacked like every key)."""
+    from simshear_gym.envs.vector import SimShearVectorEnv
+
+    return SimShearVectorEnv("simshear_gym.envs.push:SimShearPushEnv", num_envs, env_kwargs, max_episode_steps,
+                             workers, translate_in, start_method)
+
+
 __all__ = ["FOLLOWER_T_WORLD_BASE", "ORACLE_VARIABLES", "PUSH_TERMINATION", "SHAPE_CHOICES", "START_WORLD_MM",
-           "SimShearPushEnv", "TABLE_Z_MM"]
+           "SimShearPushEnv", "TABLE_Z_MM", "make_push_vector_env"]

@@ -3,7 +3,8 @@ process and vectorised.
 
 ``simshear evaluate env-speed`` steps the env with its oracle controller (driven from ``info``, so the env runs
 in ``obs_mode="real"``, translating every image; ``SimShearEdgeFollow-v0``: the edge law on the true offset, depth
-and angle) and writes ``results/env_speed.json``:
+and angle; ``SimShearPush-v0``: the push law on the true depth, shear and face yaw) and writes
+``results/env_speed.json``:
 
 - single process: ``gymnasium.make`` and a loop, per translator runtime of ``--runtimes``: torch on each of the
   ``--threads`` settings, ONNX Runtime (:mod:`simshear_gym.models.translator_runtime`) on each of the
@@ -45,7 +46,7 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-ENV_CONTACTS = {"SimShearTracking-v0": "surface", "SimShearEdgeFollow-v0": "edge"}
+ENV_CONTACTS = {"SimShearTracking-v0": "surface", "SimShearEdgeFollow-v0": "edge", "SimShearPush-v0": "surface"}
 """The envs measured (``--env``) and the contact type of their translator."""
 
 
@@ -60,6 +61,17 @@ def oracle_from_info(env_id: str, env):
                 "edge_offset_mm", "depth_mm", "shear_along_edge_mm", "edge_angle_deg")], axis=-1)}
 
         return EdgeOracleController.for_env(env), edge_state
+    if env_id == "SimShearPush-v0":
+        from simshear_gym.control.push_servo import PushOracleController
+
+        def push_state(info: dict) -> dict:
+            shear = np.asarray(info["shear_sensor_mm_deg"], dtype=np.float64)
+            variables = [np.asarray(info["depth_mm"], dtype=np.float64), shear[..., 0],
+                         np.asarray(info["rz_error_deg"], dtype=np.float64),
+                         np.zeros_like(np.asarray(info["depth_mm"], dtype=np.float64))]
+            return {"true_pose_shear": np.stack(variables, axis=-1), "goal": np.asarray(info["goal"])}
+
+        return PushOracleController.for_env(env), push_state
     from simshear_gym.control.oracle import OracleController, true_pose_shear_from_info
 
     return OracleController.for_env(env), lambda info: {"true_pose_shear": true_pose_shear_from_info(info)}
@@ -110,8 +122,9 @@ def vectorised(num_envs: int, workers: int, translate_in: str, steps: int, warmu
     for index in range(steps + warmup):
         if index == warmup:
             start = time.perf_counter()
-        variables = state_of(info)["true_pose_shear"]
-        actions = np.stack([controller({"true_pose_shear": v}) for controller, v in zip(controllers, variables)])
+        state = state_of(info)
+        actions = np.stack([controller({key: value[index] for key, value in state.items()})
+                            for index, controller in enumerate(controllers)])
         _, _, terminated, truncated, info = envs.step(actions)
         for env_index in np.flatnonzero(terminated | truncated):
             controllers[env_index].reset()
