@@ -114,3 +114,46 @@ def test_the_recorded_results_commands_are_the_canonical_lines_or_rerun_the_same
     module = __import__(cli._LEAVES[words], fromlist=["add_arguments"])
     line = recorded_command(" ".join(("simshear", *words)), module.add_arguments, args)
     assert parser.parse_args(shlex.split(line)[1 + len(words):]) == args, path
+
+
+PACKAGE = ROOT / "simshear_gym"
+# Strings that start with a command's words but are no record of this run: a check on another card's line, the
+# collection command of the sets the hand-made GDNNs were trained on (cards older than `collect_command`).
+NOT_RECORDS = {"simshear pipeline env-model", "simshear collect --replay-all --out runs/paired"}
+
+
+def _module_name(path: Path) -> str:
+    return ".".join(path.relative_to(ROOT).with_suffix("").parts)
+
+
+def test_no_module_builds_a_command_line_by_hand():
+    """A string that starts ``simshear WORDS`` is the first argument of :func:`recorded_command` (and those words
+    name a command, recorded from that command's own options), a help text or one of :data:`NOT_RECORDS`; no list
+    of words starts with ``"simshear"``."""
+    import ast
+
+    hand_built, wrong = [], []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        words_of_calls, skipped = set(), set()  # the words of recorded_command calls; help texts
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Call):
+                skipped |= {id(part) for kw in node.keywords if kw.arg == "help" for part in ast.walk(kw.value)}
+            if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "recorded_command":
+                first, add_arguments = node.args[0], node.args[1]
+                words_of_calls.add(id(first))
+                words = tuple(first.value.split()[1:])
+                module = cli._LEAVES.get(words)
+                if module is None or (isinstance(add_arguments, ast.Name) and module != _module_name(path)):
+                    wrong.append(f"{path.relative_to(ROOT)}:{node.lineno}: {first.value!r}")
+        for node in ast.walk(tree):
+            if (isinstance(node, (ast.List, ast.Tuple)) and node.elts and isinstance(node.elts[0], ast.Constant)
+                    and node.elts[0].value == "simshear"):
+                hand_built.append(f"{path.relative_to(ROOT)}:{node.lineno}: a list of words from 'simshear'")
+            text = node.values[0] if isinstance(node, ast.JoinedStr) and node.values else node
+            if (isinstance(text, ast.Constant) and isinstance(text.value, str) and text.value.startswith("simshear ")
+                    and not {id(node), id(text)} & (words_of_calls | skipped) and text.value not in NOT_RECORDS):
+                skipped.add(id(text))
+                hand_built.append(f"{path.relative_to(ROOT)}:{node.lineno}: {text.value!r}")
+    assert not hand_built, "command lines built by hand (record them with recorded_command):\n" + "\n".join(hand_built)
+    assert not wrong, "recorded_command with words of another command:\n" + "\n".join(wrong)
