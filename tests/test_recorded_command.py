@@ -94,6 +94,18 @@ def test_a_real_commands_line_parses_back_to_the_same_arguments(argv):
     assert parser.parse_args(shlex.split(line)[1 + len(words):]) == args
 
 
+def test_options_at_their_defaults_are_left_out_of_a_real_record():
+    """The canonical form: results/soak.json's hand-built line named every option at its default; the line recorded
+    now is the command alone, which reruns the same soak."""
+    from simshear_gym.evaluate import soak
+
+    record = json.loads((ROOT / "results" / "soak.json").read_text())["command"]
+    parser = cli.command_parser(("evaluate", "soak"))
+    args = parser.parse_args(shlex.split(record)[3:])
+    assert record == "simshear evaluate soak --cycles 10000 --seed 0 --period-s 0.02 --mean-gap 20 --threads 1"
+    assert recorded_command("simshear evaluate soak", soak.add_arguments, args) == "simshear evaluate soak"
+
+
 def _recorded_results() -> list[tuple[str, str]]:
     found = []
     for path in sorted((ROOT / "results").rglob("*.json")):
