@@ -12,7 +12,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "simshear_gym"
 # Floors, bottom to top; the same table is drawn in docs/architecture.md. A room is a sub-package or a
 # top-level module of simshear_gym.
 FLOORS: tuple[tuple[str, ...], ...] = (
-    ("io", "transforms", "tables", "machine"),
+    ("io", "transforms", "tables", "machine", "command_line"),
     ("data",),
     ("robots", "models"),
     ("sim",),

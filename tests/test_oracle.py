@@ -62,7 +62,7 @@ def test_oracle_tracks_every_trajectory_within_half_a_millimetre(trajectory):
 def test_evaluate_oracle_writes_results_with_the_command(tmp_path):
     assert cli.main(["evaluate", "oracle", "--seeds", "0", "--out", str(tmp_path)]) == 0  # nominal episodes
     result = json.loads((tmp_path / "oracle.json").read_text())
-    assert result["command"] == "simshear evaluate oracle --seeds 0" and result["all_goals_met"]
+    assert result["command"] == f"simshear evaluate oracle --seeds 0 --out {tmp_path}" and result["all_goals_met"]
     for trajectory in TRAJECTORIES:
         row = result["trajectories"][trajectory]
         assert row["all"]["episodes"] == 1 and row["all"]["mean_mm"] <= 0.5

@@ -28,6 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.tactile_set import decode_image
 from simshear_gym.real.camera import (
     DEFAULT_CONFIG_PATH,
@@ -345,11 +346,8 @@ def run(args: argparse.Namespace) -> int:
     search_s = time.perf_counter() - started
     report = evaluate(pairs, result.config)
     held_out = [row for row in report["per_image"] if row["image"] not in set(search_pairs.ids)]
-    command = "simshear evaluate camera" + (f" --search-stride {args.search_stride}" if args.search_stride != 5 else "")
-    command += " --write-config" if args.write_config == str(DEFAULT_CONFIG_PATH) else (
-        f" --write-config {args.write_config}" if args.write_config else "")
     payload = {
-        "command": command,
+        "command": recorded_command("simshear evaluate camera", add_arguments, args),
         "config": result.config.to_dict(),
         "search": {
             "pairs": list(search_pairs.ids),

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -198,9 +199,8 @@ def run(args: argparse.Namespace) -> int:
             results.append(result)
     args.out.mkdir(parents=True, exist_ok=True)
     figure = plot(results, args.out / "collect_real.png")
-    command = (f"simshear evaluate collect-real --contacts {' '.join(args.contacts)} --rows {args.rows} "
-               f"--seed {args.seed}")
     write_json(args.out / "collect_real.json", {
-        "command": command, "machine": machine_info(), "seconds": round(time.monotonic() - started, 1),
+        "command": recorded_command("simshear evaluate collect-real", add_arguments, args),
+        "machine": machine_info(), "seconds": round(time.monotonic() - started, 1),
         "figure": figure.name, "results": results})
     return 0

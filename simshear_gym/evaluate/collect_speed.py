@@ -21,6 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{contact} shear val, {workers} worker(s): {rows} tuples in {seconds:.2f} s "
                   f"= {rows / seconds:.0f} tuples/s")
     payload = {
-        "command": f"simshear evaluate collect-speed --workers {args.workers}",
+        "command": recorded_command("simshear evaluate collect-speed", add_arguments, args),
         "machine": machine_info(),
         "goal_tuples_per_s": 500, "paper_reference": "5000 tuples in 60 s (83/s)", "runs": runs,
     }
@@ -102,7 +103,7 @@ def run_ray(args: argparse.Namespace) -> int:
                         print(f"{contact}, {executor}, {workers} worker(s): {rows} rows in {seconds:.2f} s "
                               f"= {rows / seconds:.0f} rows/s")
     payload = {
-        "command": f"simshear evaluate collect-speed --ray {args.ray} --rows {args.rows} --workers {args.workers}",
+        "command": recorded_command("simshear evaluate collect-speed", add_arguments, args),
         "machine": {**machine_info(),
                     "load_average_1_5_15_min_before": [round(x, 2) for x in load_before]},
         "ray_address": args.ray, "source": "random contacts over the tactip331 shear ranges, seed 0",

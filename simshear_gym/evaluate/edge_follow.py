@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -222,16 +223,8 @@ def run(args: argparse.Namespace) -> int:
                                   and s["depth_error_mean_worst_run_mm"] <= GOAL_DEPTH_MM
                                   for s in results[variant].values())}
              for variant in args.variants}
-    command = ("simshear evaluate edge-follow --outlines " + " ".join(args.outlines)
-               + " --variants " + " ".join(args.variants) + " --seeds " + " ".join(map(str, args.seeds))
-               + (f" --posenet {args.posenet}" if args.posenet else "")
-               + (f" --policy {args.policy}" if args.policy else "")
-               + (f" --max-steps {args.max_steps}" if args.max_steps else "")
-               + (f" --threads {args.threads}" if args.threads != 1 else "")
-               + (f" --out {args.out.as_posix()}" if args.out != Path("results") else "")
-               + (f" --name {args.name}" if args.name != "edge_follow" else ""))
     write_json(args.out / f"{args.name}.json", {
-        "command": command, "env": ENV_ID,
+        "command": recorded_command("simshear evaluate edge-follow", add_arguments, args), "env": ENV_ID,
         "metrics": "offset = the dome apex's distance from the object's outline in the top face's plane (mm), every "
                    "step; depth error = |labels' z - reference depth| (mm), every step; per run their means and "
                    "maxima; lap_completed: once round the edge without an early end; summaries over the nominal run "

@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -258,13 +259,7 @@ def run(args: argparse.Namespace) -> int:
         if (row["translator"], row["translator_runtime"]) == (translator, runtime))
         for translator in translators for runtime in runtimes}
     payload = {
-        "command": ("simshear evaluate env-speed " + ("" if args.env == "SimShearTracking-v0" else f"--env {args.env} ")
-                    + f"--steps {args.steps} --vector-steps {args.vector_steps} "
-                    f"--num-envs {' '.join(map(str, args.num_envs))} --workers {args.workers} "
-                    f"--threads {' '.join(map(str, args.threads))} --runtimes {' '.join(runtimes)} "
-                    + (f"--onnx-threads {' '.join(map(str, args.onnx_threads))} " if args.onnx_threads != [1] else "")
-                    + f"--vector-runtimes {' '.join(vector_runtimes)} --translators {' '.join(translators)}"
-                    + (f" --out {args.out.as_posix()} --name {args.name}" if args.name != "env_speed" else "")),
+        "command": recorded_command("simshear evaluate env-speed", add_arguments, args),
         "machine": machine_info(),
         "env": (f"{args.env}, obs_mode='real' (the shipped shPix2pix {contact} translator, 'full', or its "
                 "distilled 'student'; runtime per row: torch, or ONNX Runtime on the .onnx beside the weights), "

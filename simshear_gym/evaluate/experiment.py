@@ -30,6 +30,7 @@ import argparse
 import time
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -58,19 +59,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="each run's log, figure and record go under here (default runs/experiment_<task>)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="where the records and figures go")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
-
-
-def command_line(args: argparse.Namespace) -> str:
-    words = f"simshear evaluate experiment --tasks {' '.join(args.tasks)}"
-    if "tracking" in args.tasks:
-        words += f" --trajectories {' '.join(args.trajectories)} --speed-mm-s {args.speed_mm_s:g}"
-    if "colift" in args.tasks:
-        words += (f" --colift-trajectories {' '.join(args.colift_trajectories)} --objects {' '.join(args.objects)}"
-                  f" --colift-speed-mm-s {args.colift_speed_mm_s:g}")
-    words += f" --max-feedback-age-s {args.max_feedback_age_s:g}"
-    if args.runs is not None:
-        words += f" --runs {args.runs}"
-    return words + f" --out {args.out} --threads {args.threads}"
 
 
 KEYS = ("completed", "stop", "stop_reason", "trajectory_duration_s", "tracking_cycles", "contact_error_mean_mm",
@@ -179,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     torch.set_num_threads(args.threads)
-    command = command_line(args)
+    command = recorded_command("simshear evaluate experiment", add_arguments, args)
     ok = True
     for task in args.tasks:
         started = time.monotonic()

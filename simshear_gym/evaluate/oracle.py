@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 GOAL_MEAN_MM = 0.5
@@ -110,7 +111,7 @@ def run_colift(args: argparse.Namespace) -> int:
                   f"{row['drops']} drops, object slip <= {row['max_object_slip_mm']:.2f} mm, "
                   f"{summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": f"simshear evaluate oracle --tasks colift --seeds {args.seeds}",
+        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearCoLift-v0, obs_mode='oracle', 500 steps at 10 Hz, 30 g objects; nominal trajectory (seed 0) "
                "plus seeds 0.. with randomise=True (scale, speed x0.7-1.3, leader start +-10 mm; no turn of the plate)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
@@ -142,7 +143,7 @@ def run_tracking(args: argparse.Namespace) -> int:
               f"{summary['std_mm']:.3f} mm (max {summary['max_mm']:.3f}), contact lost on "
               f"{summary['contact_losses_steps']} steps, {summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": f"simshear evaluate oracle --seeds {args.seeds}",
+        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearTracking-v0, obs_mode='oracle', 500 steps at 10 Hz; nominal trajectory (seed 0) plus "
                "seeds 0.. with randomise=True (scale, speed x0.7-1.3, rotation, start place +-10 mm)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.evaluate.model_specs import parse_models
@@ -190,13 +191,8 @@ def run(args: argparse.Namespace) -> int:
         if sections[contact]["acceptance"]:
             print(f"  shpix2pix MAE <= 1.2 x real MAE on every variable real reads: "
                   f"{sections[contact]['acceptance']['met']}")
-    command = ("simshear evaluate posenet " + (f"--set {val_set} " if val_set is not None else
-                                                "--contact " + " ".join(contacts) + " ")
-               + " ".join(f"--model {s}" for s in args.model) + (f" --rows {args.rows}" if args.rows else "")
-               + (f" --name {args.name}" if args.name != "posenet" else "")
-               + (f" --out {args.out}" if args.out != Path("results") else ""))
     write_json(args.out / f"{args.name}.json", {
-        "command": command,
+        "command": recorded_command("simshear evaluate posenet", add_arguments, args),
         "metrics": "MAE in mm/deg (angles wrapped); chance = always the range centre (0 for a periodic angle); "
                    "within_k_std = share of |error| <= k predicted std; mean_nll = Gaussian NLL per row (nats); "
                    f"a variable is read where MAE <= {READ_SHARE} x chance",

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -148,11 +149,8 @@ def run(args: argparse.Namespace) -> int:
         emulator.join(timeout=10.0)
         if emulator.is_alive():
             emulator.terminate()
-    command = (f"simshear evaluate real-cycle --cycles {args.cycles} --warmup {args.warmup} "
-               f"--image-size {args.image_size} --threads {args.threads}"
-               + (f" --posenet {args.posenet}" if args.posenet else "") + (f" --data {args.data}" if args.data else ""))
     payload = {
-        "command": command,
+        "command": recorded_command("simshear evaluate real-cycle", add_arguments, args),
         "machine": {**machine_info(),
                     "torch_threads": args.threads},
         "frames": f"{len(frames)} raw 640x480 frames of tactip331_raw, cycled",

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import (
     TACTIP331_TASKS,
     data_root,
@@ -132,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
     figure = args.out / "render_agreement.png"
     montage(stacks, figure)
     payload = {
-        "command": f"simshear evaluate render --split {args.split}" + (f" --rows {args.rows}" if args.rows else ""),
+        "command": recorded_command("simshear evaluate render", add_arguments, args),
         "split": args.split, "tactip": TacTipConfig().__dict__, "geometry": ReplayGeometry().__dict__,
         "goal": {"iou_median_min": 0.8, "centroid_error_px_median_max": 2.0},
         "sets": summary, "figure": str(figure), "seconds": round(time.perf_counter() - start, 1),

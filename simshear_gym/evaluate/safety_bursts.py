@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 READY_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
@@ -413,15 +414,13 @@ def run(args: argparse.Namespace) -> int:
     if args.baseline_sequences:
         baseline = run_bursts(BurstConfig(sequences=args.baseline_sequences, seed=args.seed, arms=args.arms),
                               guarded=False)
-    command = (f"simshear evaluate safety-bursts --sequences {args.sequences} --seed {args.seed} --arms {args.arms} "
-               f"--baseline-sequences {args.baseline_sequences}" + (" --clamp" if args.clamp else ""))
     limits = SafetyConfig()
     args.out.mkdir(parents=True, exist_ok=True)
     figure = args.out / "safety_bursts.png"
     _figure(guarded, baseline, limits.max_speed_mm_s, figure)
     strip = {"_speeds_mm_s"}
     payload = {
-        "command": command,
+        "command": recorded_command("simshear evaluate safety-bursts", add_arguments, args),
         "config": asdict(config),
         "limits": {"max_speed_mm_s": limits.max_speed_mm_s, "max_speed_deg_s": limits.max_speed_deg_s,
                    "max_accel_mm_s2": limits.max_accel_mm_s2, "max_accel_deg_s2": limits.max_accel_deg_s2,

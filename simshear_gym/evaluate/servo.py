@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
@@ -298,26 +299,8 @@ def run(args: argparse.Namespace) -> int:
         png = args.out / f"{args.name}_{task}_{variant}.png"
         figure(first_seed, png, f"{task}, {variant} estimator (nominal runs)")
         figures.append(str(png))
-    command = ("simshear evaluate servo --tasks " + " ".join(args.tasks)
-               + (" --trajectories " + " ".join(args.trajectories)
-                  if "tracking" in args.tasks and list(args.trajectories) != list(TRACKING_TRAJECTORIES) else "")
-               + (" --objects " + " ".join(args.objects) if args.objects else "")
-               + (" --colift-trajectories " + " ".join(args.colift_trajectories) if args.colift_trajectories else "")
-               + (f" --colift-rotation-deg {args.colift_rotation_deg:g}" if args.colift_rotation_deg else "")
-               + " --variants " + " ".join(args.variants)
-               + " --seeds " + " ".join(str(s) for s in args.seeds)
-               + "".join(f" --posenet-{k} {v}" for k, v in posenets.items() if v)
-               + "".join(f" --{flag} {path}" for flag, path in (
-                   ("policy", args.policy), ("policy-ppo", args.policy_ppo), ("policy-sac", args.policy_sac),
-                   ("policy-tqc", args.policy_tqc)) if path)
-               + (f" --max-steps {args.max_steps}" if args.max_steps else "")
-               + (f" --hold-load {args.hold_load}" if args.hold_load != "env" else "")
-               + (" --load-margin-mm {:g} {:g}".format(*args.load_margin_mm) if args.load_margin_mm else "")
-               + (" --shear-gains {:g} {:g}".format(*args.shear_gains) if args.shear_gains else "")
-               + (f" --out {args.out}" if args.out != Path("results") else "")
-               + (f" --name {args.name}" if args.name != "servo" else ""))
     write_json(args.out / f"{args.name}.json", {
-        "command": command,
+        "command": recorded_command("simshear evaluate servo", add_arguments, args),
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
                    "filter + law per step (ms, median); env step = one env.step including rendering/translation; "

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -188,19 +189,8 @@ def run(args: argparse.Namespace) -> int:
                   f"{s['runs_ended_early']} {s['terminations']}, control {s['control_ms_median']:.2f} ms", flush=True)
     png = args.out / f"{args.name}.png"
     figure(traces, args.trajectories, png, dt_s)
-    command = ("simshear evaluate servo6d"
-               + (" --trajectories " + " ".join(args.trajectories)
-                  if list(args.trajectories) != list(TRAJECTORIES) else "")
-               + (" --rows " + " ".join(args.rows) if list(args.rows) != list(ROWS) else "")
-               + " --seeds" + "".join(f" {s}" for s in args.seeds)
-               + (" --no-nominal" if args.no_nominal else "")
-               + (f" --max-steps {args.max_steps}" if args.max_steps else "")
-               + (f" --tilt-kp {args.tilt_kp:g}" if args.tilt_kp is not None else "")
-               + (f" --tilt-ki {args.tilt_ki:g}" if args.tilt_ki is not None else "")
-               + (f" --out {args.out}" if args.out != Path("results") else "")
-               + (f" --name {args.name}" if args.name != "servo_tracking6d" else ""))
     write_json(args.out / f"{args.name}.json", {
-        "command": command,
+        "command": recorded_command("simshear evaluate servo6d", add_arguments, args),
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point carried with "
                    "the tilting plate, every step; normal error = angle (deg) between the sensor's axis and the "
                    "plate's inward normal, every step; per trajectory the mean over runs of the per-run means (runs: "

@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 FAULT_KINDS: tuple[str, ...] = ("dropped_connection", "split_replies", "partial_feedback", "corrupt_feedback",
@@ -740,11 +741,7 @@ def run(args: argparse.Namespace) -> int:
                         mean_gap_cycles=args.mean_gap, posenet=args.posenet)
     frames = synthetic_frames(seed=args.seed) if args.synthetic_frames else load_raw_frames(data_root(args.data))
     result = run_soak(config, frames)
-    command = (f"simshear evaluate soak --cycles {args.cycles} --seed {args.seed} --period-s {args.period_s:g} "
-               f"--mean-gap {args.mean_gap:g} --threads {args.threads}"
-               + (" --synthetic-frames" if args.synthetic_frames else "")
-               + (f" --posenet {args.posenet}" if args.posenet else "") + (f" --data {args.data}" if args.data else ""))
-    payload = {"command": command,
+    payload = {"command": recorded_command("simshear evaluate soak", add_arguments, args),
                "frames": ("synthetic camera-like frames" if args.synthetic_frames
                           else f"{len(frames)} raw 640x480 frames of tactip331_raw, replayed in a loop"),
                **result}

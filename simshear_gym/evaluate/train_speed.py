@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -106,12 +107,8 @@ def run(args: argparse.Namespace) -> int:
             rows.append(row)
             print(f"{model:22s} default {row['ms_per_step_default']:7.1f} ms   channels_last "
                   f"{row['ms_per_step_channels_last']:7.1f} ms   {row['speedup']:.2f}x")
-    command = ["simshear evaluate train-speed", "--models", *args.models, f"--steps {args.steps}",
-               f"--processes {args.processes}", f"--threads {args.threads}"]
-    if args.out != Path("results/ablations"):
-        command.append(f"--out {args.out}")
     write_json(args.out / "train_speed.json", {
-        "command": " ".join(command),
+        "command": recorded_command("simshear evaluate train-speed", add_arguments, args),
         "what": "median wall time of one training step per process (mean over the processes running side by side)"
                 ", networks and batches in each memory layout; random rows (timing only)",
         "machine": machine_info(),

@@ -10,6 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     fig.savefig(png, dpi=120)
     plt.close(fig)
     write_json(args.out / f"{args.name}.json", {
-        "command": "simshear evaluate training-curve " + " ".join(f"--run {s}" for s in args.run),
+        "command": recorded_command("simshear evaluate training-curve", add_arguments, args),
         "note": "holdout = a share of the paired training rows kept out of training (never the real val sets)",
         "runs": curves, "figure": str(png)})
     for name, curve in curves.items():

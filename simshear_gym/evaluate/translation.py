@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
@@ -231,12 +232,9 @@ def run(args: argparse.Namespace) -> int:
                                              readers=readers, device=getattr(args, "device", "auto"))
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
-    command = " ".join(["simshear evaluate translation", *(f"--model {s}" for s in args.model),
-                        *(f"--reader {s}" for s in args.reader), *([f"--rows {args.rows}"] if args.rows else []),
-                        *([f"--out {args.out}"] if args.out != Path("results") else []),
-                        *([f"--name {args.name}"] if args.name != "translation" else [])])
     write_json(args.out / f"{args.name}.json", {
-        "command": command, "rows_per_set": args.rows or "all (2000)",
+        "command": recorded_command("simshear evaluate translation", add_arguments, args),
+        "rows_per_set": args.rows or "all (2000)",
         "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
         "models": {name: {c: recorded_path(p) for c, p in per.items()} for name, per in models.items()},
         "sets": results, "figure": str(png), "seconds": round(time.perf_counter() - start, 1),

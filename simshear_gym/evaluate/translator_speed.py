@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -78,10 +79,7 @@ def run(args: argparse.Namespace) -> int:
                                                     for size in args.batch_sizes))
     name = "translator_speed.json" if device.type == "cpu" else f"translator_speed_{device.type}.json"
     write_json(args.out / name, {
-        "command": " ".join(["simshear evaluate translator-speed", f"--threads {args.threads}",
-                             f"--repeats {args.repeats}", f"--device {args.device}",
-                             "--batch-sizes " + " ".join(map(str, args.batch_sizes)),
-                             *([f"--out {args.out}"] if args.out != Path("results") else [])]),
+        "command": recorded_command("simshear evaluate translator-speed", add_arguments, args),
         "machine": machine, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / name}")

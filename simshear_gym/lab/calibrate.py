@@ -34,13 +34,13 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.lab.endpoints import ArmEndpoint
 from simshear_gym.lab.frames import FACE_DEPTH_MM, ArmsCalibration, BaseToBase, PlateMount
@@ -221,28 +221,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "goes beside it, in <name>_run/")
 
 
-def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "calibrate-arms"]
-    for flag in ("leader", "follower", "camera"):
-        if getattr(args, flag) is not None:
-            words += [f"--{flag}", str(getattr(args, flag))]
-    for flag in ("guess", "fixture"):
-        if getattr(args, flag) is not None:
-            words += [f"--{flag}", *(f"{v:g}" for v in getattr(args, flag))]
-    if args.rehearsal:
-        words += ["--rehearsal", "--rig-leader-base", *(f"{v:g}" for v in args.rig_leader_base)]
-    words += ["--average-s", f"{args.average_s:g}", "--out", str(args.out)]
-    if args.max_feedback_age_s is not None:
-        words += ["--max-feedback-age-s", f"{args.max_feedback_age_s:g}"]
-    if args.posenet:
-        words += ["--posenet", str(args.posenet)]
-    return " ".join(shlex.quote(word) for word in words)
-
-
 def run(args: argparse.Namespace) -> int:
     """Write the calibration file; 0 on success."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    command = command_line(args)
+    command = recorded_command("simshear calibrate-arms", add_arguments, args)
     if args.fixture is not None:
         if args.guess is not None or args.rehearsal:
             raise ValueError("--fixture writes the fixture's transform: leave out --guess and --rehearsal")

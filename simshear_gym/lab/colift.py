@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import shlex
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.contract import HorizontalTacTipMount
 from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES
 from simshear_gym.lab.colift_layout import (
@@ -71,8 +71,6 @@ from simshear_gym.lab.experiment import (
     _wait_still,
     add_arm_arguments,
     add_loop_arguments,
-    arm_words,
-    loop_words,
     rehearsal_safety,
     report_run,
     run_on_rig,
@@ -307,13 +305,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_loop_arguments(parser, "co-lift", "runs/colift")
 
 
-def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "experiment", "colift", *arm_words(args), "--trajectory", args.trajectory, "--object",
-             args.object, "--speed-mm-s", f"{args.speed_mm_s:g}", "--lift-mm", f"{args.lift_mm:g}",
-             *loop_words(args)]
-    return " ".join(shlex.quote(word) for word in words)
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the co-lift experiment; 0 when it completed, 1 when a stop ended it early."""
     import torch
@@ -331,6 +322,7 @@ def run(args: argparse.Namespace) -> int:
     config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
                           lift_mm=args.lift_mm, control_period_s=args.period_s, safety=safety,
                           preprocess=_preprocess(args.preprocess))
+    command = recorded_command("simshear experiment colift", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/colift") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
     if args.rehearsal:
@@ -339,7 +331,7 @@ def run(args: argparse.Namespace) -> int:
         rig_config = CoLiftRigConfig(object_name=args.object, leader_in_follower=BaseToBase(*args.rig_leader_base),
                                      preprocess=config.preprocess, control_period_s=args.period_s)
         summary = run_colift_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
-                                       command_line(args), rig_config)
+                                       command, rig_config)
         summary.pop("rows")
     else:
         from simshear_gym.models.posenet_io import shipped_posenet_path
@@ -348,7 +340,7 @@ def run(args: argparse.Namespace) -> int:
         run_ = CoLiftRun(ArmEndpoint.parse(args.leader, "--leader"), ArmEndpoint.parse(args.follower, "--follower"),
                          CameraSource(args.camera), calibration, args.controller, config,
                          args.posenet or str(shipped_posenet_path("colift")))
-        summary = run_.run(out_dir, command_line(args))
+        summary = run_.run(out_dir, command)
     mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
     return report_run(summary, out_dir, f"{summary['trajectory']} with the {summary['object']}: "
                       f"{summary['tracking_cycles']} cycles at {summary['loop_rate_hz']} Hz, contact error {mean} +- "

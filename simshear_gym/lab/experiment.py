@@ -53,7 +53,6 @@ import argparse
 import csv
 import logging
 import math
-import shlex
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -62,6 +61,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.contract import ActionScale, TacTipMount
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
@@ -917,38 +917,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_loop_arguments(parser)
 
 
-def arm_words(args: argparse.Namespace) -> list[str]:
-    """The command line's words for :func:`add_arm_arguments`' options."""
-    words: list[str] = []
-    for flag in ("leader", "follower", "camera", "calibration"):
-        value = getattr(args, flag)
-        if value is not None:
-            words += [f"--{flag}", str(value)]
-    if args.rehearsal:
-        words += ["--rehearsal", "--rig-leader-base", *(f"{v:g}" for v in args.rig_leader_base)]
-    return words
-
-
-def loop_words(args: argparse.Namespace) -> list[str]:
-    """The command line's words for :func:`add_loop_arguments`' options."""
-    words = ["--controller", str(args.controller), "--period-s", f"{args.period_s:g}", "--preprocess",
-             str(args.preprocess), "--threads", str(args.threads)]
-    if args.max_feedback_age_s is not None:
-        words += ["--max-feedback-age-s", f"{args.max_feedback_age_s:g}"]
-    if args.posenet:
-        words += ["--posenet", str(args.posenet)]
-    if args.out is not None:
-        words += ["--out", str(args.out)]
-    return words
-
-
-def command_line(args: argparse.Namespace) -> str:
-    words = ["simshear", "experiment", "tracking", *arm_words(args), "--trajectory", args.trajectory,
-             "--speed-mm-s", f"{args.speed_mm_s:g}", "--reference-depth-mm", f"{args.reference_depth_mm:g}",
-             *loop_words(args)]
-    return " ".join(shlex.quote(word) for word in words)
-
-
 def _preprocess(value: str) -> PreprocessConfig | None:
     if value == "none":
         return None
@@ -1025,6 +993,7 @@ def run(args: argparse.Namespace) -> int:
     config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s, control_period_s=args.period_s,
                               reference_depth_mm=args.reference_depth_mm, safety=safety,
                               preprocess=_preprocess(args.preprocess))
+    command = recorded_command("simshear experiment tracking", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
     if args.rehearsal:
@@ -1034,7 +1003,7 @@ def run(args: argparse.Namespace) -> int:
 
         rig_config = RigConfig(leader_in_follower=BaseToBase(*args.rig_leader_base), preprocess=config.preprocess)
         summary = run_tracking_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
-                                         command_line(args), rig_config)
+                                         command, rig_config)
     else:
         if not (args.leader and args.follower and args.camera is not None and calibration is not None):
             raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
@@ -1044,7 +1013,7 @@ def run(args: argparse.Namespace) -> int:
         run_ = ExperimentRun(ArmEndpoint.parse(args.leader, "--leader"),
                              ArmEndpoint.parse(args.follower, "--follower"), camera, calibration, args.controller,
                              config, args.posenet)
-        summary = run_.run(out_dir, command_line(args))
+        summary = run_.run(out_dir, command)
     mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
     return report_run(summary, out_dir, f"{summary['trajectory']}: {summary['tracking_cycles']} tracking cycles at "
                       f"{summary['loop_rate_hz']} Hz, contact error {mean} +- {std} mm, compute "

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.adapter import adapt_dataset, config_files, summarise_variables
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import TactileDataError
@@ -189,10 +190,7 @@ def run(args: argparse.Namespace) -> int:
     print(format_report(config, reports))
     print(f"ok in {time.perf_counter() - start:.1f} s")
     if args.json is not None:
-        command = " ".join(["simshear pipeline check", str(args.config)]
-                           + ([f"--data {args.data}"] if args.data is not None else [])
-                           + ([f"--max-rows {args.max_rows}"] if args.max_rows is not None else [])
-                           + [f"--json {args.json}"])
-        write_json(args.json, {"command": command, "config": str(args.config), "sensor": config.name,
+        write_json(args.json, {"command": recorded_command("simshear pipeline check", add_arguments, args),
+                               "config": str(args.config), "sensor": config.name,
                                "datasets": [asdict(report) for report in reports]})
     return 0

@@ -16,6 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 
 
@@ -88,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     manifest = json.loads((args.run / "manifest.json").read_text())
     figures = compare(evaluation, reference)
     write_json(args.out, {
-        "command": f"simshear pipeline compare {args.run} --reference {args.reference} --out {args.out}",
+        "command": recorded_command("simshear pipeline compare", add_arguments, args),
         "run": {"config": manifest["config"], "profile": manifest["profile"], "git_commit": manifest["git_commit"],
                 "machine": manifest.get("machine"), "jobs": manifest.get("jobs"), "wall_s": manifest["wall_s"],
                 "stages": [{"stage": r["stage"], "ran": r["ran"], "wall_s": r["wall_s"]}

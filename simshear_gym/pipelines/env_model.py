@@ -19,12 +19,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.pipelines.stages import StageResult, StageRunner
 
@@ -167,10 +167,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     recipe = config.env_model(args.model)
     out = args.out or Path("runs") / "env_models" / config.name / args.model
-    command = shlex.join(["simshear", "pipeline", "env-model", str(args.config), "--model", args.model,
-                          *(["--out", str(args.out)] if args.out else []),
-                          *(["--sensor", args.sensor] if args.sensor else []),
-                          *(["--device", args.device] if args.device != "cpu" else [])])
+    command = recorded_command("simshear pipeline env-model", add_arguments, args)
     manifest = run_recipe(recipe, args.model, out, args.sensor, args.device, command)
     final = next(r for r in manifest["results"] if r["stage"] == "envposenet/final")
     print(f"{args.model}: {out / manifest['weights']} (final run {out / manifest['final_run']}; best holdout NLL "

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.data.adapter import config_files, split_sizes
 from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
@@ -290,12 +291,8 @@ def run(args: argparse.Namespace) -> int:
         result["measured"] = measured_epochs(result, args.compare)
     print(format_estimate(result))
     if args.json is not None:
-        command = ["simshear pipeline estimate", str(args.config), f"--profile {args.profile}"]
-        command += [f"--jobs {args.jobs}"] if args.jobs else []
-        command += [f"--probe-steps {args.probe_steps}"] if args.probe_steps != 50 else []
-        command += [f"--compare {args.compare}"] if args.compare is not None else []
-        command += [f"--json {args.json}"]
-        write_json(args.json, {"command": " ".join(command), "machine": machine_info(), **result})
+        write_json(args.json, {"command": recorded_command("simshear pipeline estimate", add_arguments, args),
+                               "machine": machine_info(), **result})
         print(f"wrote {args.json}")
     return 0
 

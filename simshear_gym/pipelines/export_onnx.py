@@ -33,12 +33,13 @@ import datetime
 import importlib.util
 import json
 import os
-import shlex
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from simshear_gym.command_line import recorded_command
 
 EXPORT_PACKAGES = ("onnx", "onnxscript")
 PRECISIONS = ("fp32", "fp16")
@@ -328,13 +329,10 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     if to.suffix != ".onnx":
         raise ValueError(f"--to must name a .onnx file, got {to}")
     contact_name = _contact(weights, contact)
-    words = ["simshear", "train", "export-onnx", "--weights", str(weights), "--to", str(to),
-             "--precision", precision, "--check-rows", str(check_rows),
-             *(["--contact", contact] if contact else []),
-             *(["--translation-results", str(translation_results)]
-               if translation_results is not None and translation_results != DEFAULT_RESULTS else []),
-             *(["--no-translation-results"] if translation_results is None else [])]
-    command = " ".join(shlex.quote(word) for word in words)
+    command = recorded_command("simshear train export-onnx", add_arguments, argparse.Namespace(
+        weights=weights, to=to, precision=precision, check_rows=check_rows, contact=contact,
+        translation_results=DEFAULT_RESULTS if translation_results is None else Path(translation_results),
+        no_translation_results=translation_results is None))
     model, torch_card, config = export_model(weights, precision)
     check = check_export(model.SerializeToString(), weights, contact_name, check_rows, data)
     source_sha256 = file_sha256(weights)

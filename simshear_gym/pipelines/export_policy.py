@@ -25,6 +25,7 @@ import json
 import shutil
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.pipelines.ship import WEIGHTS_DIR
 from simshear_gym.train.rl_config import ended_early
@@ -215,8 +216,7 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
          + (f"; ran {summary['timesteps']} steps in {summary['seconds'] / 60:.1f} min on a 2-core CPU (stopped by "
             f"{summary['stopped_by']})" if summary else "") + "."),
         *([_imitation_line(summary["imitation"], config)] if summary.get("imitation") else []),
-        f"- Exact command: `{provenance['train_command']}`, then `simshear train export-policy --run RUN --to "
-        f"{recorded_path(to)} --model {model}" + (f" --results {recorded_path(results)}" if results else "") + "`.",
+        f"- Exact command: `{provenance['train_command']}`, then `{_export_command(to, model, results, variant)}`.",
         "- Made its observations with (sha256 at export): "
         + ", ".join(f"{name} `{digest[:12]}`" for name, digest in provenance["estimator_models_sha256"].items())
         + ". A new translator or GDNN changes what it sees: train it again.",
@@ -246,6 +246,13 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
                          f"{row['contact_error_max_mm']:.2f} | {row['seeds']} | {row['runs_ended_early']} | "
                          f"{row['runs_with_contact_loss']} | {row['drops']} |")
     return "\n".join(lines) + "\n"
+
+
+def _export_command(to: Path, model: str, results: Path | None, variant: str) -> str:
+    """The export's command line, its run folder ``RUN`` (a local path) and its train command left out."""
+    args = argparse.Namespace(run="RUN", to=recorded_path(to), model=model,
+                              results=recorded_path(results) if results else None, variant=variant)
+    return recorded_command("simshear train export-policy", add_arguments, args)
 
 
 def _imitation_line(imitation: dict, config: dict) -> str:

@@ -18,6 +18,8 @@ import json
 from collections import Counter
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
+
 
 def check_figure(weights: Path, contact: str, rows: int, data: str | None = None) -> dict:
     """Per-variable MAE (mm / deg) of a weights file on the first ``rows`` real validation rows."""
@@ -76,7 +78,8 @@ def generator_list(translators: list[str]) -> str:
 def _commands_line(card: dict, weights: Path) -> str:
     """The card's exact commands: the sets' collection, the training, the export; one recipe command where
     ``simshear pipeline env-model`` made both sets and run (the data paths are then relative to its run folder)."""
-    export = f"`simshear train export-posenet --run RUN --contact {card['contact']} --to {weights}`"
+    export_args = argparse.Namespace(run="RUN", contact=card["contact"], to=weights)  # RUN: a local path
+    export = f"`{recorded_command('simshear train export-posenet', add_arguments, export_args)}`"
     train = card.get("train_command", "")
     if train.startswith("simshear pipeline env-model"):
         return (f"- Exact commands: `{train}` (the recipe's cached stages: the env sets, a first GDNN, the "

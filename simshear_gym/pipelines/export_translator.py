@@ -8,8 +8,9 @@ reproduce (``tests/test_shipped_translator.py``).
 from __future__ import annotations
 
 import argparse
-import shlex
 from pathlib import Path
+
+from simshear_gym.command_line import recorded_command
 
 
 def check_figure(weights: Path, contact: str, rows: int, data: str | None = None) -> dict:
@@ -49,7 +50,5 @@ def run(args: argparse.Namespace) -> int:
     save_generator(args.to, generator, card={**card, "check": check})
     read_weights(args.to, "translator")  # readable as written (weights_only, its sha256 checked)
     print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.1f} MiB); check: {check}")
-    words = ["simshear", "train", "export-translator", "--run", str(args.run), "--contact", args.contact,
-             "--to", str(args.to)]
-    print("command:", " ".join(shlex.quote(a) for a in words))
+    print("command:", recorded_command("simshear train export-translator", add_arguments, args))
     return 0

@@ -19,6 +19,8 @@ import datetime
 import json
 from pathlib import Path
 
+from simshear_gym.command_line import recorded_command
+
 WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "models" / "weights"
 """The package's weights folder (:data:`simshear_gym.models.translator.WEIGHTS_DIR`, without importing torch)."""
 CHECK_ROWS = {"translator": 16, "posenet": 64}  # rows of the real <contact>_shear val set in the check figures
@@ -59,10 +61,14 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     unknown = sorted(set(contacts or ()) - set(made))
     if unknown:
         raise ValueError(f"{run}: no models of contact type(s) {unknown} in this run; it has {sorted(made)}")
-    commands = [f"simshear pipeline run {manifest['config']} --profile {manifest['profile']}"
-                f"{_contacts_option(manifest)} --out {run}",
-                f"simshear pipeline ship {run}" + (f" --contacts {' '.join(contacts)}" if contacts else "")
-                + (f" --models {' '.join(models)}" if set(models) != set(MODEL_KINDS) else "")]
+    from simshear_gym.pipelines import run as pipeline_run
+
+    run_args = argparse.Namespace(config=manifest["config"], profile=manifest["profile"],
+                                  contacts=_restricted_contacts(manifest), out=run)
+    ship_args = argparse.Namespace(run=run, contacts=list(contacts) if contacts else None,
+                                   models=[kind for kind in MODEL_KINDS if kind in models])
+    commands = [recorded_command("simshear pipeline run", pipeline_run.add_arguments, run_args),
+                recorded_command("simshear pipeline ship", add_arguments, ship_args)]
     written = []
     for contact, archs in made.items():
         if contacts and contact not in contacts:
@@ -95,18 +101,18 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     return written
 
 
-def _contacts_option(manifest: dict) -> str:
-    """`` --contacts A B`` where the run was restricted to some of its config's contact types, else ``""``."""
+def _restricted_contacts(manifest: dict) -> list[str] | None:
+    """The run's contact types where it was restricted to some of its config's, else None."""
     from simshear_gym.pipelines.config import load_config
 
     contacts = manifest.get("contacts")
     if not contacts:
-        return ""
+        return None
     try:
         every = {dataset.contact for dataset in load_config(manifest["config"]).datasets.values()}
     except (OSError, ValueError):  # the config moved: name the contacts anyway
         every = set()
-    return "" if set(contacts) == every else " --contacts " + " ".join(contacts)
+    return None if set(contacts) == every else list(contacts)
 
 
 def _onnx_beside(weights: Path, data: str | None) -> list[Path]:

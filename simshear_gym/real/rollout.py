@@ -34,13 +34,13 @@ from __future__ import annotations
 import argparse
 import csv
 import logging
-import shlex
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.contract import load_sensor
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
@@ -303,40 +303,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
-def command_line(args: argparse.Namespace) -> str:
-    """The ``simshear rollout`` command that reproduces ``args``."""
-    words = ["simshear", "rollout", "--robot", args.robot, "--camera", str(args.camera)]
-    words += ["--policy", str(args.policy)] if args.policy else ["--controller", str(args.controller)]
-    words += ["--steps", str(args.steps), "--period-s", f"{args.period_s:g}"]
-    if args.image_size is not None:
-        words += ["--image-size", str(args.image_size)]
-    words += ["--start-pose", *(f"{v:g}" for v in args.start_pose),
-             "--max-step-mm", f"{args.max_step_mm:g}", "--max-step-deg", f"{args.max_step_deg:g}",
-             "--reference-depth-mm", f"{args.reference_depth_mm:g}", "--preprocess", str(args.preprocess),
-             "--dashboard-port", str(args.dashboard_port), "--motion-port", str(args.motion_port),
-             "--feedback-port", str(args.feedback_port), "--threads", str(args.threads)]
-    if args.out is not None:
-        words += ["--out", str(args.out)]
-    if args.posenet:
-        words += ["--posenet", str(args.posenet)]
-    if args.sensor:
-        words += ["--sensor", str(args.sensor)]
-    if args.min_depth_mm is not None:
-        words += ["--min-depth-mm", f"{args.min_depth_mm:g}"]
-    if args.controller == "edge":
-        words += ["--edge-speed-mm-s", f"{args.edge_speed_mm_s:g}"]
-    if args.camera == SIM_EDGE_CAMERA:
-        words += ["--outline", str(args.outline)]
-    if args.camera == SIM_SURFACE_CAMERA:
-        words += ["--surface-velocity", *(f"{v:g}" for v in args.surface_velocity),
-                  "--surface-travel-mm", f"{args.surface_travel_mm:g}"]
-    if args.dry_run:
-        words.append("--dry-run")
-    if getattr(args, "unsafe_limits", False):
-        words.append("--unsafe-limits")
-    return " ".join(shlex.quote(word) for word in words)
-
-
 def _preprocess_config(value: str):
     from simshear_gym.real.camera import PreprocessConfig, default_config
 
@@ -453,7 +419,8 @@ def run(args: argparse.Namespace) -> int:
 
                 estimator = TactileEstimator(estimator_config)
             env.contact_check = EstimatedContact(estimator, args.min_depth_mm)
-        summary = run_rollout(env, controller, args.steps, out_dir, command=command_line(args))
+        command = recorded_command("simshear rollout", add_arguments, args)
+        summary = run_rollout(env, controller, args.steps, out_dir, command=command)
     finally:
         env.close()
     print(f"{summary['steps_run']}/{args.steps} steps, {summary['commands_sent']} commands sent"
