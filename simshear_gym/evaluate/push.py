@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -175,13 +176,7 @@ def run(args: argparse.Namespace) -> int:
                        "met": results[variant]["within_10mm"] >= GOAL_SUCCESS
                        and results[variant]["path_deviation_mean_mm"] <= GOAL_DEVIATION_MM}
              for variant in args.variants}
-    command = ("simshear evaluate push --variants " + " ".join(args.variants) + f" --episodes {args.episodes}"
-               + (f" --seed {args.seed}" if args.seed else "")
-               + (f" --posenet {args.posenet}" if args.posenet else "")
-               + (f" --figure-episodes {args.figure_episodes}" if args.figure_episodes != 8 else "")
-               + (f" --threads {args.threads}" if args.threads != 1 else "")
-               + (f" --out {args.out.as_posix()}" if args.out != Path("results") else "")
-               + (f" --name {args.name}" if args.name != "push" else ""))
+    command = recorded_command("simshear evaluate push", add_arguments, args)
     write_json(args.out / f"{args.name}.json", {
         "command": command, "env": ENV_ID,
         "metrics": "target distance = the object's centre's distance from its target when the episode ends (mm); "
