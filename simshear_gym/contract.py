@@ -182,6 +182,34 @@ def observation_space(image_size_px: int, oracle: bool = False, observation: str
     return spaces.Dict(observations)
 
 
+GOAL_LIMIT_MM = 1000.0
+"""Bound of a pushing task's ``goal`` observation (:func:`push_goal`)."""
+
+
+def goal_space() -> spaces.Box:
+    """The ``goal`` observation of a pushing task (``SimShearPush-v0``, and the real path's
+    :class:`~simshear_gym.envs.wrappers.PushGoal`): float32 (4,)."""
+    return spaces.Box(-GOAL_LIMIT_MM, GOAL_LIMIT_MM, (4,), dtype=np.float32)
+
+
+def push_goal(apex_xy_mm, side_xy, axis_xy, target_xy_mm, direction_xy) -> np.ndarray:
+    """float32 (4,): a pushing task's goal in the horizontal sensor's frame: the target's place (x, z mm) and the
+    path's direction (x, z, unit), from the apex's place, the sensor's x and z axes (all in the horizontal plane of
+    the world or the robot's base frame, the same for every argument) and the target and path direction there."""
+    apex, side, axis = (np.asarray(v, dtype=np.float64)[:2] for v in (apex_xy_mm, side_xy, axis_xy))
+    to_target = np.asarray(target_xy_mm, dtype=np.float64)[:2] - apex
+    direction = np.asarray(direction_xy, dtype=np.float64)[:2]
+    values = [to_target @ side, to_target @ axis, direction @ side, direction @ axis]
+    return np.clip(np.array(values), -GOAL_LIMIT_MM, GOAL_LIMIT_MM).astype(np.float32)
+
+
+def sensor_axes_xy(flange_r_deg: float, mount: TacTipMount) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal sensor's x and z axes (x, y in the robot's base frame) at a flange R: a level flange turns the
+    mount about the vertical."""
+    rotation = rz_matrix(flange_r_deg)[:3, :3] @ mount.T_flange_sensor()[:3, :3]
+    return rotation[:2, 0], rotation[:2, 2]
+
+
 def estimate_features(reading: tuple[np.ndarray, np.ndarray], filtered: tuple[np.ndarray, np.ndarray],
                       reference_depth_mm: float) -> np.ndarray:
     """float32 (16,): one frame of the ``estimate`` observation from an estimator's (mean (4,), std (4,)) of

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simshear_gym.contract import ActionScale
+from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.policy import as_action_scale
 
@@ -159,10 +159,50 @@ def _push_estimator(config: EstimatorConfig):
     return PushEstimator(config)
 
 
-def _check_goal(observation: dict, who: str) -> np.ndarray:
-    if "goal" not in observation:
-        raise ValueError(f"{who} needs the observation's 'goal' (SimShearPush-v0's); got {sorted(observation)}")
-    return np.asarray(observation["goal"], dtype=np.float64)
+@dataclass(frozen=True)
+class PushTarget:
+    """Where to push on the real path, which gives no ``goal``: the target in the robot's base frame; the path runs
+    straight to it from the object's centre at the first observation (``half_width_mm`` ahead of the apex).
+
+    Attributes:
+        target_xy_mm: the target (x, y mm, base frame).
+        mount: the horizontal TacTip on the flange (the sensor's axes from the flange's R).
+        half_width_mm: the object's nominal half width.
+    """
+
+    target_xy_mm: tuple[float, float]
+    mount: TacTipMount
+    half_width_mm: float = 25.0
+
+    def __post_init__(self) -> None:
+        if len(self.target_xy_mm) != 2 or not all(math.isfinite(v) for v in self.target_xy_mm):
+            raise ValueError(f"PushTarget.target_xy_mm must be 2 finite numbers (x, y mm), got {self.target_xy_mm!r}")
+
+
+class _GoalOf:
+    """obs -> goal: the observation's own, or a :class:`PushTarget`'s from the observation's ``tcp_pose``."""
+
+    def __init__(self, target: PushTarget | None, who: str) -> None:
+        self.target = target
+        self.who = who
+        self._direction: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._direction = None
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        if "goal" in observation:
+            return np.asarray(observation["goal"], dtype=np.float64)
+        if self.target is None or "tcp_pose" not in observation:
+            raise ValueError(f"{self.who} needs the observation's 'goal' (SimShearPush-v0's), or a PushTarget and "
+                             f"the observation's 'tcp_pose'; got {sorted(observation)}")
+        tcp = np.asarray(observation["tcp_pose"], dtype=np.float64)
+        side, axis = sensor_axes_xy(float(tcp[3]), self.target.mount)
+        target = np.asarray(self.target.target_xy_mm, dtype=np.float64)
+        if self._direction is None:
+            to_target = target - (tcp[:2] + self.target.half_width_mm * axis)
+            self._direction = to_target / max(float(np.linalg.norm(to_target)), 1e-9)
+        return push_goal(tcp[:2], side, axis, target, self._direction).astype(np.float64)
 
 
 class PushServoController:
@@ -175,6 +215,7 @@ class PushServoController:
         gains: :class:`PushGains`.
         use_shear: False: the law without its shear term (the ablation).
         estimator: the GDNN (``posenet``; None: the shipped ``surface`` one) and the filter's settings.
+        target: on the real path (no ``goal`` in the observation): where to push (:class:`PushTarget`).
     """
 
     name = "push_servo"
@@ -182,8 +223,9 @@ class PushServoController:
 
     def __init__(self, action_scale: ActionScale = ActionScale(), step_mm: float = 0.5,
                  gains: PushGains = PushGains(), use_shear: bool = True,
-                 estimator: EstimatorConfig = EstimatorConfig()) -> None:
+                 estimator: EstimatorConfig = EstimatorConfig(), target: PushTarget | None = None) -> None:
         self.action_scale = as_action_scale(action_scale, "PushServoController")
+        self._goal = _GoalOf(target, "the push servo controller")
         self._scale = self.action_scale.as_array()
         self.estimator = _push_estimator(estimator)
         self.law = PushLaw(self._scale, step_mm, gains, use_shear)
@@ -207,6 +249,7 @@ class PushServoController:
     def reset(self) -> None:
         self.estimator.reset()
         self.law.reset()
+        self._goal.reset()
         self._last_move = None
         self.last_estimate = None
 
@@ -214,7 +257,7 @@ class PushServoController:
         if "tactile" not in observation:
             raise ValueError(f"the push servo controller needs the observation's 'tactile' image; got "
                              f"{sorted(observation)}")
-        goal = _check_goal(observation, "the push servo controller")
+        goal = self._goal(observation)
         mean, std = self.estimator(observation["tactile"], self._last_move)
         # TiltEstimator's state: depth, shear x, y, Rz, Rx, Ry
         state = np.array([mean[0], mean[1], mean[5]])
@@ -233,6 +276,7 @@ class PushOracleController:
         self.action_scale = as_action_scale(action_scale, "PushOracleController")
         self.law = PushLaw(self.action_scale.as_array(), step_mm, gains, use_shear)
         self.name = "push_oracle" if use_shear else "push_oracle_no_shear"
+        self._goal = _GoalOf(None, "the push oracle")
 
     @classmethod
     def for_env(cls, env, gains: PushGains = PushGains(), use_shear: bool = True) -> PushOracleController:
@@ -247,7 +291,7 @@ class PushOracleController:
             raise ValueError("the push oracle needs obs_mode='oracle' (or 'oracle_real'): the observation has only "
                              f"{sorted(observation)}")
         depth, shear_x, face_yaw, _ = np.asarray(observation["true_pose_shear"], dtype=np.float64)
-        return self.law(np.array([depth, shear_x, face_yaw]), _check_goal(observation, "the push oracle"))
+        return self.law(np.array([depth, shear_x, face_yaw]), self._goal(observation))
 
 
-__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "aim_bearing_deg"]
+__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "PushTarget", "aim_bearing_deg"]

@@ -8,7 +8,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount, goal_space, push_goal
 from simshear_gym.envs.base import ContactState, SimShearEnv, TerminationConfig, pybullet_pose_fast
 from simshear_gym.sim.pushing import (
     HEIGHT_MM,
@@ -28,7 +28,6 @@ START_WORLD_MM = np.array([340.0, -70.0])
 """The object's centre at reset (world x, y); the path runs from it, the sensor pushes it along world +y first."""
 TABLE_Z_MM = -80.0
 """The table's top: the horizontal TacTip's axis (60 mm below a flange at z = 0) meets the 40 mm object mid-height."""
-GOAL_LIMIT_MM = 1000.0
 ORACLE_VARIABLES: tuple[str, ...] = ("z_mm", "shear_x_mm", "face_yaw_deg", "bearing_deg")
 """``true_pose_shear`` of the oracle modes: the depth (labels' z), the shear along the face (sensor x), the face's
 turn against the sensor about the vertical (the labels' Ry: + turns the face's normal towards sensor -x... see
@@ -125,12 +124,11 @@ class SimShearPushEnv(SimShearEnv):
         self._target = np.zeros(2)
         self._path_direction = np.array([0.0, 1.0])
         self._progress_mm = self._reward_progress_mm = 0.0
-        self._steps_lost = 0
         super().__init__(obs_mode=obs_mode, image_size_px=image_size_px, control_rate_hz=control_rate_hz,
                          render_mode=render_mode, reference_depth_mm=reference_depth_mm, mount=mount,
                          termination=termination, **base_kwargs)
         observations = dict(self.observation_space.spaces)
-        observations["goal"] = spaces.Box(-GOAL_LIMIT_MM, GOAL_LIMIT_MM, (4,), dtype=np.float32)
+        observations["goal"] = goal_space()
         self.observation_space = spaces.Dict(observations)
         self.estimator_process_std_mm = 0.5  # the object's unknown turn and slip per step
 
@@ -223,7 +221,6 @@ class SimShearPushEnv(SimShearEnv):
         self._path_direction = np.array([math.sin(heading), math.cos(heading)])
         self._target = START_WORLD_MM + length * self._path_direction
         self._progress_mm = self._reward_progress_mm = 0.0
-        self._steps_lost = 0
 
     def _command_scene(self, time_s: float, dt_s: float) -> None:
         pass  # nothing moves but the follower
@@ -260,24 +257,11 @@ class SimShearPushEnv(SimShearEnv):
         T_world_sensor = self.follower.T_world_tool()
         T_world_face = self._face_frame(T_world_sensor)
         obj = self.object
-        r = obj.dome_radius_mm
-        centre = T_world_sensor[:3, 3] - r * T_world_sensor[:3, 2]
-        local = invert(obj.T_world_object()) @ np.r_[centre, 1.0]
-        penetration = r - obj.shape.distance(local[0], local[1])[0]
-        contact = obj.contact()
-        in_contact = contact is not None
-        shear = np.zeros(6)
-        if in_contact:
-            stretch_world = obj.T_world_object()[:3, :3] @ np.asarray(contact.stretch_mm)
-            shear[0] = float(stretch_world @ T_world_sensor[:3, 0])
-            shear[1] = float(stretch_world @ T_world_sensor[:3, 1])
+        penetration = obj.penetration_mm(T_world_sensor)
+        in_contact = obj.contact() is not None
+        shear = obj.shear_sensor(T_world_sensor)
         pose_work = pose_from_matrix_fast(self.T_work_face @ invert(T_world_face) @ T_world_sensor)
-        self._steps_lost = 0 if in_contact else self._steps_lost + 1
-        centre_xy = np.asarray(obj.pose[:2])
-        offset = centre_xy - START_WORLD_MM
-        progress = float(offset @ self._path_direction)
-        self._progress_mm = progress
-        deviation = abs(float(offset[0] * self._path_direction[1] - offset[1] * self._path_direction[0]))
+        self._progress_mm, deviation = self._along_and_off_path_mm()
         return ContactState(pose_work, float(penetration), True, in_contact, shear, deviation,
                             self._face_yaw_deg(pose_work), T_world_sensor)
 
@@ -303,10 +287,8 @@ class SimShearPushEnv(SimShearEnv):
 
     def goal_in_sensor(self, T_world_sensor: np.ndarray) -> np.ndarray:
         """float32 (4,): the target (x, z mm) and the path's direction (x, z) in the sensor frame."""
-        side, axis = T_world_sensor[:2, 0], T_world_sensor[:2, 2]
-        to_target = self._target - T_world_sensor[:2, 3]
-        values = [to_target @ side, to_target @ axis, self._path_direction @ side, self._path_direction @ axis]
-        return np.clip(np.array(values), -GOAL_LIMIT_MM, GOAL_LIMIT_MM).astype(np.float32)
+        return push_goal(T_world_sensor[:2, 3], T_world_sensor[:2, 0], T_world_sensor[:2, 2], self._target,
+                         self._path_direction)
 
     def target_distance_mm(self) -> float:
         return float(np.linalg.norm(np.asarray(self.object.pose[:2]) - self._target))
@@ -347,13 +329,15 @@ class SimShearPushEnv(SimShearEnv):
         obj = self.object
         return {"shape": obj.shape.name, "object_world_mm": np.array([*obj.pose[:2], math.degrees(obj.pose[2])]),
                 "goal": self.goal_in_sensor(self.follower.T_world_tool()),
-                "target_distance_mm": self.target_distance_mm(), "path_deviation_mm": self._state_deviation(),
+                "target_distance_mm": self.target_distance_mm(), "path_deviation_mm": self._along_and_off_path_mm()[1],
                 "progress_mm": self._progress_mm, "slipping": obj.slipping, "mass_kg": obj.config.mass_kg,
                 "table_friction": obj.config.table_friction, "contact_friction": obj.config.contact_friction}
 
-    def _state_deviation(self) -> float:
+    def _along_and_off_path_mm(self) -> tuple[float, float]:
+        """The object's centre: how far along the path from the start, and how far off it (mm)."""
         offset = np.asarray(self.object.pose[:2]) - START_WORLD_MM
-        return abs(float(offset[0] * self._path_direction[1] - offset[1] * self._path_direction[0]))
+        direction = self._path_direction
+        return float(offset @ direction), abs(float(offset[0] * direction[1] - offset[1] * direction[0]))
 
 
 _PARKED = np.eye(4)

@@ -66,6 +66,7 @@ from simshear_gym.contract import (
     IMAGE_SIZES_PX,
     TCP_POSE_LOW,
     ActionScale,
+    HorizontalTacTipMount,
     TacTipMount,
     action_to_move,
     check_observation,
@@ -159,13 +160,21 @@ def tcp_pose_from_flange(flange_pose_mm_deg, mount: TacTipMount) -> np.ndarray:
 
 def move_to_flange_target(flange_pose_mm_deg, move_sensor, mount: TacTipMount) -> np.ndarray:
     """The flange pose that moves the sensor by ``move_sensor`` = (dx, dy, dz mm, dRz deg) in its own frame, as
-    the sim env's step does; R is unwrapped next to the given flange R."""
+    the sim env's step does (a horizontal sensor, :class:`~simshear_gym.contract.HorizontalTacTipMount`, turns about
+    the vertical through its apex); R is unwrapped next to the given flange R."""
     flange = np.asarray(flange_pose_mm_deg, dtype=np.float64)
     dx, dy, dz, drz = (float(v) for v in move_sensor)
     T_flange_sensor = mount.T_flange_sensor()
-    T_move = rz_matrix(drz)
-    T_move[:3, 3] = (dx, dy, dz)
-    T_base_flange = pose_to_T_base_flange(flange) @ T_flange_sensor @ T_move @ invert(T_flange_sensor)
+    T_base_sensor = pose_to_T_base_flange(flange) @ T_flange_sensor
+    if isinstance(mount, HorizontalTacTipMount):
+        target_sensor = T_base_sensor.copy()
+        target_sensor[:3, 3] += T_base_sensor[:3, :3] @ np.array([dx, dy, dz])
+        target_sensor[:3, :3] = rz_matrix(drz)[:3, :3] @ T_base_sensor[:3, :3]
+    else:
+        T_move = rz_matrix(drz)
+        T_move[:3, 3] = (dx, dy, dz)
+        target_sensor = T_base_sensor @ T_move
+    T_base_flange = target_sensor @ invert(T_flange_sensor)
     target = T_base_flange_to_pose(T_base_flange)
     target[3] = flange[3] + wrap_deg(target[3] - flange[3])
     return target

@@ -8,7 +8,9 @@
 Controllers: ``--controller servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter +
 PI law, ``--posenet`` weights, default the shipped ``surface`` GDNN), ``--controller edge``
 (:class:`~simshear_gym.control.edge_servo.EdgeServoController`: edge following at ``--edge-speed-mm-s``, default
-the shipped ``edge`` GDNN) or ``--policy MODEL.zip`` (or ``--controller
+the shipped ``edge`` GDNN), ``--controller push`` (:class:`~simshear_gym.control.push_servo.PushServoController`:
+pushing to ``--push-target-mm`` at ``--push-speed-mm-s`` with the horizontal TacTip, the shipped ``surface`` GDNN)
+or ``--policy MODEL.zip`` (or ``--controller
 MODEL.zip``): a Stable-Baselines3 PPO / SAC agent of ``simshear train rl``, loaded with its run folder's
 ``config.json`` and ``VecNormalize`` statistics (:meth:`~simshear_gym.control.policy.SB3Controller.load`): the
 env gives it the observation it was trained on (observation, history, image size; an estimate observation reads
@@ -21,7 +23,8 @@ CameraSource`, preprocessed with ``--preprocess``), or ``sim-surface``: the hard
 (:class:`~simshear_gym.real.hil.SimSurfaceCamera`) rendering the simulated TacTip at the pose the robot's feedback
 reports, on a surface moving at ``--surface-velocity`` (use it with ``simshear mg400-emulator``), or ``sim-edge``:
 the same over the edge of a still flat object (``--outline``; :class:`~simshear_gym.real.hil_edge.SimEdgeCamera`),
-the rehearsal of edge following.
+the rehearsal of edge following, or ``sim-push``: the horizontal TacTip against an object it pushes (``--shape``;
+:class:`~simshear_gym.real.hil_push.SimPushCamera`), the rehearsal of pushing.
 
 Output in ``--out``: ``steps.csv`` (one row per step: time, measured and commanded TCP and flange poses, action,
 the controller's state estimate, timing, robot mode, safety events; with ``sim-surface`` also the simulated ground
@@ -41,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.contract import load_sensor
+from simshear_gym.contract import HorizontalTacTipMount, load_sensor
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
     EstimatingController,
@@ -56,7 +59,11 @@ logger = logging.getLogger(__name__)
 
 SIM_SURFACE_CAMERA = "sim-surface"
 SIM_EDGE_CAMERA = "sim-edge"
-SIM_CAMERAS = (SIM_SURFACE_CAMERA, SIM_EDGE_CAMERA)
+SIM_PUSH_CAMERA = "sim-push"
+SIM_CAMERAS = (SIM_SURFACE_CAMERA, SIM_EDGE_CAMERA, SIM_PUSH_CAMERA)
+PUSH_START_POSE_MM_DEG = (340.0, -190.0, 0.0, 90.0)
+"""``--controller push``'s default flange start: the horizontal TacTip 60 mm below it pushing along the base's +y,
+as ``SimShearPush-v0``'s follower starts."""
 STATE_NAMES = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 """The state estimate's columns, unless the controller names its own (``state_names``)."""
 POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
@@ -177,6 +184,9 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     progress = getattr(env.camera, "progress_mm", None)
     if progress is not None:  # a simulated edge: how far along it the run went
         summary["truth_progress_mm"] = round(float(progress), 3)
+    distance = getattr(env.camera, "target_distance_mm", lambda: None)()
+    if distance is not None:  # a simulated push: how far from its target the object ended
+        summary["truth_target_distance_mm"] = round(float(distance), 3)
     write_json(out_dir / "rollout.json", summary)
     return summary
 
@@ -253,11 +263,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", required=True, metavar="IP", help="MG400 controller address")
     parser.add_argument("--camera", required=True, metavar="SRC",
                         help=f"camera device index, video file, image folder, '{SIM_SURFACE_CAMERA}' (simulated "
-                             f"TacTip on a moving surface at the robot's reported pose) or '{SIM_EDGE_CAMERA}' (the "
-                             "same over a still object's edge: the edge following rehearsal)")
-    parser.add_argument("--controller", default=None, metavar="servo|edge|MODEL.zip",
+                             f"TacTip on a moving surface at the robot's reported pose), '{SIM_EDGE_CAMERA}' (the "
+                             f"same over a still object's edge: the edge following rehearsal) or '{SIM_PUSH_CAMERA}' "
+                             "(a horizontal TacTip against an object it pushes: the pushing rehearsal)")
+    parser.add_argument("--controller", default=None, metavar="servo|edge|push|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law), 'edge' (edge following: the edge GDNN + filter + the "
-                             "edge law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
+                             "edge law), 'push' (pushing to --push-target-mm with a horizontal TacTip: the surface "
+                             "GDNN + filter + the push law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
     parser.add_argument("--policy", default=None, metavar="MODEL.zip",
                         help="a PPO/SAC/TQC agent of simshear train rl (model.zip, best_model.zip or a checkpoint), "
                              "with its run's settings and VecNormalize statistics; instead of --controller")
@@ -268,8 +280,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1)")
     parser.add_argument("--image-size", type=int, default=None, choices=(64, 128),
                         help="tactile observation size (default: the policy's, from its run's config.json, else 128)")
-    parser.add_argument("--start-pose", type=float, nargs=4, default=(300.0, 0.0, 0.0, 0.0),
-                        metavar=("X", "Y", "Z", "R"), help="flange start pose, mm and deg (default 300 0 0 0)")
+    parser.add_argument("--start-pose", type=float, nargs=4, default=None, metavar=("X", "Y", "Z", "R"),
+                        help="flange start pose, mm and deg (default 300 0 0 0; --controller push: "
+                             f"{' '.join(f'{v:g}' for v in PUSH_START_POSE_MM_DEG)})")
     parser.add_argument("--max-step-mm", type=float, default=5.0,
                         help="safety: largest translation per command, mm (default 5, the safe default and most)")
     parser.add_argument("--max-step-deg", type=float, default=5.0,
@@ -300,6 +313,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"{SIM_EDGE_CAMERA} camera: the object's outline (disk, rounded_square, clover, wavy)")
     parser.add_argument("--edge-speed-mm-s", type=float, default=5.0,
                         help="edge controller: speed along the edge, mm/s (default 5, as SimShearEdgeFollow-v0)")
+    parser.add_argument("--shape", default="cube",
+                        help=f"{SIM_PUSH_CAMERA} camera: the pushed object (cube, cylinder, prism)")
+    parser.add_argument("--push-target-mm", type=float, nargs=2, default=None, metavar=("X", "Y"),
+                        help="push controller: the target, base frame mm (default 150 mm ahead of the object along "
+                             "the sensor's axis at the start)")
+    parser.add_argument("--push-speed-mm-s", type=float, default=5.0,
+                        help="push controller: pushing speed, mm/s (default 5, as SimShearPush-v0)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
@@ -321,7 +341,7 @@ def _policy_path(args: argparse.Namespace) -> str | None:
         if not Path(args.policy).is_file() and not has_policy_files(args.policy):
             raise FileNotFoundError(f"--policy {args.policy!r}: no such SB3 .zip file")
         return args.policy
-    if args.controller in ("servo", "edge"):
+    if args.controller in ("servo", "edge", "push"):
         return None
     if not Path(args.controller).is_file() and not has_policy_files(args.controller):
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
@@ -338,7 +358,15 @@ def _load_sb3(path: str, env, flag: str = "--controller") -> SB3Controller:
 
 
 def _sim_camera(args: argparse.Namespace, config, flange_pose):
-    """The hardware-in-the-loop camera of ``--camera sim-surface|sim-edge`` at the env's start pose and mount."""
+    """The hardware-in-the-loop camera of ``--camera sim-surface|sim-edge|sim-push`` at the env's start pose and
+    mount."""
+    if args.camera == SIM_PUSH_CAMERA:
+        from simshear_gym.real.hil_push import PushObjectConfig, SimPushCamera
+
+        push_object = PushObjectConfig(shape=args.shape, reference_depth_mm=args.reference_depth_mm,
+                                       target_xy_mm=_push_target(args, config))
+        return SimPushCamera(flange_pose, config.start_pose_mm_deg, push_object, config.mount,
+                             raw_frame_layout=config.preprocess)
     if args.camera == SIM_EDGE_CAMERA:
         from simshear_gym.real.hil_edge import EdgeObjectConfig, SimEdgeCamera
 
@@ -351,6 +379,19 @@ def _sim_camera(args: argparse.Namespace, config, flange_pose):
                                   reference_depth_mm=args.reference_depth_mm)
     return SimSurfaceCamera(flange_pose, config.start_pose_mm_deg, surface, config.mount,
                             raw_frame_layout=config.preprocess)
+
+
+def _push_target(args: argparse.Namespace, config) -> tuple[float, float]:
+    """``--push-target-mm``, or 150 mm ahead of the object's centre (25 mm ahead of the apex) at the start."""
+    if args.push_target_mm is not None:
+        return tuple(float(v) for v in args.push_target_mm)
+    from simshear_gym.contract import sensor_axes_xy
+    from simshear_gym.real.env import tcp_pose_from_flange
+
+    tcp = tcp_pose_from_flange(config.start_pose_mm_deg, config.mount)
+    _, axis = sensor_axes_xy(float(tcp[3]), config.mount)
+    target = tcp[:2] + (25.0 + 150.0) * axis
+    return float(target[0]), float(target[1])
 
 
 def run(args: argparse.Namespace) -> int:
@@ -371,7 +412,13 @@ def run(args: argparse.Namespace) -> int:
     image_size_px = args.image_size or (settings.image_size_px if settings else 128)
     if args.sensor and args.posenet:
         raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
-    edge = args.controller == "edge"
+    edge, push = args.controller == "edge", args.controller == "push"
+    if (args.camera == SIM_PUSH_CAMERA) != push and args.camera in SIM_CAMERAS:
+        raise ValueError(f"--camera {SIM_PUSH_CAMERA} and --controller push go together (a horizontal TacTip "
+                         f"pushing): got --camera {args.camera} with --controller {args.controller}")
+    if push and args.min_depth_mm is not None:
+        raise ValueError("--min-depth-mm stops on a lost surface contact; a push's depth is the object's friction: "
+                         "leave --min-depth-mm out with --controller push")
     if edge and args.min_depth_mm is not None:
         raise ValueError("--min-depth-mm reads the surface GDNN's depth; the edge controller has none of its own "
                          "yet: leave --min-depth-mm out with --controller edge")
@@ -387,9 +434,12 @@ def run(args: argparse.Namespace) -> int:
     config = RealEnvConfig(
         robot_ip=args.robot, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
         feedback_port=args.feedback_port, control_period_s=args.period_s, camera_source=str(args.camera),
-        preprocess=preprocess_config, image_size_px=image_size_px, start_pose_mm_deg=tuple(args.start_pose),
+        preprocess=preprocess_config, image_size_px=image_size_px, start_pose_mm_deg=tuple(
+            args.start_pose if args.start_pose is not None else PUSH_START_POSE_MM_DEG if push else (300.0, 0.0, 0.0,
+                                                                                                     0.0)),
         observation=settings.observation if settings else "tactile", history=settings.history if settings else 1,
         reference_depth_mm=args.reference_depth_mm, posenet=posenet, safety=safety, dry_run=args.dry_run,
+        **({"mount": HorizontalTacTipMount()} if push else {}),
         # a simulated camera has no noise: equal frames in a row are no sign of a frozen driver
         frozen_frame_limit=None if args.camera in SIM_CAMERAS else RealEnvConfig.frozen_frame_limit)
     if args.camera not in SIM_CAMERAS:
@@ -408,6 +458,13 @@ def run(args: argparse.Namespace) -> int:
             edge_servo = EdgeServoController(args.reference_depth_mm, config.action_scale,
                                              args.edge_speed_mm_s * args.period_s, estimator=estimator_config)
             controller, estimator = edge_servo, None
+        elif push:
+            from simshear_gym.control.push_servo import PushServoController, PushTarget
+
+            controller = PushServoController(config.action_scale, args.push_speed_mm_s * args.period_s,
+                                             estimator=estimator_config,
+                                             target=PushTarget(_push_target(args, config), config.mount))
+            estimator = None
         elif policy is None:
             servo = ServoController(args.reference_depth_mm, config.action_scale, estimator=estimator_config)
             controller, estimator = servo, servo.estimator

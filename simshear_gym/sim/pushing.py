@@ -321,6 +321,24 @@ class PushedObject:
         self._axis = np.asarray(T_world_sensor[:3, 2], dtype=np.float64)
         self._slip(self._apex, self._axis)
 
+    def penetration_mm(self, T_world_sensor: np.ndarray) -> float:
+        """How far the dome at ``T_world_sensor`` reaches into the object (negative: its gap to it), mm."""
+        r = self.dome_radius_mm
+        centre = T_world_sensor[:3, 3] - r * T_world_sensor[:3, 2]
+        x, y = self._to_object(self.pose, centre)
+        return r - self.shape.distance(x, y)[0]
+
+    def shear_sensor(self, T_world_sensor: np.ndarray) -> np.ndarray:
+        """(6,) the skin's shear in the sensor frame (:class:`~simshear_gym.sim.shear.ShearTracker`'s layout: the
+        sensor's displacement from where the skin sticks, x and y; zeros out of contact)."""
+        shear = np.zeros(6)
+        contact = self.contact()
+        if contact is not None:
+            stretch_world = self.T_world_object()[:3, :3] @ np.asarray(contact.stretch_mm)
+            shear[0] = float(stretch_world @ T_world_sensor[:3, 0])
+            shear[1] = float(stretch_world @ T_world_sensor[:3, 1])
+        return shear
+
     def anchor_world_mm(self) -> np.ndarray | None:
         """The skin's anchor in the world (None: not touching)."""
         if self._anchor is None:
