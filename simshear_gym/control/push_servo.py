@@ -64,6 +64,9 @@ class PushGains:
         max_slide_mm: the largest move across the push per step (a larger one slips the skin and spins the object).
         k_shear: the centre of pressure's offset from the contact per unit of shear over indentation (mm); 0: the
             ablation without shear (see the module docstring).
+        min_indentation_mm: the indentation the ratio divides by is at least this (a noisy reading of a light
+            touch would blow it up).
+        max_centre_offset_mm: the centre's estimated offset across the push is clipped to this.
         lookahead_mm: how far ahead along the path the law aims.
         half_width_mm: the object's nominal half width (its centre this far ahead of the apex).
     """
@@ -74,6 +77,8 @@ class PushGains:
     integral_limit_mm: float = 0.5
     max_slide_mm: float = 0.5
     k_shear: float = 6.0
+    min_indentation_mm: float = 0.2
+    max_centre_offset_mm: float = 10.0
     lookahead_mm: float = 40.0
     half_width_mm: float = 25.0
 
@@ -82,7 +87,8 @@ class PushGains:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and 0.0 <= value <= 50.0):
                 raise ValueError(f"PushGains.{name} must be a finite number in [0, 50], got {value!r}")
-        if not (self.lookahead_mm > 0 and self.half_width_mm >= 0 and self.max_slide_mm > 0):
+        if not (self.lookahead_mm > 0 and self.half_width_mm >= 0 and self.max_slide_mm > 0
+                and self.min_indentation_mm > 0 and self.max_centre_offset_mm >= 0):
             raise ValueError(f"PushGains: lookahead_mm, max_slide_mm > 0 and half_width_mm >= 0, got {self}")
 
 
@@ -133,8 +139,8 @@ class PushLaw:
         g = self.gains
         centre_x = 0.0
         if self.use_shear:  # the centre of pressure's side, from the tangential over the normal force
-            indentation = max(depth - LABEL_FACE_DEPTH_MM, 0.2)
-            centre_x = min(max(g.k_shear * shear_x / indentation, -10.0), 10.0)
+            indentation = max(depth - LABEL_FACE_DEPTH_MM, g.min_indentation_mm)
+            centre_x = min(max(g.k_shear * shear_x / indentation, -g.max_centre_offset_mm), g.max_centre_offset_mm)
         bearing, side_mm = aim_bearing_deg(goal, g.half_width_mm, g.lookahead_mm, centre_x)
         if g.ki_side > 0:
             limit = g.integral_limit_mm / g.ki_side
