@@ -203,7 +203,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "Runtime where it can)")
     parser.add_argument("--translators", nargs="+", choices=("full", "student"), default=["full"],
                         help="shipped translators measured: full (the shPix2pix) and/or student (its distilled "
-                             "student, weights/student/; the envs' translator='student')")
+                             "student, from the zoo's student folder; the envs' translator='student')")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
     parser.add_argument("--name", default="env_speed", help="base name of the json written")
 
