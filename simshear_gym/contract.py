@@ -17,21 +17,15 @@ The GDNN's own input (resize to its size, scale to [0, 1]) belongs to the model:
 
 from __future__ import annotations
 
-import functools
-import json
 import math
-import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
 from gymnasium import spaces
 
-from simshear_gym.models.device import DEVICES, check_device_name
-from simshear_gym.models.translator_runtime import DEFAULT_THREADS as DEFAULT_TRANSLATOR_THREADS
-from simshear_gym.models.translator_runtime import RUNTIMES as TRANSLATOR_RUNTIMES
-from simshear_gym.tables import read_toml
+from simshear_gym.models.translator_runtime import translator_from
+from simshear_gym.models.zoo import shipped_translator
 from simshear_gym.transforms import pose_to_matrix, rz_matrix
 
 OBS_MODES: tuple[str, ...] = ("real", "sim", "oracle", "oracle_real")
@@ -294,128 +288,13 @@ def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
     return resized.reshape(*lead, image_size_px, image_size_px)
 
 
-TRANSLATOR_RUNTIME_ENV = "SIMSHEAR_TRANSLATOR_RUNTIME"
-
-
-def choose_translator_runtime(runtime: str | None = None) -> str:
-    """The translator runtime to use: ``runtime`` if given, else ``$SIMSHEAR_TRANSLATOR_RUNTIME``, else
-    ``"auto"`` (ONNX Runtime where onnxruntime is installed and the ``.onnx`` beside the weights is current, else
-    torch; see :mod:`simshear_gym.models.translator_runtime`). The environment variable reaches every process of a
-    vector env, the envs' own argument-free default."""
-    chosen = runtime if runtime is not None else os.environ.get(TRANSLATOR_RUNTIME_ENV) or "auto"
-    if chosen not in TRANSLATOR_RUNTIMES:
-        source = "translator_runtime" if runtime is not None else f"${TRANSLATOR_RUNTIME_ENV}"
-        raise ValueError(f"{source} must be one of {TRANSLATOR_RUNTIMES}, got {chosen!r}")
-    return chosen
-
-
-TRANSLATOR_THREADS_ENV = "SIMSHEAR_TRANSLATOR_THREADS"
-
-
-def choose_translator_threads(threads: int | None = None) -> int:
-    """ONNX Runtime's intra-op threads for a translator: ``threads`` if given, else ``$SIMSHEAR_TRANSLATOR_THREADS``,
-    else 1 (:data:`~simshear_gym.models.translator_runtime.DEFAULT_THREADS`: one core per translator, in the
-    one-process loop and in each vector-env worker). Two threads translate one env's images about 1.5x faster where
-    the second core is free (``results/env_speed.json``); where other work holds the cores they cost more than
-    they gain. The torch runtime keeps torch's own setting."""
-    chosen = threads if threads is not None else os.environ.get(TRANSLATOR_THREADS_ENV) or DEFAULT_TRANSLATOR_THREADS
-    if not str(chosen).isdigit() or int(chosen) < 1 or isinstance(chosen, bool):
-        source = "translator threads" if threads is not None else f"${TRANSLATOR_THREADS_ENV}"
-        raise ValueError(f"{source} must be a whole number of threads >= 1, got {chosen!r}")
-    return int(chosen)
-
-
-TRANSLATORS: tuple[str, ...] = ("full", "student")
-TRANSLATOR_ENV = "SIMSHEAR_TRANSLATOR"
-
-
-def choose_translator(translator: str | None = None) -> str:
-    """Which shipped translator makes the envs' images: ``translator`` if given, else ``$SIMSHEAR_TRANSLATOR``, else
-    ``"full"`` (the shipped shPix2pix); ``"student"`` is its distilled student (``weights/student/``, a smaller
-    generator that learned the full one's images: the fast path; see its card for its quality on the real
-    validation images). The environment variable reaches every process of a vector env."""
-    chosen = translator if translator is not None else os.environ.get(TRANSLATOR_ENV) or "full"
-    if chosen not in TRANSLATORS:
-        source = "translator" if translator is not None else f"${TRANSLATOR_ENV}"
-        raise ValueError(f"{source} must be one of {TRANSLATORS}, got {chosen!r}")
-    return chosen
-
-
-def shipped_student_weights(contact: str, arch: str = "shpix2pix") -> str:
-    """The shipped student translator's weights for a contact type (FileNotFoundError naming what ships)."""
-    from simshear_gym.models.translator import STUDENT_DIR, shipped_models
-
-    models = shipped_models(student=True)
-    if (arch, contact) not in models:
-        raise FileNotFoundError(f"no shipped student {arch} translator for {contact!r} contacts in {STUDENT_DIR}; "
-                                f"shipped students: {sorted(models)}")
-    return str(models[(arch, contact)])
-
-
-TRANSLATOR_DEVICE_ENV = "SIMSHEAR_TRANSLATOR_DEVICE"
-
-
-def choose_translator_device(device: str | None = None) -> str:
-    """The torch device the translator runs on: ``device`` if given, else ``$SIMSHEAR_TRANSLATOR_DEVICE``, else
-    ``"cpu"`` (the envs' default: one env at batch 1 is fastest on the CPU's ONNX path, and forked vector-env
-    workers cannot share a GPU); ``"auto"`` is CUDA where torch finds it; ``"cuda"`` without one is an error
-    (:func:`simshear_gym.models.device.resolve_device`). Returns ``"cpu"`` or the CUDA device's name."""
-    chosen = device if device is not None else os.environ.get(TRANSLATOR_DEVICE_ENV) or "cpu"
-    try:
-        check_device_name(chosen)
-    except ValueError:
-        source = "device" if device is not None else f"${TRANSLATOR_DEVICE_ENV}"
-        raise ValueError(f"{source} must be one of {DEVICES} (where the translator runs), got {chosen!r}") from None
-    if chosen == "cpu":
-        return "cpu"
-    from simshear_gym.models.device import resolve_device
-
-    return str(resolve_device(chosen))
-
-
-@functools.cache
-def _cached_translator(weights: str, runtime: str, device: str, threads: int):
-    from simshear_gym.models.translator_runtime import load_translator
-
-    return load_translator(weights, runtime, threads=threads, device=device)
-
-
-def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | None = None,
-                       device: str | None = None, threads: int | None = None):
-    """The shipped translator for a contact type on ``runtime`` (:func:`choose_translator_runtime`), ``device``
-    (:func:`choose_translator_device`) and ONNX Runtime ``threads`` (:func:`choose_translator_threads`), loaded once
-    per process (torch and onnxruntime are imported here, so that importing the envs stays cheap)."""
-    return _cached_translator(_shipped_weights(contact, arch), choose_translator_runtime(runtime),
-                              choose_translator_device(device), choose_translator_threads(threads))
-
-
-@functools.cache
-def _shipped_weights(contact: str, arch: str) -> str:
-    from simshear_gym.models.translator import shipped_models
-
-    models = shipped_models()
-    if (arch, contact) not in models:
-        raise FileNotFoundError(f"no shipped {arch} translator for {contact!r} contacts; shipped: {sorted(models)}")
-    return str(models[(arch, contact)])
-
-
-def translator_from(weights: str, runtime: str | None = None, device: str | None = None,
-                    threads: int | None = None):
-    """A translator from a weights file (a sensor's own, from ``simshear pipeline run``) on ``runtime``
-    (:func:`choose_translator_runtime`), ``device`` (:func:`choose_translator_device`) and ONNX Runtime
-    ``threads`` (:func:`choose_translator_threads`), loaded once per process."""
-    return _cached_translator(str(weights), choose_translator_runtime(runtime), choose_translator_device(device),
-                              choose_translator_threads(threads))
-
-
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
                    contact: str, translator_weights: str | None = None,
                    translator_runtime: str | None = None, translator_device: str | None = None) -> np.ndarray:
     """Raw sim images (B, R, R) -> observation images (B, S, S): translated in the translated modes (one
     batched call, the shear as the tracker gives it; by ``translator_weights`` if given, else the shipped
     translator of ``contact``; on ``translator_runtime`` and ``translator_device``, see
-    :func:`choose_translator_runtime` and :func:`choose_translator_device`), then resized by
-    :func:`resize_tactile`."""
+    :mod:`simshear_gym.models.translator_runtime`), then resized by :func:`resize_tactile`."""
     images = np.asarray(sim_uint8)
     if obs_mode in TRANSLATED_MODES:
         shear = np.asarray(shear_sensor, dtype=np.float32).reshape(len(images), 6)
@@ -424,55 +303,3 @@ def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: st
                       shipped_translator(contact, runtime=translator_runtime, device=translator_device))
         images = translator(resize_tactile(images, translator.image_size_px), shear)
     return resize_tactile(images, image_size_px)
-
-
-SENSOR_FILE = "sensor.json"
-DEFAULT_PIPELINE_RUNS = "runs/pipeline"
-
-
-@dataclass(frozen=True)
-class SensorModels:
-    """A sensor's own simulated TacTip and models, as ``simshear pipeline run`` exports them (``sensor.json`` in
-    its run folder): the TacTip's settings (:class:`~simshear_gym.sim.tactip.TacTipConfig` fields), and per
-    contact type the shPix2pix translator and the GDNN trained on its images (absolute paths once loaded)."""
-
-    name: str
-    tactip: dict
-    translators: dict
-    posenets: dict
-
-    def translator(self, contact: str) -> str:
-        return self._lookup(self.translators, contact, "translator")
-
-    def posenet(self, contact: str) -> str:
-        return self._lookup(self.posenets, contact, "GDNN")
-
-    def _lookup(self, table: dict, contact: str, what: str) -> str:
-        if contact not in table:
-            raise ValueError(f"sensor {self.name!r} has no {what} for {contact!r} contacts; it has {sorted(table)}")
-        return table[contact]
-
-
-def load_sensor(spec: str | os.PathLike) -> SensorModels:
-    """A sensor's models from its ``sensor.json``, a pipeline run folder holding one, or its experiment config
-    (``configs/<name>.toml``: the run folder ``runs/pipeline/<name>`` that ``simshear pipeline run`` writes by
-    default, relative to the working directory)."""
-    path = Path(spec)
-    if path.suffix == ".toml":
-        name = read_toml(path).get("name")
-        path = Path(DEFAULT_PIPELINE_RUNS) / str(name)
-    if path.is_dir():
-        path = path / SENSOR_FILE
-    if not path.is_file():
-        raise FileNotFoundError(f"no sensor models at {path} (from sensor={str(spec)!r}): run `simshear pipeline "
-                                "run CONFIG` first, or pass the sensor.json of a pipeline run folder")
-    record = json.loads(path.read_text())
-    try:
-        folder = path.parent
-        return SensorModels(
-            name=record["sensor"], tactip=dict(record["tactip"]),
-            translators={c: str(folder / p) for c, p in record["translators"].items()},
-            posenets={c: str(folder / p) for c, p in record["posenets"].items()})
-    except (KeyError, TypeError, AttributeError) as error:
-        raise ValueError(f"{path}: not a sensor file of simshear pipeline run ({error!r} missing or "
-                         "malformed)") from None

@@ -42,9 +42,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def posenet_path() -> str:
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    return str(shipped_posenet_path("surface"))
+    return str(posenet_weights("surface"))
 
 
 # -- sets on disk --------------------------------------------------------------------------------------------------
@@ -361,7 +361,7 @@ def test_no_bad_input_run_exits_0_with_nan_or_inf_in_its_output(tmp_path, capsys
 
 def _weights_cases(good: Path) -> dict[str, tuple[Callable[[Path], None], tuple[str, ...]]]:
     """name -> (write a bad weights file at the path, what the error line must say besides the file)."""
-    from simshear_gym.models.translator import shipped_models
+    from simshear_gym.models.zoo import shipped_translators
 
     def bit_flip(path: Path) -> None:
         shutil.copyfile(good, path)
@@ -376,7 +376,7 @@ def _weights_cases(good: Path) -> dict[str, tuple[Callable[[Path], None], tuple[
                       ("not a readable weights file",)),
         "random_bytes": (lambda path: path.write_bytes(np.random.default_rng(0).bytes(4096)),
                          ("not a readable weights file",)),
-        "wrong_architecture": (lambda path: shutil.copyfile(shipped_models()[("shpix2pix", "surface")], path),
+        "wrong_architecture": (lambda path: shutil.copyfile(shipped_translators()[("shpix2pix", "surface")], path),
                                ("not a simshear posenet file",)),
         "bit_flipped": (bit_flip, ("sha256", "differs", "corrupt")),
     }
@@ -397,10 +397,10 @@ def test_evaluate_posenet_with_bad_weights(tmp_path, capsys, case):
 
 @pytest.mark.parametrize("case", ["zero_bytes", "truncated", "random_bytes", "bit_flipped"])
 def test_translator_weights_that_are_bad_are_one_error_naming_the_file(tmp_path, case):
-    from simshear_gym.models.translator import shipped_models
     from simshear_gym.models.translator_runtime import load_translator
+    from simshear_gym.models.zoo import shipped_translators
 
-    good = shipped_models()[("shpix2pix", "surface")]
+    good = shipped_translators()[("shpix2pix", "surface")]
     bad = tmp_path / "shpix2pix_surface.pt"
     _weights_cases(good)[case][0](bad)
     with pytest.raises(ValueError, match=r"shpix2pix_surface\.pt: "):
@@ -411,10 +411,10 @@ def test_translator_weights_that_are_bad_are_one_error_naming_the_file(tmp_path,
 def test_onnx_translators_that_are_bad_are_one_error_naming_the_file(tmp_path, case):
     """A bit-flipped .onnx loads in ONNX Runtime and makes black images: its recorded sha256 refuses it."""
     pytest.importorskip("onnxruntime")
-    from simshear_gym.models.translator import WEIGHTS_DIR
-    from simshear_gym.models.translator_runtime import OnnxTranslator
+    from simshear_gym.models.translator_runtime import OnnxTranslator, onnx_path_for
+    from simshear_gym.models.zoo import translator_weights
 
-    good = WEIGHTS_DIR / "shpix2pix_surface.onnx"
+    good = onnx_path_for(translator_weights("surface"))
     bad = tmp_path / "bad.onnx"
     if case == "wrong_architecture":  # an ONNX graph of something else: a one-input identity
         import onnx
@@ -435,7 +435,7 @@ def test_onnx_translators_that_are_bad_are_one_error_naming_the_file(tmp_path, c
 def test_every_shipped_weights_file_carries_its_checksum():
     """The shipped .pt and .onnx files each have a <file>.sha256 beside them, and it matches."""
     from simshear_gym.io import checksum_path, verify_checksum
-    from simshear_gym.models.translator import WEIGHTS_DIR
+    from simshear_gym.models.zoo import WEIGHTS_DIR
 
     files = sorted([*WEIGHTS_DIR.rglob("*.pt"), *WEIGHTS_DIR.rglob("*.onnx")])
     files = [path for path in files if "policies" not in path.parts]  # a policy's sha256 is in its model.json

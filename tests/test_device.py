@@ -245,7 +245,7 @@ def test_the_envs_translator_runs_on_the_cpu_by_default_and_on_cuda_only_where_t
     import gymnasium as gym
 
     import simshear_gym.envs  # noqa: F401
-    from simshear_gym.contract import TRANSLATOR_DEVICE_ENV, choose_translator_device
+    from simshear_gym.models.translator_runtime import TRANSLATOR_DEVICE_ENV, choose_translator_device
 
     monkeypatch.delenv(TRANSLATOR_DEVICE_ENV, raising=False)
     assert choose_translator_device() == "cpu" and choose_translator_device("auto") == "cpu"
@@ -267,10 +267,10 @@ def test_a_gpu_translator_is_torchs_and_vector_workers_leave_the_gpu_to_the_main
 
     import simshear_gym.envs  # noqa: F401
     from simshear_gym.envs import base
-    from simshear_gym.models.translator import shipped_models
     from simshear_gym.models.translator_runtime import load_translator
+    from simshear_gym.models.zoo import shipped_translators
 
-    weights = shipped_models()[("shpix2pix", "surface")]
+    weights = shipped_translators()[("shpix2pix", "surface")]
     with pytest.raises(ValueError, match="ONNX Runtime runs here on the CPU only"):
         load_translator(weights, "onnx", device="cuda:0")
     with pytest.raises(ValueError, match="ONNX Runtime runs here on the CPU only"):

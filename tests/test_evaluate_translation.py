@@ -38,9 +38,9 @@ def test_model_specs():
 def test_small_evaluation_on_real_rows(data_root, tmp_path):
     generator = UNetGenerator(UNetConfig(image_size_px=128, base_channels=4, max_channels=8)).eval()
     save_generator(tmp_path / "g.pt", generator)
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    reader = shipped_posenet_path("surface")
+    reader = posenet_weights("surface")
     results, reader_floor, stacks = evaluate(
         data_root, {"tiny": {"surface": tmp_path / "g.pt", "edge": tmp_path / "g.pt"}}, rows=4, workers=1,
         readers={"surface": reader})

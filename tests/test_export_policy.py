@@ -18,9 +18,9 @@ import torch
 from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
+from simshear_gym.models.zoo import POLICY_DIR
 from simshear_gym.pipelines.export_policy import (
     ENV_MODELS,
-    POLICY_WEIGHTS_DIR,
     SHIPPED_FILES,
     export,
     source_files,
@@ -102,7 +102,7 @@ def test_a_run_without_an_evaluated_model_names_what_is_missing(tmp_path, run_di
 def test_shipped_policies_load_in_their_env():
     """Every folder under models/weights/policies is a complete, pickle-free policy that loads against its own env,
     trained on the observations of the shipped translator and GDNN."""
-    folders = sorted(p for p in POLICY_WEIGHTS_DIR.glob("*") if p.is_dir()) if POLICY_WEIGHTS_DIR.is_dir() else []
+    folders = sorted(p for p in POLICY_DIR.glob("*") if p.is_dir()) if POLICY_DIR.is_dir() else []
     assert {folder.name for folder in folders} >= {"tracking_ppo", "colift_ppo", "edge_ppo"}
     for folder in folders:
         assert {p.name for p in folder.iterdir()} == set(SHIPPED_FILES), folder  # no pickle
@@ -128,8 +128,8 @@ def test_shipped_policies_act_as_their_pickled_originals():
     stored = json.loads((Path(__file__).parent / "fixtures" / "policy_actions.json").read_text())["policies"]
     assert set(stored) == {"tracking_ppo", "colift_ppo"}
     for name, rows in stored.items():
-        policy = load_policy(POLICY_WEIGHTS_DIR / name / "model.pt")
-        normalizer = load_normalizer(POLICY_WEIGHTS_DIR / name / "vecnormalize.json")
+        policy = load_policy(POLICY_DIR / name / "model.pt")
+        normalizer = load_normalizer(POLICY_DIR / name / "vecnormalize.json")
         assert len(rows) >= 20
         for row in rows:
             observation = {key: np.asarray(value, np.float32) for key, value in row["observation"].items()}
@@ -141,7 +141,7 @@ def test_a_policy_is_named_by_any_of_its_files():
     """model.pt, model.json and the model.zip they replaced (in recorded commands) name one policy."""
     from simshear_gym.control.policy import sb3_algorithm
 
-    folder = POLICY_WEIGHTS_DIR / "tracking_ppo"
+    folder = POLICY_DIR / "tracking_ppo"
     assert {sb3_algorithm(folder / name) for name in ("model.pt", "model.json", "model.zip")} == {"ppo"}
 
 

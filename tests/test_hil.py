@@ -25,9 +25,9 @@ TRAVEL_MM = 20.0
 
 def posenet_path() -> str:
     """The shipped surface GDNN (the one the servo controller uses by default)."""
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    return str(shipped_posenet_path("surface"))
+    return str(posenet_weights("surface"))
 
 
 def test_sim_camera_frame_survives_the_real_preprocessing():

@@ -361,9 +361,9 @@ def test_an_sb3_policy_drives_the_follower(tmp_path, torch_one_thread):
     rest within a few cycles, before or soon after the tracking starts, so the run stops safely early (a finding
     about the policy, not the rig)."""
     from simshear_gym.lab.experiment import run_tracking_rehearsal
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import policy_folder
 
-    policy = shipped_posenet_path("surface").parents[1] / "policies" / "tracking_ppo" / "model.pt"
+    policy = policy_folder("tracking_ppo") / "model.pt"
     summary = run_tracking_rehearsal(ExperimentConfig(trajectory="circle", **SHORT), tmp_path,
                                      controller=str(policy))
     assert summary["stop"] in ("", "follower_safety_refused"), summary["stop_reason"]

@@ -287,7 +287,7 @@ def test_example_lab_smoke_trains_from_its_config_alone(data_root, tmp_path):
 
 
 def test_a_sensor_without_a_pipeline_run_says_how_to_make_one(tmp_path):
-    from simshear_gym.contract import load_sensor
+    from simshear_gym.models.zoo import load_sensor
 
     with pytest.raises(FileNotFoundError, match="run `simshear pipeline run CONFIG` first"):
         load_sensor(tmp_path)

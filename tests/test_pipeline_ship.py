@@ -76,7 +76,13 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
 
 
 def test_ship_writes_into_the_package_weights_folder_by_default():
-    from simshear_gym.models import translator
+    import argparse
+    import inspect
+
+    from simshear_gym.models import zoo
     from simshear_gym.pipelines import ship as ship_module
 
-    assert ship_module.WEIGHTS_DIR == translator.WEIGHTS_DIR
+    parser = argparse.ArgumentParser()
+    ship_module.add_arguments(parser)
+    assert parser.parse_args(["RUN"]).to == zoo.WEIGHTS_DIR
+    assert inspect.signature(ship_module.ship).parameters["to"].default == zoo.WEIGHTS_DIR

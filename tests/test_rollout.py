@@ -23,9 +23,9 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 
 def posenet_path() -> str:
     """The shipped surface GDNN (the one the servo controller uses by default)."""
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    return str(shipped_posenet_path("surface"))
+    return str(posenet_weights("surface"))
 
 
 @pytest.fixture

@@ -5,11 +5,12 @@ import pytest
 from simshear_gym.data.paths import real_set_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.evaluate.metrics import mape
-from simshear_gym.models.translator import Translator, shipped_models
+from simshear_gym.models.translator import Translator
+from simshear_gym.models.zoo import shipped_translators
 from simshear_gym.sim.replay import render_poses
 from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
-SHIPPED = shipped_models()
+SHIPPED = shipped_translators()
 
 
 def test_shpix2pix_is_shipped_for_both_contact_types():

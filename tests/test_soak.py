@@ -26,9 +26,9 @@ from simshear_gym.robots.mg400.kinematics import inverse
 
 
 def posenet_path() -> str:
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    return str(shipped_posenet_path("surface"))
+    return str(posenet_weights("surface"))
 
 
 def check(result: dict, cycles: int) -> None:

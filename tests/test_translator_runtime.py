@@ -21,13 +21,14 @@ import pytest
 
 import simshear_gym.envs  # noqa: F401
 from simshear_gym import contract
-from simshear_gym.models import translator_runtime
-from simshear_gym.models.translator import Translator, shipped_models
+from simshear_gym.models import translator_runtime, zoo
+from simshear_gym.models.translator import Translator
 from simshear_gym.models.translator_runtime import OnnxTranslator, file_sha256, load_translator, onnx_path_for
+from simshear_gym.models.zoo import shipped_translators
 
 pytest.importorskip("onnxruntime", reason="the ONNX translator runtime needs onnxruntime (a dependency)")
 
-SHIPPED = {contact: shipped_models()[("shpix2pix", contact)] for contact in ("surface", "edge")}
+SHIPPED = {contact: shipped_translators()[("shpix2pix", contact)] for contact in ("surface", "edge")}
 MAX_DIFFERING_SHARE = 0.02
 MAX_DIFFERENCE_GREY = 6
 MAX_MEAN_DIFFERENCE_GREY = 0.05
@@ -121,58 +122,57 @@ def test_runtime_choice(tmp_path, monkeypatch):
         load_translator(weights, "onnx")
 
 
-def test_contract_runtime_option_and_environment_variable(monkeypatch):
-    monkeypatch.delenv(contract.TRANSLATOR_RUNTIME_ENV, raising=False)
-    assert contract.choose_translator_runtime() == "auto"
-    assert contract.choose_translator_runtime("torch") == "torch"
-    monkeypatch.setenv(contract.TRANSLATOR_RUNTIME_ENV, "onnx")
-    assert contract.choose_translator_runtime() == "onnx"
-    assert isinstance(contract.shipped_translator("surface"), OnnxTranslator)
-    assert isinstance(contract.shipped_translator("surface", runtime="torch"), Translator)
+def test_runtime_option_and_environment_variable(monkeypatch):
+    monkeypatch.delenv(translator_runtime.TRANSLATOR_RUNTIME_ENV, raising=False)
+    assert translator_runtime.choose_translator_runtime() == "auto"
+    assert translator_runtime.choose_translator_runtime("torch") == "torch"
+    monkeypatch.setenv(translator_runtime.TRANSLATOR_RUNTIME_ENV, "onnx")
+    assert translator_runtime.choose_translator_runtime() == "onnx"
+    assert isinstance(zoo.shipped_translator("surface"), OnnxTranslator)
+    assert isinstance(zoo.shipped_translator("surface", runtime="torch"), Translator)
     sim, shear = _inputs(2)
     _assert_agree(contract.finish_tactile(sim, shear, "real", 128, "surface"),
                   contract.finish_tactile(sim, shear, "real", 128, "surface", translator_runtime="torch"))
-    monkeypatch.setenv(contract.TRANSLATOR_RUNTIME_ENV, "gpu")
+    monkeypatch.setenv(translator_runtime.TRANSLATOR_RUNTIME_ENV, "gpu")
     with pytest.raises(ValueError, match=r"\$SIMSHEAR_TRANSLATOR_RUNTIME must be one of .*'gpu'"):
         contract.finish_tactile(sim, shear, "real", 128, "surface")
     with pytest.raises(ValueError, match="translator_runtime must be one of"):
-        contract.shipped_translator("surface", runtime="fast")
+        zoo.shipped_translator("surface", runtime="fast")
 
 
-def test_contract_onnx_threads_option_and_environment_variable(monkeypatch):
+def test_onnx_threads_option_and_environment_variable(monkeypatch):
     """ONNX Runtime's intra-op threads: 1 by default, else the argument or $SIMSHEAR_TRANSLATOR_THREADS; the
     translators of two settings are two sessions that agree on the images."""
-    monkeypatch.delenv(contract.TRANSLATOR_THREADS_ENV, raising=False)
-    assert contract.choose_translator_threads() == 1 and contract.choose_translator_threads(2) == 2
-    one = contract.shipped_translator("surface", runtime="onnx")
-    monkeypatch.setenv(contract.TRANSLATOR_THREADS_ENV, "2")
-    two = contract.shipped_translator("surface", runtime="onnx")
+    monkeypatch.delenv(translator_runtime.TRANSLATOR_THREADS_ENV, raising=False)
+    assert translator_runtime.choose_translator_threads() == 1 and translator_runtime.choose_translator_threads(2) == 2
+    one = zoo.shipped_translator("surface", runtime="onnx")
+    monkeypatch.setenv(translator_runtime.TRANSLATOR_THREADS_ENV, "2")
+    two = zoo.shipped_translator("surface", runtime="onnx")
     assert (one.threads, two.threads) == (1, 2)
     sim, shear = _inputs(2)
     _assert_agree(one(sim, shear), two(sim, shear))
     for bad in ("0", "two", "1.5"):
-        monkeypatch.setenv(contract.TRANSLATOR_THREADS_ENV, bad)
+        monkeypatch.setenv(translator_runtime.TRANSLATOR_THREADS_ENV, bad)
         with pytest.raises(ValueError, match=rf"\$SIMSHEAR_TRANSLATOR_THREADS must be a whole number .*'{bad}'"):
-            contract.shipped_translator("surface")
+            zoo.shipped_translator("surface")
     with pytest.raises(ValueError, match="translator threads must be a whole number"):
-        contract.choose_translator_threads(0)
+        translator_runtime.choose_translator_threads(0)
 
 
 def test_the_translator_choice_puts_the_student_in_the_envs(tmp_path, monkeypatch):
     """translator='student' (or $SIMSHEAR_TRANSLATOR) makes the env translate with the weights in
     weights/student/: here a copy of the shipped generator, so the images are the full env's."""
-    from simshear_gym.models import translator as translator_module
-
-    monkeypatch.delenv(contract.TRANSLATOR_ENV, raising=False)
-    monkeypatch.setenv(contract.TRANSLATOR_RUNTIME_ENV, "torch")
-    assert contract.choose_translator() == "full" and contract.choose_translator("student") == "student"
-    monkeypatch.setattr(translator_module, "STUDENT_DIR", tmp_path)
+    monkeypatch.delenv(translator_runtime.TRANSLATOR_ENV, raising=False)
+    monkeypatch.setenv(translator_runtime.TRANSLATOR_RUNTIME_ENV, "torch")
+    assert translator_runtime.choose_translator() == "full"
+    assert translator_runtime.choose_translator("student") == "student"
+    monkeypatch.setattr(zoo, "STUDENT_DIR", tmp_path)
     with pytest.raises(FileNotFoundError, match="no shipped student shpix2pix translator for 'surface'"):
         gym.make("SimShearTracking-v0", translator="student")
     shutil.copy(SHIPPED["surface"], tmp_path / "shpix2pix_surface.pt")
     observations = {}
     for choice in ("full", "student"):
-        monkeypatch.setenv(contract.TRANSLATOR_ENV, choice)
+        monkeypatch.setenv(translator_runtime.TRANSLATOR_ENV, choice)
         env = gym.make("SimShearTracking-v0", obs_mode="real", image_size_px=64)
         assert env.unwrapped.translator == choice
         assert (env.unwrapped.translator_weights == str(tmp_path / "shpix2pix_surface.pt")) == (choice == "student")
@@ -181,7 +181,7 @@ def test_the_translator_choice_puts_the_student_in_the_envs(tmp_path, monkeypatc
         observations[choice] = obs["tactile"]
         env.close()
     np.testing.assert_array_equal(observations["student"], observations["full"])
-    monkeypatch.setenv(contract.TRANSLATOR_ENV, "fast")
+    monkeypatch.setenv(translator_runtime.TRANSLATOR_ENV, "fast")
     with pytest.raises(ValueError, match=r"\$SIMSHEAR_TRANSLATOR must be one of \('full', 'student'\), got 'fast'"):
         gym.make("SimShearTracking-v0")
     with pytest.raises(ValueError, match="sensor 'configs/x.toml' brings its own translator"):
@@ -213,7 +213,7 @@ def test_onnx_translator_rejects_bad_input(tmp_path):
 def test_env_with_the_onnx_runtime_gives_the_torch_env_observation(monkeypatch, image_size_px):
     observations = {}
     for runtime in ("onnx", "torch"):
-        monkeypatch.setenv(contract.TRANSLATOR_RUNTIME_ENV, runtime)
+        monkeypatch.setenv(translator_runtime.TRANSLATOR_RUNTIME_ENV, runtime)
         env = gym.make("SimShearTracking-v0", obs_mode="real", image_size_px=image_size_px)
         obs, _ = env.reset(seed=3)
         for _ in range(3):

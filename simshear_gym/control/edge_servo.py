@@ -196,12 +196,12 @@ class EdgeServoController:
                  estimator: EstimatorConfig = EstimatorConfig()) -> None:
         from dataclasses import replace
 
-        from simshear_gym.models.posenet_io import shipped_posenet_path
+        from simshear_gym.models.zoo import posenet_weights
 
         self.action_scale = as_action_scale(action_scale, "EdgeServoController")
         self._scale = self.action_scale.as_array()
         if estimator.posenet is None:
-            estimator = replace(estimator, posenet=str(shipped_posenet_path("edge")))
+            estimator = replace(estimator, posenet=str(posenet_weights("edge")))
         self.estimator = EdgeEstimator(estimator, gains.angle_process_std_deg)
         self.law = EdgeLaw(reference_depth_mm, self._scale, step_mm, gains)
         self._last_move: np.ndarray | None = None

@@ -71,12 +71,13 @@ class TactileEstimator:
     def __init__(self, config: EstimatorConfig = EstimatorConfig()) -> None:
         import torch
 
-        from simshear_gym.models.posenet_io import load_posenet, shipped_posenet_path
+        from simshear_gym.models.posenet_io import load_posenet
+        from simshear_gym.models.zoo import posenet_weights
 
         if config.threads:
             torch.set_num_threads(config.threads)
         self.config = config
-        path = Path(config.posenet) if config.posenet else shipped_posenet_path("surface")
+        path = Path(config.posenet) if config.posenet else posenet_weights("surface")
         self.model, self.card = load_posenet(path)
         names = self.model.variables.names
         self._check_variables(path, names)

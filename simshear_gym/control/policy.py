@@ -272,25 +272,12 @@ def load_normalizer(path: str | Path, trust_pickle: bool = False):
     return normalizer
 
 
-def shipped_estimator_file(name: str) -> Path:
-    """The shipped weights file a policy's provenance names (``translator_<arch>_<contact>``: the translator,
-    ``posenet_<name>``: the GDNN), whose sha256 :mod:`~simshear_gym.pipelines.export_policy` records at export."""
-    if name.startswith("translator_"):
-        from simshear_gym.models.translator import WEIGHTS_DIR
-
-        return WEIGHTS_DIR / f"{name.removeprefix('translator_')}.pt"
-    if name.startswith("posenet_"):
-        from simshear_gym.models.posenet_io import POSENET_WEIGHTS_DIR
-
-        return POSENET_WEIGHTS_DIR / f"{name.removeprefix('posenet_')}.pt"
-    raise ValueError(f"estimator model name must start with 'translator_' or 'posenet_', got {name!r}")
-
-
 def stale_estimator_models(path: str | Path) -> list[str]:
     """The models that made a shipped policy's observations at export (its ``config.json`` provenance) and have
     been replaced since (another sha256 now, or gone): the policy sees other observations than it was trained on.
     [] for a run folder without that record."""
     from simshear_gym.models.translator_runtime import file_sha256
+    from simshear_gym.models.zoo import estimator_file
 
     config = Path(path).parent / RUN_CONFIG
     if not config.is_file():
@@ -298,7 +285,7 @@ def stale_estimator_models(path: str | Path) -> list[str]:
     recorded = (json.loads(config.read_text()).get("provenance") or {}).get("estimator_models_sha256") or {}
     stale = []
     for name, digest in recorded.items():
-        current = shipped_estimator_file(name)
+        current = estimator_file(name)
         if not current.is_file() or file_sha256(current) != digest:
             stale.append(name)
     return stale
@@ -430,5 +417,5 @@ class SB3Controller:
 
 
 __all__ = ["Controller", "EstimatingController", "PolicySettings", "ResidualServo", "ResidualSettings", "SB3Controller",
-           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "shipped_estimator_file",
-           "stale_estimator_models", "vecnormalize_path"]
+           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "stale_estimator_models",
+           "vecnormalize_path"]

@@ -111,12 +111,12 @@ class ServoController:
         load hold and margin (None: the env's) as :func:`servo_law_for_env` gives them."""
         from dataclasses import replace
 
-        from simshear_gym.models.posenet_io import shipped_posenet_path
+        from simshear_gym.models.zoo import posenet_weights
 
         base = env.unwrapped
         if estimator.posenet is None:
             name = getattr(base, "estimator_posenet", "surface")  # a shipped GDNN's name, or a sensor's weights
-            posenet = name if name.endswith(".pt") else str(shipped_posenet_path(name))
+            posenet = name if name.endswith(".pt") else str(posenet_weights(name))
             estimator = replace(estimator, posenet=posenet)
         if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
             estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)

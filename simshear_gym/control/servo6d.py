@@ -130,7 +130,7 @@ class Servo6DController:
     def for_env(cls, env, gains: Servo6DGains = Servo6DGains(),
                 estimator: EstimatorConfig = EstimatorConfig()) -> Servo6DController:
         """A controller matched to a 6-DoF env's reference depth, action scale, tilt rate and shipped GDNN."""
-        from simshear_gym.models.posenet_io import shipped_posenet_path
+        from simshear_gym.models.zoo import posenet_weights
 
         base = env.unwrapped
         if getattr(base, "action_space", None) is not None and base.action_space.shape != (6,):
@@ -138,7 +138,7 @@ class Servo6DController:
                              f"{base.action_space.shape}: use ServoController for a 4-DoF one")
         if estimator.posenet is None:
             name = getattr(base, "estimator_posenet", "surface")
-            estimator = replace(estimator, posenet=name if name.endswith(".pt") else str(shipped_posenet_path(name)))
+            estimator = replace(estimator, posenet=name if name.endswith(".pt") else str(posenet_weights(name)))
         return cls(base.reference_depth_mm, base.action_scale, base.tilt_step_deg, gains, estimator)
 
     def reset(self) -> None:

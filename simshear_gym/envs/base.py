@@ -58,15 +58,13 @@ from simshear_gym.contract import (
     action_to_move,
     check_image_size,
     check_observation,
-    choose_translator,
-    choose_translator_device,
     finish_tactile,
-    load_sensor,
     observation_space,
-    shipped_student_weights,
 )
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.observation import Estimator, PolicyObservation
+from simshear_gym.models.translator_runtime import choose_translator, choose_translator_device
+from simshear_gym.models.zoo import load_sensor, translator_weights
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose
 from simshear_gym.robots.mg400.kinematics import KinematicsError
 from simshear_gym.sim.arm import Arm
@@ -172,7 +170,7 @@ class SimShearEnv(gym.Env, EzPickle):
         reference_depth_mm: the depth to keep, label convention (face at ``SURFACE_DEPTH_MM`` = 2.2 mm).
         action_scale, reward, termination, mount, arm_config, shear_config: see their classes.
         sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its
-            ``simshear pipeline run`` or that run's ``sensor.json``; :func:`~simshear_gym.contract.load_sensor`):
+            ``simshear pipeline run`` or that run's ``sensor.json``; :func:`~simshear_gym.models.zoo.load_sensor`):
             the TacTip renders with its dome and camera settings, its translator makes the images, and an
             image-based controller reads them with its GDNN (``estimator_posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
@@ -190,10 +188,12 @@ class SimShearEnv(gym.Env, EzPickle):
             ``estimator_posenet`` and its process noise, as ``ServoController.for_env``). Envs do not import the
             controllers (same floor), so it is passed in; it is called once, at construction.
         device: where the translator runs (``"cpu"``, ``"cuda"``, ``"auto"``; default ``$SIMSHEAR_TRANSLATOR_DEVICE``
-            or ``"cpu"``: :func:`~simshear_gym.contract.choose_translator_device`); the physics runs on the CPU.
+            or ``"cpu"``: :func:`~simshear_gym.models.translator_runtime.choose_translator_device`); the physics
+            runs on the CPU.
         translator: which shipped translator makes the images: ``"full"`` (the shipped shPix2pix) or
             ``"student"`` (its distilled student, the fast path); default ``$SIMSHEAR_TRANSLATOR`` or ``"full"``
-            (:func:`~simshear_gym.contract.choose_translator`). A ``sensor``'s own translator takes no student.
+            (:func:`~simshear_gym.models.translator_runtime.choose_translator`). A ``sensor``'s own translator takes
+            no student.
     """
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
@@ -249,7 +249,7 @@ class SimShearEnv(gym.Env, EzPickle):
             if sensor is not None:
                 raise ValueError(f"translator 'student' is the shipped translator's student; sensor {sensor!r} "
                                  "brings its own translator: leave translator (and $SIMSHEAR_TRANSLATOR) unset")
-            self.translator_weights = shipped_student_weights(self.translator_contact)
+            self.translator_weights = str(translator_weights(self.translator_contact, student=True))
         if sensor is not None:
             models = load_sensor(sensor)
             tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})

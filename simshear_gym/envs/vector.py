@@ -7,8 +7,9 @@ the translator then runs once per group and step on the whole group's images (``
 default), or once per step on all N images in the main process (``translate_in="main"``). With ``workers=0``
 everything runs in this process (one group, one batched translation per step).
 
-On a GPU (``device="cuda"``: where the translator runs, :func:`~simshear_gym.contract.choose_translator_device`)
-the workers only render and this process translates all N images in one batch: ``translate_in="main"``.
+On a GPU (``device="cuda"``: where the translator runs,
+:func:`~simshear_gym.models.translator_runtime.choose_translator_device`) the workers only render and this process
+translates all N images in one batch: ``translate_in="main"``.
 
 Why translating in the workers is the default: each worker translates its group with one torch thread while the
 other worker renders, so the cores stay busy without torch's multi-threading, which collapses when other

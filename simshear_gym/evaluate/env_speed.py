@@ -17,11 +17,11 @@ and angle; ``SimShearPush-v0``: the push law on the true depth, shear and face y
   comparison, in the main process (torch on ``--threads`` threads, ONNX Runtime on one).
 
 The runtime is chosen for the env (and its workers) by ``$SIMSHEAR_TRANSLATOR_RUNTIME``
-(:func:`simshear_gym.contract.choose_translator_runtime`). Goals: >= 100 steps/s in one process, >= 600 steps/s
-vectorised over both cores, and (issue 22) translated steps in one process at least half as many per second as
-raw sim steps. The machine's load average
-before each run is recorded: on a shared machine other jobs take cores and the numbers with them; the
-single-process rows also give the process's CPU time per step (all its threads), which other jobs disturb less.
+(:func:`simshear_gym.models.translator_runtime.choose_translator_runtime`). Goals: >= 100 steps/s in one process,
+>= 600 steps/s vectorised over both cores, and (issue 22) translated steps in one process at least half as many per
+second as raw sim steps. The machine's load average before each run is recorded: on a shared machine other jobs take
+cores and the numbers with them; the single-process rows also give the process's CPU time per step (all its
+threads), which other jobs disturb less.
 """
 
 from __future__ import annotations
@@ -155,7 +155,7 @@ def _environment(name: str, value: str):
 def translator_runtime(runtime: str, translator: str = "full", threads: int = 1):
     """The envs built (and the vector env workers started) inside run the shipped ``translator`` ("full" or
     "student") on ``runtime`` (ONNX Runtime on ``threads`` intra-op threads)."""
-    from simshear_gym.contract import TRANSLATOR_ENV, TRANSLATOR_RUNTIME_ENV, TRANSLATOR_THREADS_ENV
+    from simshear_gym.models.translator_runtime import TRANSLATOR_ENV, TRANSLATOR_RUNTIME_ENV, TRANSLATOR_THREADS_ENV
 
     with (_environment(TRANSLATOR_RUNTIME_ENV, runtime), _environment(TRANSLATOR_ENV, translator),
           _environment(TRANSLATOR_THREADS_ENV, str(threads))):
@@ -165,10 +165,11 @@ def translator_runtime(runtime: str, translator: str = "full", threads: int = 1)
 def surface_translator(runtime: str, translator: str = "full", threads: int = 1, contact: str = "surface"):
     """The shipped translator of a contact type (surface by default; "full", or its "student") on ``runtime`` (ONNX
     Runtime on ``threads`` threads), as the envs load it."""
-    from simshear_gym.contract import shipped_student_weights, shipped_translator, translator_from
+    from simshear_gym.models.translator_runtime import translator_from
+    from simshear_gym.models.zoo import shipped_translator, translator_weights
 
     if translator == "student":
-        return translator_from(shipped_student_weights(contact), runtime, threads=threads)
+        return translator_from(translator_weights(contact, student=True), runtime, threads=threads)
     return shipped_translator(contact, runtime=runtime, threads=threads)
 
 
@@ -202,7 +203,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "Runtime where it can)")
     parser.add_argument("--translators", nargs="+", choices=("full", "student"), default=["full"],
                         help="shipped translators measured: full (the shPix2pix) and/or student (its distilled "
-                             "student, weights/student/; the envs' translator='student')")
+                             "student, from the zoo's student folder; the envs' translator='student')")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
     parser.add_argument("--name", default="env_speed", help="base name of the json written")
 

@@ -104,7 +104,7 @@ def contact_sequence(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
 
 def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(poses, shear (T, 6) sensor frame, translated uint8 images (T, H, W)) of a sequence."""
-    from simshear_gym.models.translator import load_shipped
+    from simshear_gym.models.zoo import load_shipped_translator
     from simshear_gym.sim.replay import ReplayScene
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
@@ -112,7 +112,7 @@ def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.
     with ReplayScene(config.contact) as scene:
         sim = np.stack([scene.render(pose) for pose in poses])
     shear = replay_shear(poses, moves, ShearTrackerConfig())
-    translator = load_shipped("shpix2pix", config.contact)
+    translator = load_shipped_translator(config.contact)
     images = np.concatenate([translator(sim[i:i + 32], shear[i:i + 32]) for i in range(0, len(sim), 32)])
     return poses, shear, images
 
@@ -245,9 +245,9 @@ def run(args: argparse.Namespace) -> int:
     models = parse_contact_paths(args.model, "--model")
     for contact, path in list(models.items()):
         if str(path) == "shipped":
-            from simshear_gym.models.posenet_io import shipped_posenet_path
+            from simshear_gym.models.zoo import posenet_weights
 
-            models[contact] = shipped_posenet_path(contact)
+            models[contact] = posenet_weights(contact)
     start = time.perf_counter()
     settings = FilterSettings()
     results, series = {}, {}

@@ -315,14 +315,14 @@ def run(args: argparse.Namespace) -> int:
 
 def _translator_threads() -> int:
     """ONNX Runtime's intra-op threads of the envs' translators (``$SIMSHEAR_TRANSLATOR_THREADS``, default 1)."""
-    from simshear_gym.contract import choose_translator_threads
+    from simshear_gym.models.translator_runtime import choose_translator_threads
 
     return choose_translator_threads()
 
 
 def _translator_runtime() -> str:
     """The runtime the envs' shipped surface translator ran on in this process (``"onnx"`` or ``"torch"``)."""
-    from simshear_gym.contract import shipped_translator
     from simshear_gym.models.translator_runtime import runtime_of
+    from simshear_gym.models.zoo import shipped_translator
 
     return runtime_of(shipped_translator("surface"))

@@ -222,9 +222,9 @@ def _maes_text(maes: dict[str, float]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.models.translator import shipped_models
+    from simshear_gym.models.zoo import shipped_translators
 
-    specs = args.model or [f"{name}:{contact}={path}" for (name, contact), path in shipped_models().items()]
+    specs = args.model or [f"{name}:{contact}={path}" for (name, contact), path in shipped_translators().items()]
     models = parse_models(specs)
     readers = parse_readers(args.reader)
     start = time.perf_counter()

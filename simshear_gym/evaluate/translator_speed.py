@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from simshear_gym.models.device import OnDevice, resolve_device
-    from simshear_gym.models.translator import Translator, shipped_models
+    from simshear_gym.models.translator import Translator
+    from simshear_gym.models.zoo import shipped_translators
 
     bad = [size for size in args.batch_sizes if size < 1]
     if bad:
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         machine["gpu"] = torch.cuda.get_device_name(device)
     rng = np.random.default_rng(0)
     rows = []
-    for (arch, contact), path in sorted(shipped_models().items()):
+    for (arch, contact), path in sorted(shipped_translators().items()):
         translator = Translator.load(path)
         if device.type != "cpu":  # the generator on the GPU behind the same uint8 interface
             translator = Translator(OnDevice(translator.generator, device), translator.card, fast=False)

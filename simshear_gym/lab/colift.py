@@ -272,9 +272,9 @@ def run_colift_rehearsal(config: CoLiftConfig, out_dir: str | Path, controller: 
     """One co-lift run on a fresh co-lift rig (or on ``rig``, started), with the shipped ``colift`` GDNN unless
     ``posenet``; the summary of :func:`~simshear_gym.lab.experiment.run_on_rig` (``rows`` included)."""
     from simshear_gym.lab.colift_rig import CoLiftRig, CoLiftRigConfig
-    from simshear_gym.models.posenet_io import shipped_posenet_path
+    from simshear_gym.models.zoo import posenet_weights
 
-    posenet = posenet if posenet is not None else str(shipped_posenet_path("colift"))
+    posenet = posenet if posenet is not None else str(posenet_weights("colift"))
     if rig is not None:
         return run_on_rig(rig, config, out_dir, controller, calibration, posenet, command, on_cycle,
                           experiment=CoLiftRun)
@@ -334,12 +334,12 @@ def run(args: argparse.Namespace) -> int:
                                        command, rig_config)
         summary.pop("rows")
     else:
-        from simshear_gym.models.posenet_io import shipped_posenet_path
+        from simshear_gym.models.zoo import posenet_weights
         from simshear_gym.real.camera import CameraSource
 
         run_ = CoLiftRun(ArmEndpoint.parse(args.leader, "--leader"), ArmEndpoint.parse(args.follower, "--follower"),
                          CameraSource(args.camera), calibration, args.controller, config,
-                         args.posenet or str(shipped_posenet_path("colift")))
+                         args.posenet or str(posenet_weights("colift")))
         summary = run_.run(out_dir, command)
     mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
     return report_run(summary, out_dir, f"{summary['trajectory']} with the {summary['object']}: "

@@ -1,4 +1,5 @@
-"""Translator: (sim depth image, shear vector) -> real-looking TacTip image, with shipped weights.
+"""Translator: (sim depth image, shear vector) -> real-looking TacTip image (the shipped ones:
+:mod:`simshear_gym.models.zoo`).
 
 Conventions shared by training and inference live here: the sim input is ``uint8 / SIM_SCALE`` (the sim images
 hold penetration at 17.6 grey levels per mm, so a 3.6 mm contact maps to 1), the shear vector is the
@@ -23,10 +24,6 @@ SHEAR_SCALE = np.array([5.0, 5.0, 5.0, 5.0, 5.0, 5.0], dtype=np.float32)  # mm, 
 # The shear input leaves out z: the paired training data never moved along z during a shear (indentation shows
 # in the sim image itself), so a tracker's z component (a sensor pressed in while sheared) is not shown to it.
 SHEAR_INPUT_MASK = np.array([1.0, 1.0, 0.0, 1.0, 1.0, 1.0], dtype=np.float32)
-WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-STUDENT_DIR = WEIGHTS_DIR / "student"
-"""Distilled students of the shipped translators (``simshear train translator --teacher``): smaller generators
-that learned the shipped ones' images, for the envs' fast path (``translator="student"``)."""
 
 
 def normalise_sim(sim_uint8: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -92,29 +89,3 @@ class Translator:
                 raise ValueError(f"shear_sensor must be (B, 6) = ({len(sim)}, 6), got {tuple(shear.shape)}")
         out = self._run(sim, shear) if shear is not None else self._run(sim)
         return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
-
-
-def shipped_models(student: bool = False) -> dict[tuple[str, str], Path]:
-    """Shipped weights: ``weights/<arch>_<contact>.pt`` (one per contact type) or ``weights/<arch>.pt`` (both);
-    with ``student``, the distilled students in ``weights/student/`` (:data:`STUDENT_DIR`), named the same.
-
-    Returns ``{(arch, contact): path}``.
-    """
-    from simshear_gym.data.labels import CONTACT_TYPES
-
-    found: dict[tuple[str, str], Path] = {}
-    for path in sorted((STUDENT_DIR if student else WEIGHTS_DIR).glob("*.pt")):
-        arch, _, contact = path.stem.partition("_")
-        for each in ([contact] if contact in CONTACT_TYPES else CONTACT_TYPES if not contact else []):
-            found[(arch, each)] = path
-    return found
-
-
-def load_shipped(arch: str = "shpix2pix", contact: str = "surface") -> Translator:
-    """The shipped translator of an architecture and contact type."""
-    models = shipped_models()
-    if (arch, contact) not in models:
-        raise FileNotFoundError(
-            f"no shipped {arch} translator for {contact!r} contacts in {WEIGHTS_DIR}; shipped: {sorted(models)}"
-        )
-    return Translator.load(models[(arch, contact)])

@@ -18,11 +18,17 @@ ONNX Runtime runs on :data:`DEFAULT_THREADS` intra-op thread by default: one cor
 one-process loop and in each vector-env worker (on a shared 2-core machine, two torch threads took 13-400x longer
 per image than one while other jobs held the cores: ``results/env_speed.json``).
 
+The choice of translator, runtime, device and threads (an argument, else an environment variable, which reaches
+every process of a vector env, else the default: :func:`choose_translator`, :func:`choose_translator_runtime`,
+:func:`choose_translator_device`, :func:`choose_translator_threads`) and the per-process cache of loaded
+translators (:func:`translator_from`) live here too.
+
 torch is imported only by the torch path; this module imports neither torch nor onnxruntime at import time.
 """
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -31,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.io import verify_checksum
+from simshear_gym.models.device import DEVICES, check_device_name
 
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
@@ -128,6 +135,87 @@ def load_translator(weights: str | os.PathLike, runtime: str = "auto", threads: 
     from simshear_gym.models.translator import Translator
 
     return Translator.load(weights)
+
+
+TRANSLATOR_RUNTIME_ENV = "SIMSHEAR_TRANSLATOR_RUNTIME"
+
+
+def choose_translator_runtime(runtime: str | None = None) -> str:
+    """The translator runtime to use: ``runtime`` if given, else ``$SIMSHEAR_TRANSLATOR_RUNTIME``, else
+    ``"auto"`` (ONNX Runtime where onnxruntime is installed and the ``.onnx`` beside the weights is current, else
+    torch). The environment variable reaches every process of a vector env, the envs' own argument-free default."""
+    chosen = runtime if runtime is not None else os.environ.get(TRANSLATOR_RUNTIME_ENV) or "auto"
+    if chosen not in RUNTIMES:
+        source = "translator_runtime" if runtime is not None else f"${TRANSLATOR_RUNTIME_ENV}"
+        raise ValueError(f"{source} must be one of {RUNTIMES}, got {chosen!r}")
+    return chosen
+
+
+TRANSLATOR_THREADS_ENV = "SIMSHEAR_TRANSLATOR_THREADS"
+
+
+def choose_translator_threads(threads: int | None = None) -> int:
+    """ONNX Runtime's intra-op threads for a translator: ``threads`` if given, else ``$SIMSHEAR_TRANSLATOR_THREADS``,
+    else 1 (:data:`DEFAULT_THREADS`: one core per translator, in the one-process loop and in each vector-env
+    worker). Two threads translate one env's images about 1.5x faster where the second core is free
+    (``results/env_speed.json``); where other work holds the cores they cost more than they gain. The torch runtime
+    keeps torch's own setting."""
+    chosen = threads if threads is not None else os.environ.get(TRANSLATOR_THREADS_ENV) or DEFAULT_THREADS
+    if not str(chosen).isdigit() or int(chosen) < 1 or isinstance(chosen, bool):
+        source = "translator threads" if threads is not None else f"${TRANSLATOR_THREADS_ENV}"
+        raise ValueError(f"{source} must be a whole number of threads >= 1, got {chosen!r}")
+    return int(chosen)
+
+
+TRANSLATORS: tuple[str, ...] = ("full", "student")
+TRANSLATOR_ENV = "SIMSHEAR_TRANSLATOR"
+
+
+def choose_translator(translator: str | None = None) -> str:
+    """Which shipped translator makes the envs' images: ``translator`` if given, else ``$SIMSHEAR_TRANSLATOR``, else
+    ``"full"`` (the shipped shPix2pix); ``"student"`` is its distilled student (a smaller generator that learned the
+    full one's images: the fast path, :func:`simshear_gym.models.zoo.translator_weights`; see its card for its
+    quality on the real validation images). The environment variable reaches every process of a vector env."""
+    chosen = translator if translator is not None else os.environ.get(TRANSLATOR_ENV) or "full"
+    if chosen not in TRANSLATORS:
+        source = "translator" if translator is not None else f"${TRANSLATOR_ENV}"
+        raise ValueError(f"{source} must be one of {TRANSLATORS}, got {chosen!r}")
+    return chosen
+
+
+TRANSLATOR_DEVICE_ENV = "SIMSHEAR_TRANSLATOR_DEVICE"
+
+
+def choose_translator_device(device: str | None = None) -> str:
+    """The torch device the translator runs on: ``device`` if given, else ``$SIMSHEAR_TRANSLATOR_DEVICE``, else
+    ``"cpu"`` (the envs' default: one env at batch 1 is fastest on the CPU's ONNX path, and forked vector-env
+    workers cannot share a GPU); ``"auto"`` is CUDA where torch finds it; ``"cuda"`` without one is an error
+    (:func:`simshear_gym.models.device.resolve_device`). Returns ``"cpu"`` or the CUDA device's name."""
+    chosen = device if device is not None else os.environ.get(TRANSLATOR_DEVICE_ENV) or "cpu"
+    try:
+        check_device_name(chosen)
+    except ValueError:
+        source = "device" if device is not None else f"${TRANSLATOR_DEVICE_ENV}"
+        raise ValueError(f"{source} must be one of {DEVICES} (where the translator runs), got {chosen!r}") from None
+    if chosen == "cpu":
+        return "cpu"
+    from simshear_gym.models.device import resolve_device
+
+    return str(resolve_device(chosen))
+
+
+@functools.cache
+def _cached_translator(weights: str, runtime: str, device: str, threads: int):
+    return load_translator(weights, runtime, threads=threads, device=device)
+
+
+def translator_from(weights: str | os.PathLike, runtime: str | None = None, device: str | None = None,
+                    threads: int | None = None):
+    """A translator from a weights file on ``runtime`` (:func:`choose_translator_runtime`), ``device``
+    (:func:`choose_translator_device`) and ONNX Runtime ``threads`` (:func:`choose_translator_threads`), loaded once
+    per process."""
+    return _cached_translator(str(weights), choose_translator_runtime(runtime), choose_translator_device(device),
+                              choose_translator_threads(threads))
 
 
 def runtime_of(translator) -> str:

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
+from simshear_gym.models.zoo import load_sensor, translator_weights
 from simshear_gym.pipelines.stages import StageResult, StageRunner
 
 if TYPE_CHECKING:  # the config imports the simulation (PyBullet): not for --help
@@ -36,12 +37,8 @@ def translator_file(recipe: EnvModelRecipe, sensor: str | None) -> Path:
     """The translator weights whose images the recipe's env emits (the shipped surface shPix2pix, or the
     sensor's)."""
     if sensor is not None:
-        from simshear_gym.contract import load_sensor
-
         return Path(load_sensor(sensor).translator("surface"))
-    from simshear_gym.models.translator import shipped_models
-
-    return shipped_models()[("shpix2pix", "surface")]
+    return translator_weights("surface")
 
 
 def scene_fingerprint(recipe: EnvModelRecipe) -> dict:

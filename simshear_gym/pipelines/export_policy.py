@@ -27,11 +27,9 @@ from pathlib import Path
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import atomic_write, recorded_path, write_json
-from simshear_gym.pipelines.ship import WEIGHTS_DIR
+from simshear_gym.models.zoo import estimator_file
 from simshear_gym.train.rl_config import ended_early
 
-POLICY_WEIGHTS_DIR = WEIGHTS_DIR / "policies"
-"""Where the package's policies live: ``policies/<name>/model.pt`` (+ ``model.json``) with its card ``model.md``."""
 SHIPPED_FILES = ("model.pt", "model.json", "vecnormalize.json", "config.json", "model.md")
 """The files of a shipped policy."""
 PICKLES = ("model.zip", "vecnormalize.pkl")
@@ -144,13 +142,12 @@ def files_line(to: Path) -> str:
 
 def model_hashes(task: str) -> dict[str, str]:
     """sha256 of the shipped translator and GDNN that make a task's estimate observation now."""
-    from simshear_gym.control.policy import shipped_estimator_file
     from simshear_gym.models.translator_runtime import file_sha256
 
     posenet = ENV_MODELS[task][1]
     contact = "edge" if posenet == "edge" else "surface"
     names = (f"translator_shpix2pix_{contact}", f"posenet_{posenet}")
-    return {name: file_sha256(shipped_estimator_file(name)) for name in names}
+    return {name: file_sha256(estimator_file(name)) for name in names}
 
 
 def export(run: Path, to: Path, train_command: str, model: str = "best", results: Path | None = None,
@@ -271,7 +268,7 @@ def _imitation_line(imitation: dict, config: dict) -> str:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--run", type=Path, default=None, help="run folder of simshear train rl")
     parser.add_argument("--to", type=Path, default=None,
-                        help="the shipped policy's folder, e.g. simshear_gym/models/weights/policies/tracking_ppo")
+                        help="the policy's folder (a shipped one: simshear_gym.models.zoo.POLICY_DIR / NAME)")
     parser.add_argument("--model", choices=MODEL_CHOICES, default="best",
                         help="best: the run's best evaluated model (best_model), final: its last (model)")
     parser.add_argument("--train-command", default=None, help="the exact simshear train rl command of the run")

@@ -21,8 +21,8 @@ CHECK_LINE = re.compile(r"^Check figure \(tests\):.*$", re.MULTILINE)
 def recheck(weights: Path, data: str | None = None, date: str | None = None) -> dict:
     """Measure ``weights``' check figure again (same set as recorded), store it and update its card; returns it."""
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
-    from simshear_gym.models.translator import shipped_models
     from simshear_gym.models.translator_runtime import file_sha256
+    from simshear_gym.models.zoo import shipped_translators
     from simshear_gym.pipelines.export_posenet import check_figure, env_check_figure
 
     weights = Path(weights)
@@ -35,7 +35,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
                          "simshear train export-posenet)")
     if old.get("kind") == "env":
         check = env_check_figure(weights, old["collect"])
-        translator = shipped_models()[("shpix2pix", "surface")]
+        translator = shipped_translators()[("shpix2pix", "surface")]
         check["translator_sha256"] = file_sha256(translator)
     else:
         check = check_figure(weights, card["contact"], old["rows"], data)
@@ -60,8 +60,8 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("weights", type=Path, help="shipped GDNN weights, e.g. simshear_gym/models/weights/posenet/"
-                        "colift.pt")
+    parser.add_argument("weights", type=Path,
+                        help="shipped GDNN weights (simshear_gym.models.zoo.posenet_weights(NAME))")
     parser.add_argument("--data", default=None,
                         help="data root of a real-data check (default: $SIMSHEAR_DATA, else ../shared/data)")
 

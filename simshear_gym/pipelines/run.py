@@ -24,7 +24,7 @@ train on the profile's ``device`` (``--device`` overrides it; ``auto``: CUDA whe
 part of their cache keys.
 
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
-(``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.contract.load_sensor`).
+(``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.models.zoo.load_sensor`).
 
 SIGTERM or SIGINT stops the run and all its processes (:mod:`simshear_gym.pipelines.stopping`): exit status 128 +
 the signal, one ``simshear: error:`` line; the rerun resumes.
@@ -48,13 +48,13 @@ from typing import TYPE_CHECKING
 
 import pandas as pd
 
-from simshear_gym.contract import SENSOR_FILE
 from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, config_files, resolve, write_canonical
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
+from simshear_gym.models.zoo import DEFAULT_PIPELINE_RUNS, write_sensor
 from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import (
     StageResult,
@@ -478,12 +478,10 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             posenets = {"models": posenet_weights(config, profile_settings, done), "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
     if translators and posenets:
-        write_json(out / SENSOR_FILE, {
-            "sensor": config.name, "config": str(config.path), "profile": profile,
-            "tactip": asdict(config.sensor),
-            "translators": {contact: archs["shpix2pix"] for contact, archs in translators.items()},
-            "posenets": {contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
-            "variables": posenets["variables"]})
+        write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor),
+                     translators={contact: archs["shpix2pix"] for contact, archs in translators.items()},
+                     posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
+                     variables=posenets["variables"])
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile,
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
@@ -535,7 +533,7 @@ def run(args: argparse.Namespace) -> int:
 
     config = only_contacts(load_config(args.config), args.contacts)
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
-    out = args.out or Path("runs") / "pipeline" / config.name
+    out = args.out or Path(DEFAULT_PIPELINE_RUNS) / config.name
     try:
         with stop_on_signals():
             manifest = run_pipeline(config, out, root, args.profile, tuple(args.stages), args.rows,

@@ -1,8 +1,8 @@
 """``simshear pipeline ship RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
 
-For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2pix translators go to
-``DIR/<arch>_<contact>.pt`` and its GDNN trained on translated images to ``DIR/posenet/<contact>.pt`` (DIR:
-``simshear_gym/models/weights``). Each file keeps its training record and gains the run's (config, profile, stage
+For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2pix translators and its GDNN trained
+on translated images go where the shipped ones lie in DIR (by default the package's shipped folder; the layout:
+:mod:`simshear_gym.models.zoo`). Each file keeps its training record and gains the run's (config, profile, stage
 folder, git commit) and a check figure that the tests reproduce (``tests/test_shipped_translator.py``,
 ``tests/test_shipped_posenet.py``); beside it a card (``.md``): data, settings, the exact commands, the metrics of
 the run's evaluation on the real validation rows, date. Each shPix2pix is also exported to the ``.onnx`` the envs
@@ -20,9 +20,9 @@ import json
 from pathlib import Path
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.models.translator_runtime import onnx_path_for
+from simshear_gym.models.zoo import WEIGHTS_DIR, posenet_file, translator_file
 
-WEIGHTS_DIR = Path(__file__).resolve().parents[1] / "models" / "weights"
-"""The package's weights folder (:data:`simshear_gym.models.translator.WEIGHTS_DIR`, without importing torch)."""
 CHECK_ROWS = {"translator": 16, "posenet": 64}  # rows of the real <contact>_shear val set in the check figures
 
 
@@ -75,7 +75,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
             continue
         for arch in ("shpix2pix", "pix2pix") if "translators" in models else ():
             stage = f"translator/{contact}_{arch}"
-            dest = to / f"{arch}_{contact}.pt"
+            dest = translator_file(arch, contact, to)
             generator, card = load_generator(run / archs[arch])
             card = {**card, "pipeline": _provenance(manifest, records[stage]), "train_command": " && ".join(commands)}
             save_generator(dest, generator, card=card)
@@ -88,7 +88,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
         if "posenet" not in models:
             continue
         stage = f"posenet/{contact}_shpix2pix"
-        dest = to / "posenet" / f"{contact}.pt"
+        dest = posenet_file(contact, to)
         model, card = load_posenet(run / manifest["models"]["posenets"]["models"][contact]["shpix2pix"])
         card = {**card, "contact": contact, "train_command": " && ".join(commands),
                 "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters()),
@@ -121,7 +121,7 @@ def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
     their recorded sha256 no longer matches) and the command to export them is printed."""
     from simshear_gym.pipelines import export_onnx
 
-    onnx_path = weights.with_suffix(".onnx")
+    onnx_path = onnx_path_for(weights)
     if export_onnx.missing_export_packages():
         for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
             stale.unlink(missing_ok=True)
@@ -253,8 +253,8 @@ def _parameters(weights: Path) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="a finished run folder of `simshear pipeline run` (its manifest.json)")
-    parser.add_argument("--to", type=Path, default=Path("simshear_gym/models/weights"),
-                        help="weights folder (default: the package's, simshear_gym/models/weights)")
+    parser.add_argument("--to", type=Path, default=WEIGHTS_DIR,
+                        help="weights folder (default: the package's shipped models)")
     parser.add_argument("--data", default=None,
                         help="data root of the check figures (default: $SIMSHEAR_DATA, else ../shared/data)")
     parser.add_argument("--contacts", nargs="+", default=None, metavar="CONTACT",

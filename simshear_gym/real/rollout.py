@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.contract import HorizontalTacTipMount, load_sensor
+from simshear_gym.contract import HorizontalTacTipMount
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
     EstimatingController,
@@ -54,6 +54,7 @@ from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported f
 )
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.io import atomic_write, write_json
+from simshear_gym.models.zoo import load_sensor
 
 logger = logging.getLogger(__name__)
 

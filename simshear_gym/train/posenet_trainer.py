@@ -23,7 +23,8 @@ from simshear_gym.models.device import cpu_state, resolve_device
 from simshear_gym.models.gdnn import GDNN, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
 from simshear_gym.models.posenet_io import save_posenet
-from simshear_gym.models.translator import ARCHS, Translator, load_shipped
+from simshear_gym.models.translator import ARCHS, Translator
+from simshear_gym.models.zoo import load_shipped_translator
 from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.posenet_config import SOURCES, PosenetTrainConfig
@@ -84,7 +85,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     slots = [distinct.index(path) for path in translators] or [0]  # each listed generator's entry in `chosen`
     chosen = []
     if translated:
-        chosen = [Translator.load(path) for path in distinct] or [load_shipped(source, contact)]
+        chosen = [Translator.load(path) for path in distinct] or [load_shipped_translator(contact, source)]
         wants_shear = source == "shpix2pix"
         for path, translator in zip(distinct, chosen):
             if bool(translator.generator.config.shear_dim) != wants_shear:

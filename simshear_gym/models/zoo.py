@@ -1,0 +1,187 @@
+"""The model zoo: the one owner of the shipped models' folder, a sensor's ``sensor.json`` and loading a model by name.
+
+The shipped folder, :data:`WEIGHTS_DIR` (``simshear_gym/models/weights``), each file with its card ``<file>.md``:
+
+- translators: ``<arch>_<contact>.pt`` (``<arch>.pt``: both contact types), the envs' ONNX export beside each
+  shPix2pix (``<arch>_<contact>.onnx``, :func:`~simshear_gym.models.translator_runtime.onnx_path_for`);
+- their distilled students (the envs' ``translator="student"``): ``student/``, named the same;
+- GDNNs: ``posenet/<name>.pt`` (``surface``, ``edge``, ``colift``, ...);
+- policies: ``policies/<name>/`` (``model.pt``, ``model.json``, ``vecnormalize.json``, ``config.json``, ``model.md``).
+
+A sensor's own models (``simshear pipeline run``) are named by its run folder's ``sensor.json``
+(:func:`write_sensor`, :func:`load_sensor`). Torch is imported only by the loaders that need it.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from simshear_gym.io import write_json
+from simshear_gym.models.translator_runtime import translator_from
+from simshear_gym.tables import read_toml
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+STUDENT_DIR = WEIGHTS_DIR / "student"
+POSENET_DIR = WEIGHTS_DIR / "posenet"
+POLICY_DIR = WEIGHTS_DIR / "policies"
+WEIGHTS_SUFFIX = ".pt"
+SENSOR_FILE = "sensor.json"
+DEFAULT_PIPELINE_RUNS = "runs/pipeline"
+"""Where ``simshear pipeline run`` writes a sensor's run folder by default: ``runs/pipeline/<name>``."""
+
+
+def translator_file(arch: str, contact: str, root: Path = WEIGHTS_DIR) -> Path:
+    """Where a translator of ``arch`` and ``contact`` lies (or goes) in a weights folder laid out as the shipped one."""
+    return Path(root) / f"{arch}_{contact}{WEIGHTS_SUFFIX}"
+
+
+def posenet_file(name: str, root: Path = WEIGHTS_DIR) -> Path:
+    """Where a GDNN of ``name`` lies (or goes) in a weights folder laid out as the shipped one."""
+    return Path(root) / POSENET_DIR.name / f"{name}{WEIGHTS_SUFFIX}"
+
+
+def shipped_translators(student: bool = False) -> dict[tuple[str, str], Path]:
+    """``{(arch, contact): path}`` of the shipped translators (``student``: their students, :data:`STUDENT_DIR`)."""
+    from simshear_gym.data.labels import CONTACT_TYPES
+
+    found: dict[tuple[str, str], Path] = {}
+    for path in sorted((STUDENT_DIR if student else WEIGHTS_DIR).glob(f"*{WEIGHTS_SUFFIX}")):
+        arch, _, contact = path.stem.partition("_")
+        for each in ([contact] if contact in CONTACT_TYPES else CONTACT_TYPES if not contact else []):
+            found[(arch, each)] = path
+    return found
+
+
+def translator_weights(contact: str, arch: str = "shpix2pix", student: bool = False) -> Path:
+    """The shipped translator (or its ``student``) of ``arch`` for ``contact`` (FileNotFoundError naming what ships)."""
+    models = shipped_translators(student)
+    if (arch, contact) not in models:
+        kind = "student " if student else ""
+        raise FileNotFoundError(f"no shipped {kind}{arch} translator for {contact!r} contacts in "
+                                f"{STUDENT_DIR if student else WEIGHTS_DIR}; shipped: {sorted(models)}")
+    return models[(arch, contact)]
+
+
+def shipped_posenets() -> list[str]:
+    """Names of the shipped GDNNs (``posenet/<name>.pt``)."""
+    return sorted(path.stem for path in POSENET_DIR.glob(f"*{WEIGHTS_SUFFIX}"))
+
+
+def posenet_weights(name: str) -> Path:
+    """The shipped GDNN ``name`` (a contact type, ``colift``, ...; FileNotFoundError naming what ships)."""
+    path = posenet_file(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"no shipped posenet for {name!r} contacts in {POSENET_DIR}; "
+                                f"shipped: {shipped_posenets()}")
+    return path
+
+
+def shipped_policies() -> list[str]:
+    """Names of the shipped policies (``policies/<name>/``)."""
+    return sorted(path.name for path in POLICY_DIR.glob("*") if path.is_dir())
+
+
+def policy_folder(name: str) -> Path:
+    """The shipped policy ``name``'s folder, e.g. ``tracking_ppo`` (FileNotFoundError naming what ships)."""
+    folder = POLICY_DIR / name
+    if not folder.is_dir():
+        raise FileNotFoundError(f"no shipped policy {name!r} in {POLICY_DIR}; shipped: {shipped_policies()}")
+    return folder
+
+
+def estimator_file(name: str) -> Path:
+    """The shipped file a policy's provenance names: ``translator_<arch>_<contact>`` (a translator) or
+    ``posenet_<name>`` (a GDNN); the file need not exist (a shipped model may have been removed since)."""
+    if name.startswith("translator_"):
+        return WEIGHTS_DIR / f"{name.removeprefix('translator_')}{WEIGHTS_SUFFIX}"
+    if name.startswith("posenet_"):
+        return posenet_file(name.removeprefix("posenet_"))
+    raise ValueError(f"estimator model name must start with 'translator_' or 'posenet_', got {name!r}")
+
+
+@functools.cache
+def _cached_weights(contact: str, arch: str) -> str:
+    return str(translator_weights(contact, arch))
+
+
+def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | None = None,
+                       device: str | None = None, threads: int | None = None):
+    """The shipped translator for a contact type on the chosen runtime, device and threads
+    (:func:`~simshear_gym.models.translator_runtime.translator_from`), loaded once per process."""
+    return translator_from(_cached_weights(contact, arch), runtime, device, threads)
+
+
+def load_shipped_translator(contact: str = "surface", arch: str = "shpix2pix"):
+    """The shipped torch translator of ``arch`` for ``contact``
+    (a :class:`~simshear_gym.models.translator.Translator`)."""
+    from simshear_gym.models.translator import Translator
+
+    return Translator.load(translator_weights(contact, arch))
+
+
+def load_shipped_posenet(name: str = "surface"):
+    """(GDNN in eval mode, card) of the shipped GDNN ``name``."""
+    from simshear_gym.models.posenet_io import load_posenet
+
+    return load_posenet(posenet_weights(name))
+
+
+@dataclass(frozen=True)
+class SensorModels:
+    """A sensor's own simulated TacTip and models, as ``simshear pipeline run`` exports them (``sensor.json`` in
+    its run folder): the TacTip's settings (:class:`~simshear_gym.sim.tactip.TacTipConfig` fields), and per
+    contact type the shPix2pix translator and the GDNN trained on its images (absolute paths once loaded)."""
+
+    name: str
+    tactip: dict
+    translators: dict
+    posenets: dict
+
+    def translator(self, contact: str) -> str:
+        return self._lookup(self.translators, contact, "translator")
+
+    def posenet(self, contact: str) -> str:
+        return self._lookup(self.posenets, contact, "GDNN")
+
+    def _lookup(self, table: dict, contact: str, what: str) -> str:
+        if contact not in table:
+            raise ValueError(f"sensor {self.name!r} has no {what} for {contact!r} contacts; it has {sorted(table)}")
+        return table[contact]
+
+
+def write_sensor(folder: Path, sensor: str, config: str, profile: str, tactip: dict, translators: dict,
+                 posenets: dict, variables) -> Path:
+    """Write a pipeline run's ``sensor.json`` in ``folder`` (model paths relative to it); returns its path."""
+    path = Path(folder) / SENSOR_FILE
+    write_json(path, {"sensor": sensor, "config": config, "profile": profile, "tactip": tactip,
+                      "translators": translators, "posenets": posenets, "variables": variables})
+    return path
+
+
+def load_sensor(spec: str | os.PathLike) -> SensorModels:
+    """A sensor's models from its ``sensor.json``, a pipeline run folder holding one, or its experiment config
+    (``configs/<name>.toml``: the run folder ``runs/pipeline/<name>`` that ``simshear pipeline run`` writes by
+    default, relative to the working directory)."""
+    path = Path(spec)
+    if path.suffix == ".toml":
+        name = read_toml(path).get("name")
+        path = Path(DEFAULT_PIPELINE_RUNS) / str(name)
+    if path.is_dir():
+        path = path / SENSOR_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"no sensor models at {path} (from sensor={str(spec)!r}): run `simshear pipeline "
+                                "run CONFIG` first, or pass the sensor.json of a pipeline run folder")
+    record = json.loads(path.read_text())
+    try:
+        folder = path.parent
+        return SensorModels(
+            name=record["sensor"], tactip=dict(record["tactip"]),
+            translators={c: str(folder / p) for c, p in record["translators"].items()},
+            posenets={c: str(folder / p) for c, p in record["posenets"].items()})
+    except (KeyError, TypeError, AttributeError) as error:
+        raise ValueError(f"{path}: not a sensor file of simshear pipeline run ({error!r} missing or "
+                         "malformed)") from None
