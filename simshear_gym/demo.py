@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.evaluate.figures import save_figure
+
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 
 
@@ -104,6 +106,4 @@ def figure(runs: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Pat
     fig.colorbar(dots, ax=[axis for axis in fig.axes if axis.get_title().startswith("error along")],
                  label="contact error mm", shrink=0.8)
     fig.suptitle(title, fontsize=9)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, tight=False)

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -142,10 +143,7 @@ def figure(panels: dict[str, dict[str, tuple]], outlines_world: dict[str, np.nda
         bottom.set_ylabel("|offset| mm", fontsize=7)
         bottom.tick_params(labelsize=6)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -28,6 +28,7 @@ import numpy as np
 from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
 from simshear_gym.models.device import DEVICES
@@ -110,10 +111,7 @@ def figure(arrays: dict, path: Path) -> None:
                 axis.set_xlabel("true", fontsize=7)
             if c == 0:
                 axis.set_ylabel("predicted", fontsize=7)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 READ_SHARE = 0.5

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.evaluate.model_specs import parse_contact_paths
 from simshear_gym.io import recorded_path, write_json
 
@@ -220,10 +221,7 @@ def figure(series: dict, path: Path) -> None:
             axis.set_title(f"{key}: {spec.name}" if c == 0 else spec.name, fontsize=7)
             axis.tick_params(labelsize=6)
         axes[r, 0].legend(fontsize=5)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

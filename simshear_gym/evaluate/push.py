@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -116,10 +117,7 @@ def figure(paths: dict[str, list[tuple]], distances: dict[str, np.ndarray], path
     right.set_ylabel("final distance from the target, mm", fontsize=8)
     right.legend(fontsize=7)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

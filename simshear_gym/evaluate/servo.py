@@ -39,6 +39,7 @@ from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -163,10 +164,7 @@ def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, t
                    f"{name}\nerror {error:.2f} mm")
     fig.axes[0].legend(fontsize=6, loc="upper left")
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

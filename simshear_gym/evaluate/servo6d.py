@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import save_figure
 from simshear_gym.io import write_json
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -122,10 +123,7 @@ def figure(traces: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]], traject
     axes[-1, 1].set_xlabel("time s", fontsize=7)
     axes[0, 0].legend(fontsize=6)
     fig.suptitle("SimShearTracking6D-v0, nominal runs (dotted: targets 0.5 mm, 2 deg)", fontsize=9)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
