@@ -16,7 +16,7 @@ from simshear_gym.real.camera import default_config, preprocess
 from simshear_gym.real.hil import embed_in_frame
 from simshear_gym.real.hil_edge import EdgeObjectConfig, SimEdgeCamera
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
-from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyLayer
+from tests.rehearsal import check_servo_commands_within_limits
 
 START = (300.0, 0.0, 0.0, 0.0)
 STEPS = 60
@@ -52,7 +52,7 @@ def test_edge_following_rollout_runs_on_the_emulator_within_the_limits(tmp_path)
                          "--outline", "wavy", "--steps", str(STEPS), "--period-s", str(PERIOD_S), "--out", str(out),
                          "--dashboard-port", str(emulator.dashboard_port), "--motion-port",
                          str(emulator.motion_port), "--feedback-port", str(emulator.feedback_port)])
-        sent = [c for c in emulator.received_commands("motion") if c.lower().startswith("servop")]
+        sent = emulator.received_commands("motion")
     finally:
         emulator.stop()
     summary = json.loads((out / "rollout.json").read_text())
@@ -66,15 +66,7 @@ def test_edge_following_rollout_runs_on_the_emulator_within_the_limits(tmp_path)
     with open(out / "steps.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
     assert {"estimate_y_mm", "estimate_depth_mm", "estimate_edge_angle_deg"} <= set(rows[0])
-    safety = SafetyConfig()
-    layer = SafetyLayer(safety)
-    previous = np.array(START)
-    assert len(sent) == STEPS
-    for command in sent:  # every ServoP passes the safety layer's checks again
-        target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
-        assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
-        layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=PERIOD_S + 0.02)
-        previous = target
+    check_servo_commands_within_limits(sent, START, STEPS, PERIOD_S)
 
 
 def test_edge_rollout_refuses_what_it_cannot_do(tmp_path, capsys):

@@ -16,8 +16,8 @@ from simshear_gym.real.env import move_to_flange_target, tcp_pose_from_flange
 from simshear_gym.real.hil_push import PushObjectConfig, SimPushCamera
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 from simshear_gym.real.rollout import PUSH_START_POSE_MM_DEG
-from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyLayer
 from simshear_gym.robots.mg400.kinematics import inverse
+from tests.rehearsal import check_servo_commands_within_limits
 
 START = PUSH_START_POSE_MM_DEG
 STEPS = 60
@@ -66,7 +66,7 @@ def test_pushing_rollout_runs_on_the_emulator_within_the_limits(tmp_path):
                          "--reference-depth-mm", "2.6", "--steps", str(STEPS), "--period-s", str(PERIOD_S),
                          "--out", str(out), "--dashboard-port", str(emulator.dashboard_port), "--motion-port",
                          str(emulator.motion_port), "--feedback-port", str(emulator.feedback_port)])
-        sent = [c for c in emulator.received_commands("motion") if c.lower().startswith("servop")]
+        sent = emulator.received_commands("motion")
     finally:
         emulator.stop()
     summary = json.loads((out / "rollout.json").read_text())
@@ -77,15 +77,7 @@ def test_pushing_rollout_runs_on_the_emulator_within_the_limits(tmp_path):
     # pushed towards the target (150 mm ahead at the start), 0.5 mm a command, on the path
     assert summary["truth_target_distance_mm"] < 150.0 - 0.6 * STEPS * 0.5
     assert summary["truth_contact_error_mm"]["max"] < 3.0
-    safety = SafetyConfig()
-    layer = SafetyLayer(safety)
-    previous = np.array(START)
-    assert len(sent) == STEPS
-    for command in sent:  # every ServoP passes the safety layer's checks again
-        target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
-        assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
-        layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=PERIOD_S + 0.02)
-        previous = target
+    check_servo_commands_within_limits(sent, START, STEPS, PERIOD_S)
 
 
 def test_push_rollout_refuses_what_it_cannot_do(tmp_path, capsys):

@@ -16,8 +16,8 @@ import torch
 
 from simshear_gym import cli
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
-from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyLayer
 from simshear_gym.train.rl import RLTrainConfig, train
+from tests.rehearsal import check_servo_commands_within_limits as check_within_limits
 
 torch.set_num_threads(1)
 STEPS = 20
@@ -64,20 +64,8 @@ SHIPPED_TRACKING = "simshear_gym/models/weights/policies/tracking_ppo/model.pt"
 
 
 def check_servo_commands_within_limits(emulator: MG400Emulator, steps: int, period_s: float) -> None:
-    """Every ServoP the emulator received passes the safety layer's checks again: reachable, inside the workspace
-    box, within the step and speed limits from the target before."""
-    safety = SafetyConfig()
-    layer = SafetyLayer(safety)
-    sent = [command for command in emulator.received_commands("motion") if command.lower().startswith("servop")]
-    assert len(sent) == steps
-    previous = np.array([300.0, 0.0, 0.0, 0.0])
-    for command in sent:
-        target = np.array([float(v) for v in command[len("ServoP("):].split(",")[:4]])
-        assert np.linalg.norm(target[:3] - previous[:3]) <= safety.max_step_mm
-        assert safety.x_range_mm[0] <= target[0] <= safety.x_range_mm[1]
-        assert safety.z_range_mm[0] <= target[2] <= safety.z_range_mm[1]
-        layer.check_target(tuple(previous), tuple(target), MotionKind.SERVO, duration_s=period_s + 0.02)
-        previous = target
+    """Every ServoP the emulator received passes the safety layer's checks again (from the rollout's start)."""
+    check_within_limits(emulator.received_commands("motion"), (300.0, 0.0, 0.0, 0.0), steps, period_s)
 
 
 @pytest.mark.parametrize("camera", ["sim-surface", pytest.param("replayed", marks=pytest.mark.data)])
