@@ -314,6 +314,7 @@ def plot_contact(record: dict, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullLocator
 
     entries = record["budgets"]
     xs = [sum(e["rows_per_dataset"].values()) / len(e["rows_per_dataset"]) for e in entries]
@@ -343,10 +344,15 @@ def plot_contact(record: dict, path: Path) -> None:
             axis.set_title(f"{name}: {variable}", fontsize=9)
             axis.set_ylabel(f"MAE ({variable.rsplit('_', 1)[-1]})")
         axis.set_xscale("log")
+        axis.set_xticks(xs, [f"{x:g}" for x in xs], fontsize=8)
+        axis.xaxis.set_minor_locator(NullLocator())
         axis.set_xlabel("real training rows per dataset")
-        axis.grid(alpha=0.3, which="both")
+        axis.grid(alpha=0.3)
         top = axis.secondary_xaxis("top", functions=(lambda n: n * ROBOT_S_PER_ROW / 60.0,
                                                      lambda m: m * 60.0 / ROBOT_S_PER_ROW))
+        minutes = [x * ROBOT_S_PER_ROW / 60.0 for x in xs]
+        top.set_xticks(minutes, [f"{m:.3g}" for m in minutes], fontsize=8)
+        top.xaxis.set_minor_locator(NullLocator())
         top.set_xlabel("robot minutes per dataset", fontsize=8)
         axis.legend(fontsize=6)
     for axis in list(axes.flat)[len(panels):]:
