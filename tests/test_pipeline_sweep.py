@@ -78,6 +78,7 @@ def test_example_lab_smoke_sweep_writes_a_record_and_figure_per_contact_and_reru
     assert (tmp_path / "records" / "sweep_surface.png").stat().st_size > 0
     assert record["command"].startswith("simshear pipeline sweep ") and "--real-rows 16 all" in record["command"]
     assert record["produced_by"] and record["date"] and record["purpose"]  # smoke: a plumbing check, said so
+    assert set(record["load_1min"]) == {"start", "end"}
     assert record["run_folder"] == "run" and record["figure"] == "records/sweep_surface.png"
     assert record["train_rows"] == {"surface_tap": 48} and record["val_rows"] == {"surface_tap": 48}
     small, full = record["budgets"]
@@ -92,6 +93,7 @@ def test_example_lab_smoke_sweep_writes_a_record_and_figure_per_contact_and_reru
             assert set(figures["mae"][source]) == {"z_mm", "rx_deg", "ry_deg"}
         assert set(figures["mape"]) == {"translator", "retrieval"}
         assert all(isinstance(n, int) and n > 0 for n in entry["optimiser_steps"].values())
+        assert set(entry["stage_wall_s"]) == {"translator", "chain", "real_rows", "reference"}
     # the reference is one model; at 'all' the GDNN on N real rows is the reference
     assert small["datasets"]["surface_tap"]["mae"]["reference"] == full["datasets"]["surface_tap"]["mae"]["reference"]
     assert full["datasets"]["surface_tap"]["mae"]["real_rows"] == full["datasets"]["surface_tap"]["mae"]["reference"]

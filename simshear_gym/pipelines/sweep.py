@@ -214,7 +214,7 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
     device = check_device_name(device or profile.device)
     out.mkdir(parents=True, exist_ok=True)
     runner = StageRunner(out, log=log)
-    commit, started = git_commit(), time.perf_counter()
+    commit, started, load_before = git_commit(), time.perf_counter(), os.getloadavg()[0]
     adapted = stage_adapt(runner, config, root, profile.rows_per_split)
     paired = stage_collect(runner, config, adapted, workers)
     train_rows = {name: len(pd.read_csv(runner.root / splits["train"] / "targets.csv"))
@@ -237,6 +237,7 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
             results[contact].append(budget_entry(budget, names, train_rows, evaluation, epochs[contact], done,
                                                  contact))
     return {"commit": commit, "wall_s": round(time.perf_counter() - started, 1), "device": device, "jobs": jobs,
+            "load_1min": {"start": round(load_before, 2), "end": round(os.getloadavg()[0], 2)},
             "train_rows": train_rows, "val_rows": val_rows, "variables": variables, "budgets": results}
 
 
@@ -279,11 +280,10 @@ def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], e
                  done: dict, contact: str) -> dict:
     """One budget's figures for a contact type's record."""
     rows = {name: train_rows[name] if budget.rows is None else budget.rows for name in names}
-    steps = {
-        "translator": done[f"translator/{contact}_shpix2pix"].record["metrics"].get("steps"),
-        "chain": done[f"posenet/{contact}_shpix2pix"].record["metrics"].get("steps"),
-        "real_rows": done[step_of(contact, "real_rows", done)].record["metrics"].get("steps"),
-        "reference": done[f"posenet/{contact}_real"].record["metrics"].get("steps")}
+    trained = {"translator": f"translator/{contact}_shpix2pix", "chain": f"posenet/{contact}_shpix2pix",
+               "real_rows": step_of(contact, "real_rows", done), "reference": f"posenet/{contact}_real"}
+    steps = {label: done[step].record["metrics"].get("steps") for label, step in trained.items()}
+    wall_s = {label: done[step].record["wall_s"] for label, step in trained.items()}
     datasets = {}
     for name in names:
         readings = evaluation["posenet"][name]
@@ -303,7 +303,7 @@ def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], e
                      "retrieval": translation["nearest-label retrieval"]["ssim"]}}
     return {"budget": budget.label, "rows_per_dataset": rows,
             "robot_minutes": round(sum(rows.values()) * ROBOT_S_PER_ROW / 60.0, 2),
-            "epochs": epochs, "optimiser_steps": steps, "datasets": datasets}
+            "epochs": epochs, "optimiser_steps": steps, "stage_wall_s": wall_s, "datasets": datasets}
 
 
 # ------------------------------------------------------------------------------------------------ figure
@@ -422,6 +422,7 @@ def run(args: argparse.Namespace) -> int:
             "produced_by": "simshear_gym.pipelines.sweep", "git_commit": body["commit"],
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "machine": machine_info(), "device": body["device"], "jobs": body["jobs"], "wall_s": body["wall_s"],
+            "load_1min": body["load_1min"],
             "run_folder": _relative(out),
             "collection_rate_s_per_row": ROBOT_S_PER_ROW,
             "epochs": ("scaled: the models on N rows train all/N times the profile's epochs, at most "
