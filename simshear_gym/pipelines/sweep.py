@@ -448,6 +448,8 @@ def _argv_of(args: argparse.Namespace) -> list[str]:
                         ("--record", args.record), ("--jobs", args.jobs), ("--device", args.device)):
         if value is not None:
             words += [flag, str(value)]
+    if args.workers != 2:
+        words += ["--workers", str(args.workers)]
     if args.contacts:
         words += ["--contacts", *args.contacts]
     return words
