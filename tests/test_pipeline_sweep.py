@@ -112,4 +112,5 @@ def test_example_lab_smoke_sweep_writes_a_record_and_figure_per_contact_and_reru
     again = run_sweep(config, Path("run"), Path("lab"), "smoke", parse_budgets(["16", "all"]), scale_cap=2.0,
                       workers=1, log=logged.append)
     assert not [line for line in logged if "running" in line], logged  # every step cached
+    assert again["stages"]["ran"] == 0 and again["stages"]["cached"] > 0 and record["stages"]["ran"] > 0
     assert again["budgets"]["surface"] == record["budgets"]

@@ -194,7 +194,8 @@ def sweep_profile(config, profile_name: str):
 def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[Budget, ...], *,
               scale_cap: float | None = None, workers: int = 2, jobs: int | None = None,
               device: str | None = None, log=print) -> dict:
-    """Train and evaluate every budget (each step cached in ``out``); returns {contact: its record body}."""
+    """Train and evaluate every budget (each step cached in ``out``); returns the records' common figures (wall
+    time, load, how many stages ran now or were cached) and {contact: its budgets}."""
     from simshear_gym.models.device import check_device_name
     from simshear_gym.pipelines.run import (
         contacts_of,
@@ -225,6 +226,7 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
                  for contact, names in contacts_of(config).items()}
     random_sets = stage_random(runner, config, profile, adapted, workers)
     results: dict[str, list] = {contact: [] for contact in contacts_of(config)}
+    trained: list = []
     for budget in budgets:
         log(f"[sweep] budget {budget.label} real rows per dataset")
         subsets = {name: (paired[name]["train"] if budget.rows is None
@@ -232,12 +234,15 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
         steps, epochs = budget_steps(config, profile, budget, paired, subsets, random_sets, variables, device,
                                      scale_cap, train_rows)
         done = run_steps(steps, out, jobs, log=log)
+        trained += list(done.values())
         evaluation = evaluate_budget(runner, config, profile, adapted, paired, subsets, variables, done)
         for contact, names in contacts_of(config).items():
             results[contact].append(budget_entry(budget, names, train_rows, evaluation, epochs[contact], done,
                                                  contact))
     return {"commit": commit, "wall_s": round(time.perf_counter() - started, 1), "device": device, "jobs": jobs,
             "load_1min": {"start": round(load_before, 2), "end": round(os.getloadavg()[0], 2)},
+            "stages": {"ran": sum(r.ran for r in runner.results + trained),
+                       "cached": sum(not r.ran for r in runner.results + trained)},
             "train_rows": train_rows, "val_rows": val_rows, "variables": variables, "budgets": results}
 
 
@@ -422,7 +427,7 @@ def run(args: argparse.Namespace) -> int:
             "produced_by": "simshear_gym.pipelines.sweep", "git_commit": body["commit"],
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "machine": machine_info(), "device": body["device"], "jobs": body["jobs"], "wall_s": body["wall_s"],
-            "load_1min": body["load_1min"],
+            "load_1min": body["load_1min"], "stages": body["stages"],
             "run_folder": _relative(out),
             "collection_rate_s_per_row": ROBOT_S_PER_ROW,
             "epochs": ("scaled: the models on N rows train all/N times the profile's epochs, at most "
