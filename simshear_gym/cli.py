@@ -103,6 +103,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "a finished pipeline run's models against another run's, figure by figure (MAPE, GDNN MAE, ratios)"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
+    (("pipeline", "sweep"), "simshear_gym.pipelines.sweep",
+     "how many real rows the chain needs: translator and GDNNs trained on the first N real rows, per budget"),
     (("pipeline", "env-model"), "simshear_gym.pipelines.env_model",
      "an env GDNN (the co-lift estimator) from its [env_models.<name>] recipe: env sets, one DAgger round, training"),
     (("pipeline", "ship"), "simshear_gym.pipelines.ship",

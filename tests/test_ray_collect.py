@@ -85,3 +85,17 @@ def test_local_ray_rows_equal_plain_rows(local_ray, tmp_path, capsys):
     assert map_chunks(abs, [-3, -1, -2], workers=2, ray_address="local") == [3, 1, 2]
     with ray_session("local") as ray:
         assert ray is local_ray
+
+
+def _signal_handlers(_chunk) -> tuple[bool, bool]:
+    import signal
+
+    return signal.getsignal(signal.SIGTERM) is signal.SIG_DFL, signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+
+def test_pool_workers_do_not_inherit_a_commands_stop_handlers():
+    """A forked worker with the command's SIGTERM handler printed a RunStopped traceback when its pool ended it."""
+    from simshear_gym.pipelines.stopping import stop_on_signals
+
+    with stop_on_signals():
+        assert map_chunks(_signal_handlers, [0, 1], workers=2) == [(True, True), (True, True)]

@@ -55,8 +55,19 @@ def map_chunks(function: Callable[[Any], Any], chunks: Sequence[Any], workers: i
     import multiprocessing
 
     method = "fork" if "fork" in multiprocessing.get_all_start_methods() else "spawn"
-    with multiprocessing.get_context(method).Pool(min(workers, len(chunks))) as pool:
+    with multiprocessing.get_context(method).Pool(min(workers, len(chunks)), initializer=quiet_worker) as pool:
         return pool.map(function, chunks)
+
+
+def quiet_worker() -> None:
+    """A pool worker's signal handling: a forked worker inherits its parent's handlers (a command's SIGTERM /
+    SIGINT handler that raises in the main thread), so the pool's terminate (SIGTERM) would print a traceback per
+    worker. SIGTERM ends a worker at once; SIGINT (Ctrl-C reaches the whole process group) is left to the parent,
+    which ends its pool."""
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _call(function: Callable[[Any], Any], chunk: Any) -> Any:

@@ -1,0 +1,460 @@
+"""``simshear pipeline sweep CONFIG --real-rows 250 500 1000 2000 all [--profile P]``: how many real rows the chain
+needs.
+
+For each budget N (real training rows per dataset; ``all``: every training row of the profile), per contact type:
+
+- ``rows/<dataset>``: the first N rows of each paired training set (a set of its own, cached by its content; its
+  images link to the full set's);
+- the chain: a shPix2pix trained on those N pairs, and a GDNN on its translations of the sim renders of *every*
+  training row (sim contacts cost no robot time; plus the profile's random sim contacts);
+- beside it a GDNN trained on the same N real images, and the reference: a GDNN on all real training rows;
+- the evaluation on every dataset's complete real validation rows (the same for every budget): MAE per read
+  variable for the three GDNNs, translation MAPE against nearest-label retrieval from the same N rows.
+
+Every step is a cached stage of the run folder (:mod:`simshear_gym.pipelines.stages`): the budget ``all`` and the
+reference share their stages with ``simshear pipeline run`` in the same folder. The sweep trains one shPix2pix per
+contact type: the profile's pool generators and baseline GDNNs are left out. Budgets are the profile's epochs
+(fewer rows: fewer optimiser steps, recorded); ``--scale-epochs CAP`` multiplies the epochs of the models trained
+on N rows by all/N, at most CAP.
+
+Writes, per contact type, a record (``<record-prefix>_<contact>.json``: the command, what produced it, per budget
+rows, robot minutes at the collection rate, MAE per variable, MAPE, epochs and optimiser steps) and its figure
+(``.png``: MAE against rows on a log axis, robot minutes on a second axis).
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import os
+import shlex
+import time
+from dataclasses import dataclass, replace
+from functools import partial
+from pathlib import Path
+
+import pandas as pd
+
+from simshear_gym.io import write_json
+from simshear_gym.pipelines.stages import StageRunner
+
+ALL = "all"
+PAPER_ROWS_PER_TASK = 5000
+PAPER_ROBOT_MINUTES_PER_TASK = 130.0
+ROBOT_S_PER_ROW = PAPER_ROBOT_MINUTES_PER_TASK * 60.0 / PAPER_ROWS_PER_TASK
+"""The collection rate: the paper's 5000 real training tuples per task in 130 robot-minutes (1.56 s a row)."""
+
+SOURCES = {"chain": "shpix2pix", "real_rows": "real_rows", "reference": "real"}
+"""The record's names of the three GDNNs -> their names in the evaluation."""
+
+
+@dataclass(frozen=True)
+class Budget:
+    """A budget: ``rows`` real training rows per dataset (None: all of them)."""
+
+    rows: int | None
+
+    @property
+    def label(self) -> str:
+        return ALL if self.rows is None else str(self.rows)
+
+
+def parse_budgets(values: list[str]) -> tuple[Budget, ...]:
+    """``--real-rows`` values (integers >= 1 or ``all``) as budgets in increasing order; a bad or repeated value is a
+    ValueError naming it."""
+    if not values:
+        raise ValueError("--real-rows: no budget given; expected numbers of rows (integers >= 1) and/or 'all'")
+    budgets = []
+    for value in values:
+        text = str(value).strip().lower()
+        if text == ALL:
+            budgets.append(Budget(None))
+            continue
+        try:
+            rows = int(text)
+        except ValueError:
+            raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
+                             f"per dataset (an integer >= 1) or 'all'") from None
+        if rows < 1:
+            raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
+                             f"per dataset (an integer >= 1) or 'all'")
+        budgets.append(Budget(rows))
+    labels = [budget.label for budget in budgets]
+    repeated = sorted({label for label in labels if labels.count(label) > 1})
+    if repeated:
+        raise ValueError(f"--real-rows: {repeated[0]!r} is given more than once; expected each budget once")
+    return tuple(sorted(budgets, key=lambda b: math.inf if b.rows is None else b.rows))
+
+
+def check_budgets(budgets: tuple[Budget, ...], train_rows: dict[str, int]) -> None:
+    """Every budget must leave some rows out of every dataset's training split (``all`` takes them all)."""
+    for budget in budgets:
+        if budget.rows is None:
+            continue
+        for name, rows in train_rows.items():
+            if budget.rows >= rows:
+                raise ValueError(f"--real-rows: {budget.rows} is not below the {rows} training rows of dataset "
+                                 f"{name!r}; expected budgets below {min(train_rows.values())} (or 'all' for every "
+                                 "row)")
+
+
+def epoch_scale(budget: Budget, rows: int, all_rows: int, cap: float | None) -> float:
+    """The factor on the epochs of a model trained on ``rows`` of ``all_rows``: all/rows, at most ``cap`` (None: 1)."""
+    if cap is None or budget.rows is None:
+        return 1.0
+    return max(1.0, min(all_rows / rows, cap))
+
+
+def scaled(epochs: int, factor: float) -> int:
+    return max(1, round(epochs * factor))
+
+
+def write_rows(runner: StageRunner, name: str, source: str, rows: int) -> str:
+    """``rows/<name>``: the first ``rows`` rows of the paired set ``source`` (relative to the run folder) as a set
+    of its own (its ``targets.csv`` cut, its ``meta.json`` as it was, ``images/`` a link to the full set's);
+    cached by the source's labels and the row count. Returns its path relative to the run folder."""
+    from simshear_gym.pipelines.stages import file_fingerprint
+
+    full = runner.root / source
+    key = {"source": source, "rows": rows, "targets": file_fingerprint([full / "targets.csv"])}
+
+    def work(folder: Path) -> dict:
+        out = folder / "set"
+        out.mkdir(parents=True, exist_ok=True)
+        targets = pd.read_csv(full / "targets.csv")
+        targets.iloc[:rows].to_csv(out / "targets.csv", index=False)
+        if (full / "meta.json").is_file():
+            (out / "meta.json").write_text((full / "meta.json").read_text())
+        link = out / "images"
+        if not link.exists():
+            os.symlink(os.path.relpath(full / "images", out), link)
+        return {"outputs": {"set": runner.relative(out)}, "metrics": {"rows": int(min(rows, len(targets)))}}
+
+    return runner.run(f"rows/{name}", key, work).outputs["set"]
+
+
+def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, random_sets: dict, variables: dict,
+                 device: str, cap: float | None, train_rows: dict[str, int]) -> tuple[list, dict]:
+    """The steps of one budget (:mod:`.schedule`): per contact type its shPix2pix on the N pairs, the GDNN on its
+    translations of every sim render, the GDNN on the N real images and the reference; with the epochs each
+    trains ({step: epochs})."""
+    from simshear_gym.pipelines.run import (
+        POSENET_EPOCH_COST,
+        TRANSLATOR_EPOCH_COST,
+        _gdnn_work,
+        _translator_work,
+        contacts_of,
+        posenet_step,
+        translator_step,
+    )
+    from simshear_gym.pipelines.schedule import Step
+
+    steps, epochs = [], {}
+    for contact, names in contacts_of(config).items():
+        all_sets = [paired[name]["train"] for name in names]
+        budget_sets = [subsets[name] for name in names]
+        used = sum(min(budget.rows or train_rows[name], train_rows[name]) for name in names)
+        factor = epoch_scale(budget, used, sum(train_rows[name] for name in names), cap)
+        translator = profile.translator
+        translator = replace(translator, epochs=scaled(translator.epochs_for(contact), factor), contact_epochs={})
+        reader = profile.posenet
+        real_rows = replace(reader, epochs=scaled(reader.epochs_for(contact), factor), contact_epochs={})
+        translator_name = f"translator/{contact}_shpix2pix"
+        steps.append(Step(translator_name, partial(translator_step, config, translator, contact, "shpix2pix",
+                                                   budget_sets, None, device=device),
+                          cost=TRANSLATOR_EPOCH_COST * translator.epochs,
+                          work=_translator_work(translator.settings_for(contact), contact, names)))
+        drawn = ((translator_name, reader.translator_draws_for(contact)),)
+        chain_sets = all_sets + ([random_sets[contact]] if contact in random_sets else [])
+        steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
+            posenet_step, config, reader, contact, "shpix2pix", chain_sets, variables[contact], drawn, device=device),
+            needs=(translator_name,), cost=POSENET_EPOCH_COST * reader.epochs_for(contact),
+            work=_gdnn_work(reader, contact, names, drawn, reader.random_contacts.get(contact, 0))))
+        if budget.rows is not None:  # at 'all' the GDNN on the N real images is the reference
+            steps.append(Step(f"posenet/{contact}_real_rows", partial(
+                posenet_step, config, real_rows, contact, "real", budget_sets, variables[contact], (),
+                device=device), cost=POSENET_EPOCH_COST * real_rows.epochs, work=_gdnn_work(real_rows, contact, names)))
+        steps.append(Step(f"posenet/{contact}_real", partial(
+            posenet_step, config, reader, contact, "real", all_sets, variables[contact], (), device=device),
+            cost=POSENET_EPOCH_COST * reader.epochs_for(contact), work=_gdnn_work(reader, contact, names)))
+        epochs[contact] = {"factor": factor, "translator": translator.epochs, "chain": reader.epochs_for(contact),
+                           "real_rows": real_rows.epochs if budget.rows is not None else reader.epochs_for(contact),
+                           "reference": reader.epochs_for(contact)}
+    return steps, epochs
+
+
+def sweep_profile(config, profile_name: str):
+    """The profile as the sweep trains it: one shPix2pix per contact type (no pix2pix, pool or baseline GDNNs)."""
+    profile = config.profile(profile_name)
+    return replace(profile, pool=(), translator=replace(profile.translator, archs=("shpix2pix",)),
+                   posenet=replace(profile.posenet, baselines=()))
+
+
+def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[Budget, ...], *,
+              scale_cap: float | None = None, workers: int = 2, jobs: int | None = None,
+              device: str | None = None, log=print) -> dict:
+    """Train and evaluate every budget (each step cached in ``out``); returns the records' common figures (wall
+    time, load, how many stages ran now or were cached) and {contact: its budgets}."""
+    from simshear_gym.models.device import check_device_name
+    from simshear_gym.pipelines.run import (
+        contacts_of,
+        git_commit,
+        stage_adapt,
+        stage_collect,
+        stage_random,
+        variables_for,
+    )
+    from simshear_gym.pipelines.schedule import run_steps
+
+    if scale_cap is not None and not (scale_cap >= 1.0):
+        raise ValueError(f"--scale-epochs: {scale_cap!r} is not a cap; expected a factor >= 1 (the epochs of a model "
+                         "on N rows times all/N, at most this)")
+    profile = sweep_profile(config, profile_name)
+    jobs = jobs or profile.jobs
+    device = check_device_name(device or profile.device)
+    out.mkdir(parents=True, exist_ok=True)
+    runner = StageRunner(out, log=log)
+    commit, started, load_before = git_commit(), time.perf_counter(), os.getloadavg()[0]
+    adapted = stage_adapt(runner, config, root, profile.rows_per_split)
+    paired = stage_collect(runner, config, adapted, workers)
+    train_rows = {name: len(pd.read_csv(runner.root / splits["train"] / "targets.csv"))
+                  for name, splits in paired.items()}
+    val_rows = {name: len(pd.read_csv(runner.root / splits["val"] / "targets.csv")) for name, splits in paired.items()}
+    check_budgets(budgets, train_rows)
+    variables = {contact: variables_for(config, names, adapted, runner.root)
+                 for contact, names in contacts_of(config).items()}
+    random_sets = stage_random(runner, config, profile, adapted, workers)
+    results: dict[str, list] = {contact: [] for contact in contacts_of(config)}
+    trained: list = []
+    for budget in budgets:
+        log(f"[sweep] budget {budget.label} real rows per dataset")
+        subsets = {name: (paired[name]["train"] if budget.rows is None
+                          else write_rows(runner, name, paired[name]["train"], budget.rows)) for name in paired}
+        steps, epochs = budget_steps(config, profile, budget, paired, subsets, random_sets, variables, device,
+                                     scale_cap, train_rows)
+        done = run_steps(steps, out, jobs, log=log)
+        trained += list(done.values())
+        evaluation = evaluate_budget(runner, config, profile, adapted, paired, subsets, variables, done)
+        for contact, names in contacts_of(config).items():
+            results[contact].append(budget_entry(budget, names, train_rows, evaluation, epochs[contact], done,
+                                                 contact))
+    return {"commit": commit, "wall_s": round(time.perf_counter() - started, 1), "device": device, "jobs": jobs,
+            "load_1min": {"start": round(load_before, 2), "end": round(os.getloadavg()[0], 2)},
+            "stages": {"ran": sum(r.ran for r in runner.results + trained),
+                       "cached": sum(not r.ran for r in runner.results + trained)},
+            "train_rows": train_rows, "val_rows": val_rows, "variables": variables, "budgets": results}
+
+
+def evaluate_budget(runner: StageRunner, config, profile, adapted: dict, paired: dict, subsets: dict,
+                    variables: dict, done: dict) -> dict:
+    """The pipeline's evaluation (:func:`~simshear_gym.pipelines.evaluation.evaluate_sensor`) of one budget's
+    models on every dataset's complete validation rows; retrieval from the budget's training rows."""
+    from simshear_gym.pipelines.run import contacts_of
+
+    contacts = contacts_of(config)
+    translators = {contact: {"shpix2pix": done[f"translator/{contact}_shpix2pix"].outputs["weights"]}
+                   for contact in contacts}
+    models = {contact: {source: done[step_of(contact, source, done)].outputs["weights"]
+                        for source in ("real", "shpix2pix", "real_rows")} for contact in contacts}
+    budget_paired = {name: {"train": subsets[name], "val": paired[name]["val"]} for name in paired}
+    key = {"paired": budget_paired, "translators": translators, "models": models, "variables": variables,
+           "eval_rows": profile.eval_rows}
+
+    def work(folder: Path) -> dict:
+        from simshear_gym.pipelines.evaluation import evaluate_sensor
+
+        figures = evaluate_sensor(config, runner.root, adapted, budget_paired, translators,
+                                  {"models": models, "variables": variables}, profile.eval_rows)
+        write_json(folder / "evaluation.json", figures)
+        return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
+
+    import json
+
+    result = runner.run("sweep_evaluate", key, work)
+    return json.loads((runner.root / result.outputs["evaluation"]).read_text())
+
+
+def step_of(contact: str, source: str, done: dict) -> str:
+    """The step that trained a contact type's GDNN ``source`` (at 'all': the reference is the one on N rows)."""
+    name = f"posenet/{contact}_{source}"
+    return name if name in done else f"posenet/{contact}_real"
+
+
+def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], evaluation: dict, epochs: dict,
+                 done: dict, contact: str) -> dict:
+    """One budget's figures for a contact type's record."""
+    rows = {name: train_rows[name] if budget.rows is None else budget.rows for name in names}
+    trained = {"translator": f"translator/{contact}_shpix2pix", "chain": f"posenet/{contact}_shpix2pix",
+               "real_rows": step_of(contact, "real_rows", done), "reference": f"posenet/{contact}_real"}
+    steps = {label: done[step].record["metrics"].get("steps") for label, step in trained.items()}
+    wall_s = {label: done[step].record["wall_s"] for label, step in trained.items()}
+    datasets = {}
+    for name in names:
+        readings = evaluation["posenet"][name]
+        translation = evaluation["translation"][name]
+        mae = {}
+        for label, source in SOURCES.items():
+            mae[label] = {variable: figures["mae"] for variable, figures in readings[source].items()
+                          if variable != "mean_nll"}
+        datasets[name] = {
+            "val_rows": translation["rows"], "mae": mae, "chance_mae": {
+                variable: figures["chance_mae"] for variable, figures in readings["real"].items()
+                if variable != "mean_nll"},
+            "read_by_reference": readings.get("read_by_real", []),
+            "mape": {"translator": translation["shpix2pix"]["mape"],
+                     "retrieval": translation["nearest-label retrieval"]["mape"]},
+            "ssim": {"translator": translation["shpix2pix"]["ssim"],
+                     "retrieval": translation["nearest-label retrieval"]["ssim"]}}
+    return {"budget": budget.label, "rows_per_dataset": rows,
+            "robot_minutes": round(sum(rows.values()) * ROBOT_S_PER_ROW / 60.0, 2),
+            "epochs": epochs, "optimiser_steps": steps, "stage_wall_s": wall_s, "datasets": datasets}
+
+
+# ------------------------------------------------------------------------------------------------ figure
+def plot_contact(record: dict, path: Path) -> None:
+    """MAE per variable against real rows (log axis, robot minutes above) for the chain, the GDNN on N real images
+    and the reference; one panel per dataset and variable, and one of translation MAPE against retrieval."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import NullLocator
+
+    entries = record["budgets"]
+    xs = [sum(e["rows_per_dataset"].values()) / len(e["rows_per_dataset"]) for e in entries]
+    panels = [(name, variable) for name in entries[0]["datasets"]
+              for variable in entries[0]["datasets"][name]["mae"]["reference"]]
+    panels += [(name, None) for name in entries[0]["datasets"]]
+    columns = min(4, len(panels))
+    rows = math.ceil(len(panels) / columns)
+    figure, axes = plt.subplots(rows, columns, figsize=(3.6 * columns, 3.0 * rows), squeeze=False)
+    styles = {"chain": ("C0", "o-", "GDNN on translated sim"), "real_rows": ("C1", "s-", "GDNN on the N real"),
+              "reference": ("C2", "--", "reference: all real rows")}
+    for axis, (name, variable) in zip(axes.flat, panels):
+        if variable is None:
+            axis.plot(xs, [e["datasets"][name]["mape"]["translator"] for e in entries], "o-", color="C0",
+                      label="shPix2pix")
+            axis.plot(xs, [e["datasets"][name]["mape"]["retrieval"] for e in entries], "s-", color="C3",
+                      label="nearest-label retrieval")
+            axis.set_title(f"{name}: translation", fontsize=9)
+            axis.set_ylabel("MAPE")
+        else:
+            for label, (color, style, text) in styles.items():
+                values = [e["datasets"][name]["mae"][label].get(variable) for e in entries]
+                if label == "reference":  # one model: a level line
+                    axis.axhline(values[-1], color=color, linestyle="--", label=text)
+                else:
+                    axis.plot(xs, values, style, color=color, label=text)
+            axis.set_title(f"{name}: {variable}", fontsize=9)
+            axis.set_ylabel(f"MAE ({variable.rsplit('_', 1)[-1]})")
+        axis.set_xscale("log")
+        axis.set_xticks(xs, [f"{x:g}" for x in xs], fontsize=8)
+        axis.xaxis.set_minor_locator(NullLocator())
+        axis.set_xlabel("real training rows per dataset")
+        axis.grid(alpha=0.3)
+        top = axis.secondary_xaxis("top", functions=(lambda n: n * ROBOT_S_PER_ROW / 60.0,
+                                                     lambda m: m * 60.0 / ROBOT_S_PER_ROW))
+        minutes = [x * ROBOT_S_PER_ROW / 60.0 for x in xs]
+        top.set_xticks(minutes, [f"{m:.3g}" for m in minutes], fontsize=8)
+        top.xaxis.set_minor_locator(NullLocator())
+        top.set_xlabel("robot minutes per dataset", fontsize=8)
+        axis.legend(fontsize=6)
+    for axis in list(axes.flat)[len(panels):]:
+        axis.set_visible(False)
+    figure.suptitle(f"{record['sensor']} {record['contact']}: profile {record['profile']}", fontsize=10)
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.savefig(path, dpi=80)
+    plt.close(figure)
+
+
+# ------------------------------------------------------------------------------------------------ command line
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from simshear_gym.models.device import DEVICES
+
+    parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    parser.add_argument("--real-rows", nargs="+", required=True, metavar="N",
+                        help="budgets: real training rows per dataset (integers >= 1), 'all' for every row")
+    parser.add_argument("--profile", default="quick", help="stage settings (default quick)")
+    parser.add_argument("--scale-epochs", type=float, default=None, metavar="CAP",
+                        help="train the models on N rows all/N times the profile's epochs, at most CAP times "
+                             "(default: the profile's epochs, so fewer rows train fewer optimiser steps)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="run folder (default runs/pipeline/<sensor>; shares stages with pipeline run there)")
+    parser.add_argument("--data", type=Path, default=None,
+                        help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
+    parser.add_argument("--record", type=Path, default=None, metavar="PREFIX",
+                        help="records and figures as PREFIX_<contact>.json / .png (default "
+                             "results/ablations/pipeline_sweep_<sensor>_<profile>)")
+    parser.add_argument("--workers", type=int, default=2, help="rendering processes of the collect stage")
+    parser.add_argument("--jobs", type=int, default=None, help="training steps side by side (default: the profile's)")
+    parser.add_argument("--device", choices=DEVICES, default=None, help="where the training steps train")
+    parser.add_argument("--contacts", nargs="+", default=None, metavar="CONTACT",
+                        help="only these contact types' datasets (default: all)")
+
+
+def _relative(path: Path) -> str:
+    """``path`` relative to the working directory where it lies under it, else as given."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return os.path.relpath(path)
+
+
+def run(args: argparse.Namespace) -> int:
+    from simshear_gym.data.adapter import config_files
+    from simshear_gym.data.paths import data_root
+    from simshear_gym.pipelines.config import load_config
+    from simshear_gym.pipelines.run import PLUMBING_PROFILES, contacts_of, only_contacts
+
+    budgets = parse_budgets(args.real_rows)
+    config = only_contacts(load_config(args.config), args.contacts)
+    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    out = args.out or Path("runs") / "pipeline" / config.name
+    prefix = args.record or Path("results") / "ablations" / f"pipeline_sweep_{config.name}_{args.profile}"
+    body = run_sweep(config, out, root, args.profile, budgets, scale_cap=args.scale_epochs, workers=args.workers,
+                     jobs=args.jobs, device=args.device)
+    from simshear_gym.machine import machine_info
+
+    command = "simshear pipeline sweep " + " ".join(shlex.quote(word) for word in _argv_of(args))
+    for contact, names in contacts_of(config).items():
+        json_path = Path(f"{prefix}_{contact}.json")
+        record = {
+            "command": command, "sensor": config.name, "contact": contact, "datasets": names,
+            "profile": args.profile,
+            **({"purpose": PLUMBING_PROFILES[args.profile]} if args.profile in PLUMBING_PROFILES else {}),
+            "produced_by": "simshear_gym.pipelines.sweep", "git_commit": body["commit"],
+            "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "machine": machine_info(), "device": body["device"], "jobs": body["jobs"], "wall_s": body["wall_s"],
+            "load_1min": body["load_1min"], "stages": body["stages"],
+            "run_folder": _relative(out),
+            "collection_rate_s_per_row": ROBOT_S_PER_ROW,
+            "epochs": ("scaled: the models on N rows train all/N times the profile's epochs, at most "
+                       f"{args.scale_epochs}" if args.scale_epochs else "the profile's (fewer rows, fewer steps)"),
+            "chain": "a shPix2pix on the N real pairs; a GDNN on its translations of the sim renders of every "
+                     "training row (and the profile's random sim contacts); the profile's pool and baselines left "
+                     "out",
+            "train_rows": {name: body["train_rows"][name] for name in names},
+            "val_rows": {name: body["val_rows"][name] for name in names},
+            "variables": body["variables"][contact], "budgets": body["budgets"][contact],
+            "figure": _relative(json_path.with_suffix(".png"))}
+        write_json(json_path, record)
+        plot_contact(record, json_path.with_suffix(".png"))
+        print(f"{config.name} {contact}: {len(budgets)} budgets; record {json_path}, figure "
+              f"{json_path.with_suffix('.png')}")
+    return 0
+
+
+def _argv_of(args: argparse.Namespace) -> list[str]:
+    """The command's words rebuilt from its arguments (paths as given)."""
+    words = [str(args.config), "--real-rows", *map(str, args.real_rows), "--profile", args.profile]
+    for flag, value in (("--scale-epochs", args.scale_epochs), ("--out", args.out), ("--data", args.data),
+                        ("--record", args.record), ("--jobs", args.jobs), ("--device", args.device)):
+        if value is not None:
+            words += [flag, str(value)]
+    if args.workers != 2:
+        words += ["--workers", str(args.workers)]
+    if args.contacts:
+        words += ["--contacts", *args.contacts]
+    return words
