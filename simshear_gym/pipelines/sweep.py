@@ -28,7 +28,6 @@ import argparse
 import datetime
 import math
 import os
-import shlex
 import time
 from dataclasses import dataclass, replace
 from functools import partial
@@ -36,6 +35,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.pipelines.stages import StageRunner
 
@@ -417,7 +417,7 @@ def run(args: argparse.Namespace) -> int:
                      jobs=args.jobs, device=args.device)
     from simshear_gym.machine import machine_info
 
-    command = "simshear pipeline sweep " + " ".join(shlex.quote(word) for word in _argv_of(args))
+    command = recorded_command("simshear pipeline sweep", add_arguments, args)
     for contact, names in contacts_of(config).items():
         json_path = Path(f"{prefix}_{contact}.json")
         record = {
@@ -446,15 +446,3 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _argv_of(args: argparse.Namespace) -> list[str]:
-    """The command's words rebuilt from its arguments (paths as given)."""
-    words = [str(args.config), "--real-rows", *map(str, args.real_rows), "--profile", args.profile]
-    for flag, value in (("--scale-epochs", args.scale_epochs), ("--out", args.out), ("--data", args.data),
-                        ("--record", args.record), ("--jobs", args.jobs), ("--device", args.device)):
-        if value is not None:
-            words += [flag, str(value)]
-    if args.workers != 2:
-        words += ["--workers", str(args.workers)]
-    if args.contacts:
-        words += ["--contacts", *args.contacts]
-    return words
