@@ -77,8 +77,8 @@ class PushGains:
     integral_limit_mm: float = 0.5
     max_slide_mm: float = 0.5
     k_shear: float = 6.0
-    min_indentation_mm: float = 0.2
-    max_centre_offset_mm: float = 10.0
+    min_indentation_mm: float = 0.4
+    max_centre_offset_mm: float = 4.0
     lookahead_mm: float = 40.0
     half_width_mm: float = 25.0
 
