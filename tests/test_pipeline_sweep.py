@@ -77,7 +77,7 @@ def test_example_lab_smoke_sweep_writes_a_record_and_figure_per_contact_and_reru
     record = json.loads((tmp_path / "records" / "sweep_surface.json").read_text())
     assert (tmp_path / "records" / "sweep_surface.png").stat().st_size > 0
     assert record["command"].startswith("simshear pipeline sweep ") and "--real-rows 16 all" in record["command"]
-    assert "--workers 1" in record["command"] and "--scale-epochs 2.0" in record["command"]
+    assert "--workers 1" in record["command"] and "--scale-epochs 2 " in record["command"]
     assert record["produced_by"] and record["date"] and record["purpose"]  # smoke: a plumbing check, said so
     assert set(record["load_1min"]) == {"start", "end"}
     assert record["run_folder"] == "run" and record["figure"] == "records/sweep_surface.png"
