@@ -123,6 +123,7 @@ class SimShearPushEnv(SimShearEnv):
         self._bodies: dict[str, int] = {}
         self._target = np.zeros(2)
         self._path_direction = np.array([0.0, 1.0])
+        self._path_length_mm = float(path_length_mm)
         self._progress_mm = self._reward_progress_mm = 0.0
         super().__init__(obs_mode=obs_mode, image_size_px=image_size_px, control_rate_hz=control_rate_hz,
                          render_mode=render_mode, reference_depth_mm=reference_depth_mm, mount=mount,
@@ -135,15 +136,15 @@ class SimShearPushEnv(SimShearEnv):
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:
         self.face_half_extents_mm = (math.inf, math.inf)
-        self._use_shape(self.shape_name if self.shape_name != "random" else PUSH_SHAPES[0], self.physics,
-                        (0.0, 0.0))
+        self._use_shape(self.shape_name if self.shape_name != "random" else PUSH_SHAPES[0], self.physics)
         start = self._T_world_sensor_touching(0.0, 0.0, self.reference_depth_mm - SURFACE_DEPTH_MM)
         self._add_follower(FOLLOWER_T_WORLD_BASE, self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, start))
 
-    def _use_shape(self, name: str, physics: PushPhysicsConfig, pose_offset: tuple[float, float]) -> None:
-        """The object of that shape at the start (yawed so its face 0 looks at the sensor, -y), bodies made once."""
+    def _use_shape(self, name: str, physics: PushPhysicsConfig, face_yaw_deg: float = 0.0) -> None:
+        """The object of that shape at the start (yawed so its face 0 looks at the sensor, -y, then turned
+        ``face_yaw_deg``), bodies made once."""
         shape = push_shape(name)
-        pose = (START_WORLD_MM[0], START_WORLD_MM[1], math.radians(-90.0 + pose_offset[1]))
+        pose = (START_WORLD_MM[0], START_WORLD_MM[1], math.radians(-90.0 + face_yaw_deg))
         self.object = PushedObject(shape, physics, self.tactip.config.dome_radius_mm, TABLE_Z_MM, pose)
         if name not in self._bodies:
             self._bodies[name] = spawn_push_object(self.world, shape, _PARKED)
@@ -212,7 +213,7 @@ class SimShearPushEnv(SimShearEnv):
         if not (-30.0 <= angle <= 30.0 and 0.0 < length <= 200.0 and abs(offset) <= 10.0):
             raise ValueError(f"reset options out of range: path_angle_deg {angle} (|a| <= 30), path_length_mm "
                              f"{length} (0, 200], contact_offset_mm {offset} (|x| <= 10)")
-        self._use_shape(shape, physics, (0.0, face_yaw))
+        self._use_shape(shape, physics, face_yaw)
         start = self._T_world_sensor_touching(offset, 0.0, self.reference_depth_mm - SURFACE_DEPTH_MM)
         self.object.place(self.object.pose, start)
         self.follower.reset(self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, start))
@@ -220,6 +221,7 @@ class SimShearPushEnv(SimShearEnv):
         heading = math.radians(angle)
         self._path_direction = np.array([math.sin(heading), math.cos(heading)])
         self._target = START_WORLD_MM + length * self._path_direction
+        self._path_length_mm = length
         self._progress_mm = self._reward_progress_mm = 0.0
 
     def _command_scene(self, time_s: float, dt_s: float) -> None:
@@ -309,7 +311,8 @@ class SimShearPushEnv(SimShearEnv):
         return ""
 
     def path_length_now_mm(self) -> float:
-        return float(np.linalg.norm(self._target - START_WORLD_MM))
+        """This episode's path length (start to target), mm."""
+        return self._path_length_mm
 
     def _reward(self, state: ContactState, termination: str = "") -> float:
         step_mm = self.speed_mm_s * self.dt_s
