@@ -200,3 +200,68 @@ def test_randomised_resets_draw_from_the_seed_and_the_env_pickles():
         obs_a, *_ = a.step(action)
         obs_b, *_ = copy.step(action)
     np.testing.assert_allclose(obs_a["true_pose_shear"], obs_b["true_pose_shear"])
+
+
+def test_the_push_estimate_fills_the_policies_four_slots_and_comes_back():
+    from simshear_gym.contract import estimate_features, filter_mean_from_estimate
+    from simshear_gym.control.push_servo import push_estimate_slots, push_state_from_slots
+
+    mean6 = np.array([3.1, 0.8, -0.4, 1.0, 2.0, -6.5])  # depth, shear x, y, Rz, Rx, Ry (the face's yaw)
+    std6 = np.array([0.1, 0.2, 0.3, 0.4, 0.5, 0.6])
+    mean, std = push_estimate_slots(mean6, std6)
+    np.testing.assert_allclose(mean, [3.1, 0.8, -0.4, -6.5])
+    np.testing.assert_allclose(std, [0.1, 0.2, 0.3, 0.6])
+    features = estimate_features((mean, std), (mean, std), 2.6)
+    np.testing.assert_allclose(push_state_from_slots(filter_mean_from_estimate(features, 2.6)), [3.1, 0.8, -6.5],
+                               atol=1e-5)
+    with pytest.raises(ValueError, match="mean \\(6,\\), std \\(6,\\)"):
+        push_estimate_slots(mean6[:4], std6[:4])
+
+
+def test_a_push_policy_run_clones_the_push_law_from_its_estimate_and_goal(tmp_path):
+    """``simshear train rl --task push``: the pushing env's estimate observation (the push estimator's) and goal,
+    the teacher the push law without its integral, evaluation on the three shapes."""
+    from simshear_gym.contract import filter_mean_from_estimate
+    from simshear_gym.control.push_servo import push_state_from_slots
+    from simshear_gym.train.rl import RLTrainConfig, train
+    from simshear_gym.train.rl_imitation import PushTeacher, teacher_for
+    from simshear_gym.train.rl_trainer import evaluation_settings, make_env
+
+    config = RLTrainConfig(task="push", observation="estimate", history=2, image_size_px=64, timesteps=32,
+                           n_steps=16, batch_size=16, n_epochs=1, checkpoint_steps=32, bc_steps=32, bc_epochs=2,
+                           eval_steps=32, eval_max_steps=5)
+    assert set(evaluation_settings(config)) == set(PUSH_SHAPES)
+    env = make_env(config)
+    teacher = teacher_for(env)
+    assert isinstance(teacher, PushTeacher)
+    base = env.unwrapped
+    law = PushLaw(base.action_scale.as_array(), base.speed_mm_s * base.dt_s, PushGains(ki_side=0.0))
+    observation, _ = env.reset(seed=2)
+    assert set(observation) == {"estimate", "goal"} and observation["estimate"].shape == (32,)
+    for _ in range(3):
+        action = teacher(observation)
+        state = push_state_from_slots(filter_mean_from_estimate(observation["estimate"], base.reference_depth_mm))
+        np.testing.assert_allclose(action, law(state, observation["goal"]), atol=1e-6)
+        assert action[2] > 0  # pushes on
+        observation, *_ = env.step(action)
+    env.close()
+    summary = train(config, tmp_path / "push", progress=False)
+    assert summary["task"] == "push" and summary["imitation"]["steps"] == 32
+    assert set(summary["last_evaluation"]["episodes"]) == set(PUSH_SHAPES)
+    assert (tmp_path / "push" / "model.pt").is_file()
+
+
+def test_evaluate_push_runs_a_policy_in_the_settings_it_was_trained_on(tmp_path, capsys):
+    from simshear_gym.cli import main
+    from simshear_gym.train.rl import RLTrainConfig, train
+
+    train(RLTrainConfig(task="push", observation="estimate", history=2, image_size_px=64, timesteps=16, n_steps=16,
+                        batch_size=16, n_epochs=1, checkpoint_steps=16), tmp_path / "run", progress=False)
+    assert main(["evaluate", "push", "--variants", "ppo", "--episodes", "1", "--out", str(tmp_path)]) == 2
+    assert "--variants ppo needs --policy" in capsys.readouterr().err
+    assert main(["evaluate", "push", "--variants", "ppo", "--policy", str(tmp_path / "run" / "model.zip"),
+                 "--episodes", "1", "--figure-episodes", "1", "--out", str(tmp_path), "--name", "p"]) == 0
+    import json
+
+    record = json.loads((tmp_path / "p.json").read_text())
+    assert record["results"]["ppo"]["episodes"] == 1 and "--policy" in record["command"]

@@ -35,8 +35,15 @@ def env_estimator(env) -> ReadingEstimator:
     """The estimator :meth:`ServoController.for_env <simshear_gym.control.servo.ServoController.for_env>` builds
     for ``env`` (the GDNN the env names, its process noise), keeping its readings; for an edge env
     (``SimShearEdgeFollow-v0``), the edge controller's, its estimate in the observation's four slots
-    (:class:`~simshear_gym.control.edge_servo.EdgeReadingEstimator`)."""
-    if getattr(env.unwrapped, "translator_contact", "surface") == "edge":
+    (:class:`~simshear_gym.control.edge_servo.EdgeReadingEstimator`); for a pushing env (``SimShearPush-v0``), the
+    push controller's (:func:`~simshear_gym.control.push_servo.push_reading_estimator`). The env's
+    ``controller_law`` says which."""
+    law = getattr(env.unwrapped, "controller_law", "servo")
+    if law == "push":
+        from simshear_gym.control.push_servo import push_reading_estimator
+
+        return push_reading_estimator(env)
+    if law == "edge":
         from simshear_gym.control.edge_servo import EdgeReadingEstimator, EdgeServoController
 
         controller = EdgeServoController.for_env(env)

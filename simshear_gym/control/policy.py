@@ -157,7 +157,7 @@ class PolicySettings:
         observation, history: the observation (:func:`~simshear_gym.contract.observation_space`).
         obs_mode: the image source it was trained on (``real``: translated, ``sim``).
         image_size_px: the tactile image size.
-        task: ``tracking`` or ``colift`` (the env it was trained in).
+        task: ``tracking``, ``colift``, ``edge`` or ``push`` (the env it was trained in).
         residual: None, or the residual law it corrects.
     """
 

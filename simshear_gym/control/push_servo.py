@@ -151,10 +151,12 @@ class PushLaw:
         return np.clip(move / self._scale, -1.0, 1.0).astype(np.float32)
 
 
-def _push_estimator(config: EstimatorConfig):
+def _push_estimator(config: EstimatorConfig, reading_slots: bool = False):
     """The surface GDNN + filter over (depth, shear x, y, Rz, Rx, Ry) with the pushing motion model: the sensor's
     turn about the vertical turns the face's yaw (Ry) back by as much; a push or a slide moves the object too (how
-    much, its friction decides), so depth and shear are left to the readings (a random walk)."""
+    much, its friction decides), so depth and shear are left to the readings (a random walk). ``reading_slots``:
+    the estimator of ``SimShearPush-v0``'s ``estimate`` observations, its state and the GDNN's last reading
+    (``last_reading``) in the observation's four slots (:func:`push_estimate_slots`), at one GDNN pass per image."""
     from simshear_gym.control.servo6d import TiltEstimator
 
     class PushEstimator(TiltEstimator):
@@ -162,7 +164,45 @@ def _push_estimator(config: EstimatorConfig):
         def _state_delta(commanded_move: np.ndarray) -> np.ndarray:
             return np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(commanded_move[3])])
 
-    return PushEstimator(config)
+    class PushReadingEstimator(PushEstimator):
+        last_reading: tuple[np.ndarray, np.ndarray] | None = None
+
+        def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            reading = super().read(tactile)
+            self.last_reading = push_estimate_slots(*reading)
+            return reading
+
+        def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
+            return push_estimate_slots(*super().__call__(tactile, commanded_move))
+
+    return PushReadingEstimator(config) if reading_slots else PushEstimator(config)
+
+
+def push_estimate_slots(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A pushing estimate (depth, shear x, y, Rz, Rx, Ry: the surface GDNN's six) in the four slots of the policies'
+    ``estimate`` observation (:func:`~simshear_gym.contract.estimate_features`): (depth mm, shear x mm, shear y mm,
+    face yaw deg), the face yaw (the labels' Ry) where the tracking envs keep the shear's Rz."""
+    mean = np.asarray(mean, dtype=np.float64)
+    std = np.asarray(std, dtype=np.float64)
+    if mean.shape != (6,) or std.shape != (6,):
+        raise ValueError(f"a pushing estimate is (mean (6,), std (6,)) of depth, shear x, y, Rz, Rx, Ry; got shapes "
+                         f"{mean.shape}, {std.shape}")
+    slots = [0, 1, 2, 5]
+    return mean[slots], std[slots]
+
+
+def push_state_from_slots(slots: np.ndarray) -> np.ndarray:
+    """(depth mm, shear x mm, face yaw deg), :class:`PushLaw`'s state, of an estimate's four slots
+    (:func:`push_estimate_slots`)."""
+    depth, shear_x, _, face_yaw = np.asarray(slots, dtype=np.float64)
+    return np.array([depth, shear_x, face_yaw])
+
+
+def push_reading_estimator(env):
+    """The estimator of a pushing env's ``estimate`` observation: the push servo controller's
+    (:meth:`PushServoController.for_env`), its estimates in the observation's four slots."""
+    return _push_estimator(PushServoController.for_env(env).estimator.config, reading_slots=True)
 
 
 @dataclass(frozen=True)
@@ -300,4 +340,5 @@ class PushOracleController:
         return self.law(np.array([depth, shear_x, face_yaw]), self._goal(observation))
 
 
-__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "PushTarget", "aim_bearing_deg"]
+__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "PushTarget", "aim_bearing_deg",
+           "push_estimate_slots", "push_reading_estimator", "push_state_from_slots"]

@@ -199,6 +199,7 @@ class SimShearEnv(gym.Env, EzPickle):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     translator_contact = "surface"
     estimator_posenet = "surface"  # the shipped GDNN an image-based controller reads this env's images with
+    controller_law = "servo"  # the controller whose estimator the estimate observation runs: servo, edge or push
 
     def __init__(self, *, obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = 4.0,

@@ -78,6 +78,7 @@ class SimShearEdgeFollowEnv(SimShearEnv):
 
     translator_contact = "edge"
     estimator_posenet = "edge"
+    controller_law = "edge"
 
     def __init__(self, outline: str = "disk", obs_mode: str = "real", image_size_px: int = 128,
                  control_rate_hz: float = 10.0, render_mode: str | None = None, reference_depth_mm: float = 4.0,

@@ -86,6 +86,9 @@ class SimShearPushEnv(SimShearEnv):
         options of ``reset``: ``{"path_angle_deg": a, "path_length_mm": l, "contact_offset_mm": x}``.
     """
 
+    controller_law = "push"
+    estimator_process_std_mm = 0.5  # the object's unknown turn and slip per step
+
     def __init__(self, shape: str = "cube", obs_mode: str = "real", image_size_px: int = 128,
                  control_rate_hz: float = 10.0, render_mode: str | None = None, reference_depth_mm: float = 2.6,
                  speed_mm_s: float = 5.0, path_length_mm: float = 150.0, path_angle_deg: float = 0.0,
@@ -131,7 +134,6 @@ class SimShearPushEnv(SimShearEnv):
         observations = dict(self.observation_space.spaces)
         observations["goal"] = goal_space()
         self.observation_space = spaces.Dict(observations)
-        self.estimator_process_std_mm = 0.5  # the object's unknown turn and slip per step
 
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:

@@ -7,7 +7,9 @@ contact's place and angle, all drawn from each episode's seed; the same seeds fo
 - ``servo``: :class:`~simshear_gym.control.push_servo.PushServoController` on the env's translated images
   (``obs_mode="real"``, the shipped surface shPix2pix), read by the shipped surface GDNN and the Bayesian filter;
 - ``servo_no_shear``: the same controller with its shear term off (the ablation);
-- ``oracle`` / ``oracle_no_shear``: the same law on the true depth, shear and face yaw (the law's floor).
+- ``oracle`` / ``oracle_no_shear``: the same law on the true depth, shear and face yaw (the law's floor);
+- ``policy`` / ``ppo`` / ``sac`` / ``tqc``: an SB3 agent of ``simshear train rl --task push`` (``--policy``), in
+  the settings it was trained on (its observation, image size and history).
 
 Per episode: the object's final distance from its target (mm), its centre's distance from the path, every step
 (mean and max), the termination and steps. Summary: the share of episodes ending within 10 mm of the target, the
@@ -29,20 +31,36 @@ from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
 ENV_ID = "SimShearPush-v0"
-VARIANTS = ("servo", "servo_no_shear", "oracle", "oracle_no_shear")
+VARIANTS = ("servo", "servo_no_shear", "oracle", "oracle_no_shear", "policy", "ppo", "sac", "tqc")
+POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 GOAL_DISTANCE_MM = 10.0  # issue 43: the object within 10 mm of its target ...
 GOAL_SUCCESS = 0.9  # ... on >= 90 % of the episodes
 GOAL_DEVIATION_MM = 5.0  # mean path deviation
 
 
-def make_controller(variant: str, env, posenet: str | None):
+def make_controller(variant: str, env, posenet: str | None, policy: str | None = None):
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.push_servo import PushOracleController, PushServoController
 
+    if variant in POLICY_VARIANTS:
+        from simshear_gym.control.policy import SB3Controller
+
+        return SB3Controller.for_env(policy, env)
     use_shear = not variant.endswith("_no_shear")
     if variant.startswith("oracle"):
         return PushOracleController.for_env(env, use_shear=use_shear)
     return PushServoController.for_env(env, use_shear=use_shear, estimator=EstimatorConfig(posenet=posenet))
+
+
+def env_kwargs_of(variant: str, policy: str | None) -> dict:
+    """``gym.make`` arguments of a variant's env: an agent's in the settings it was trained on."""
+    if variant in POLICY_VARIANTS:
+        from simshear_gym.control.env_estimator import env_kwargs
+        from simshear_gym.control.policy import PolicySettings
+
+        settings = PolicySettings.of_model(policy)
+        return env_kwargs(settings) if settings is not None else {"obs_mode": "real"}
+    return {"obs_mode": "oracle" if variant.startswith("oracle") else "real"}
 
 
 def run_episode(env, controller, seed: int) -> dict:
@@ -124,10 +142,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--variants", nargs="+", default=["servo", "servo_no_shear"], choices=VARIANTS,
                         help="controllers: servo (translated images, shipped surface GDNN), servo_no_shear (its "
                              "shear term off), oracle / oracle_no_shear (the true state into the same law); default "
-                             "servo servo_no_shear")
+                             "servo servo_no_shear; policy / ppo / sac / tqc: an agent of simshear train rl "
+                             "--task push, --policy)")
     parser.add_argument("--episodes", type=int, default=100, help="randomised episodes per variant (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="the first episode's seed (then seed + 1, ...)")
     parser.add_argument("--posenet", default=None, help="surface GDNN of the servo variants (default the shipped one)")
+    parser.add_argument("--policy", default=None, help="the agent's model.zip (or a shipped policy folder's "
+                                                       "model.pt) for a policy variant")
     parser.add_argument("--figure-episodes", type=int, default=8, help="episodes drawn in the figure (default 8)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="output folder (default results)")
@@ -138,6 +159,14 @@ def run(args: argparse.Namespace) -> int:
     if args.episodes < 1 or args.threads < 1 or args.figure_episodes < 0:
         raise ValueError(f"--episodes and --threads must be >= 1 and --figure-episodes >= 0, got {args.episodes}, "
                          f"{args.threads}, {args.figure_episodes}")
+    policy_variants = [v for v in args.variants if v in POLICY_VARIANTS]
+    if len(policy_variants) > 1:
+        raise ValueError(f"one policy variant a run (--policy names one agent), got {policy_variants}")
+    if policy_variants and not args.policy:
+        raise ValueError(f"--variants {policy_variants[0]} needs --policy MODEL.zip (from simshear train rl --task "
+                         "push)")
+    if args.policy and not Path(args.policy).is_file():
+        raise FileNotFoundError(f"--policy {args.policy!r}: no such model file")
     import gymnasium as gym
     import torch
 
@@ -149,9 +178,8 @@ def run(args: argparse.Namespace) -> int:
     paths: dict[str, list[tuple]] = {}
     distances: dict[str, np.ndarray] = {}
     for variant in args.variants:
-        obs_mode = "oracle" if variant.startswith("oracle") else "real"
-        env = gym.make(ENV_ID, shape="random", randomise=True, obs_mode=obs_mode)
-        controller = make_controller(variant, env, args.posenet)
+        env = gym.make(ENV_ID, shape="random", randomise=True, **env_kwargs_of(variant, args.policy))
+        controller = make_controller(variant, env, args.posenet, args.policy)
         runs = []
         for episode in range(args.episodes):
             r = run_episode(env, controller, args.seed + episode)

@@ -37,7 +37,7 @@ CONVERTED = "- Converted to pickle-free files"
 """The pickle-bearing files of older shipped policies (removed by a conversion)."""
 MODEL_CHOICES = ("best", "final")
 ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift"),
-              "edge": ("SimShearEdgeFollow-v0", "edge")}
+              "edge": ("SimShearEdgeFollow-v0", "edge"), "push": ("SimShearPush-v0", "surface")}
 """task -> (env id, the shipped GDNN its estimate observation reads; the translator is of the same contact: edge
 for the edge GDNN, surface otherwise)."""
 
@@ -196,8 +196,9 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
         files_line(to),
         f"- Date: {date}",
         f"- Env: `{env_id}`, randomised episodes ("
-        + ("random outlines; size, start point, offset and turn" if config["task"] == "edge" else
-           "random trajectories; scale, speed, turn and start") + " drawn per reset), "
+        + {"edge": "random outlines; size, start point, offset and turn",
+           "push": "random shapes, paths, masses and frictions"}.get(
+            config["task"], "random trajectories; scale, speed, turn and start") + " drawn per reset), "
         f"`obs_mode={config['obs_mode']}` ({config['image_size_px']} px images through the shipped shPix2pix), "
         f"{config['n_envs']} sub-envs ({config['vec']}).",
         f"- Observation: {observation}; history {config['history']} frames"
@@ -234,6 +235,13 @@ def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations:
             lines.append(f"| {name} | {row['laps_completed']}/{row['runs']} | {row['offset_mean_mm']:.3f} | "
                          f"{row['offset_mean_worst_run_mm']:.3f} | {row['offset_max_mm']:.2f} | "
                          f"{row['depth_error_mean_mm']:.3f} |")
+    elif section and servo.get("env") == "SimShearPush-v0":
+        lines += ["", "## Closed loop (`simshear evaluate push`)", "", f"From `{servo.get('command')}`:", "",
+                  "| episodes | within 10 mm | median distance (mm) | path deviation mean (mm) | ends |",
+                  "|---|---|---|---|---|",
+                  f"| {section['episodes']} | {section['within_10mm']:.0%} | "
+                  f"{section['target_distance_median_mm']:.1f} | {section['path_deviation_mean_mm']:.2f} | "
+                  + ", ".join(f"{name} {count}" for name, count in section["terminations"].items()) + " |"]
     elif section:
         lines += ["", "## Closed loop (`simshear evaluate servo`)", "", f"From `{servo.get('command')}`:", "",
                   "| run | contact error mean +- std over runs (mm) | max (mm) | runs | ended early | contact losses "

@@ -79,8 +79,8 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
 
 FLAG_HELP = {
     "algo": "SB3 algorithm (tqc: sb3-contrib's TQC, SAC with a distributional critic; needs sb3-contrib)",
-    "task": "env: tracking (SimShearTracking-v0), colift (SimShearCoLift-v0; sub-env i carries object i mod 4) or "
-            "edge (SimShearEdgeFollow-v0, random outlines)",
+    "task": "env: tracking (SimShearTracking-v0), colift (SimShearCoLift-v0; sub-env i carries object i mod 4), "
+            "edge (SimShearEdgeFollow-v0, random outlines) or push (SimShearPush-v0, random shapes)",
     "timesteps": "env steps to train in all (a resumed run trains until its step count reaches this; 0 with "
                  "--bc-steps: the servo law's clone, no RL)",
     "minutes": "wall-clock budget of this invocation: stop (and save) after this many minutes",

@@ -11,8 +11,9 @@ from simshear_gym.contract import ACTION_OBSERVATIONS, ESTIMATE_OBSERVATIONS, IM
 from simshear_gym.models.device import check_device_name
 
 ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional dependency)
-TASKS = ("tracking", "colift", "edge")
-ENV_IDS = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0", "edge": "SimShearEdgeFollow-v0"}
+TASKS = ("tracking", "colift", "edge", "push")
+ENV_IDS = {"tracking": "SimShearTracking-v0", "colift": "SimShearCoLift-v0", "edge": "SimShearEdgeFollow-v0",
+           "push": "SimShearPush-v0"}
 OBS_MODES = ("real", "sim")  # what a policy may see: never the ground truth
 VEC_ENVS = ("dummy", "subproc", "batched")
 # settings a resumed run may change (they change neither the agent nor its envs)
@@ -38,6 +39,15 @@ PRESETS: dict[str, dict] = {
         "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
         "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000,
         "eval_max_steps": 1000, "seed": 0, "threads": 1,
+    },
+    # a first pushing policy: the push law's DAgger clone (without its path-side integral) on the estimate and
+    # the goal, then PPO
+    "push-first": {
+        "algo": "ppo", "task": "push", "observation": "estimate", "history": 2, "obs_mode": "real",
+        "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
+        "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
+        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000,
+        "eval_max_steps": 800, "seed": 0, "threads": 1,
     },
 }
 

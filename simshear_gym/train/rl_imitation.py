@@ -92,9 +92,37 @@ class EdgeTeacher:
                                                                          self.reference_depth_mm)))
 
 
-def teacher_for(env) -> ServoTeacher | EdgeTeacher:
-    """The env's teacher: the edge law for an edge env, else the servo law."""
-    return EdgeTeacher(env) if getattr(env.unwrapped, "translator_contact", "surface") == "edge" else ServoTeacher(env)
+class PushTeacher:
+    """The push servo's law without its path-side integral (a function of the observation alone), on the filter
+    mean a pushing env's estimate observation carries (:func:`~simshear_gym.control.push_servo.
+    push_state_from_slots`) and the observation's ``goal``; one per env stream."""
+
+    def __init__(self, env) -> None:
+        from simshear_gym.control.push_servo import PushGains, PushLaw
+
+        base = env.unwrapped
+        self.reference_depth_mm = float(base.reference_depth_mm)
+        self.law = PushLaw(base.action_scale.as_array(), base.speed_mm_s * base.dt_s, PushGains(ki_side=0.0))
+
+    def reset(self) -> None:
+        self.law.reset()
+
+    def __call__(self, observation: dict) -> np.ndarray:
+        from simshear_gym.control.push_servo import push_state_from_slots
+
+        if "goal" not in observation:
+            raise ValueError(f"the push teacher needs the observation's 'goal' (SimShearPush-v0's), got "
+                             f"{sorted(observation)}")
+        mean = filter_mean_from_estimate(observation["estimate"], self.reference_depth_mm)
+        return self.law(push_state_from_slots(mean), observation["goal"])
+
+
+TEACHERS = {"servo": ServoTeacher, "edge": EdgeTeacher, "push": PushTeacher}
+
+
+def teacher_for(env) -> ServoTeacher | EdgeTeacher | PushTeacher:
+    """The env's teacher, by its ``controller_law``: the servo law, the edge law or the push law."""
+    return TEACHERS[getattr(env.unwrapped, "controller_law", "servo")](env)
 
 
 def collect(envs: list, steps: int, noise: float, seed: int, actor=None) -> dict:

@@ -46,6 +46,7 @@ from simshear_gym.train.runs import check_same_settings
 
 TRACKING_EVAL = ("circle", "tilted_square", "spiral", "loop")
 COLIFT_EVAL_TRAJECTORY = "circular_wave"
+PUSH_EVAL_PATH_ANGLE_DEG = 15.0  # the nominal pushing episodes' path, off the first push's direction
 
 
 def residual_settings(config: RLTrainConfig) -> ResidualSettings | None:
@@ -88,8 +89,9 @@ def env_settings(config: RLTrainConfig, rank: int, training: bool = True) -> dic
     obs_mode = config.obs_mode
     if training and config.asymmetric_critic:
         obs_mode = {"real": "oracle_real", "sim": "oracle"}[config.obs_mode]
-    kwargs = {"outline" if config.task == "edge" else "trajectory": "random", "randomise": config.randomise,
-              "obs_mode": obs_mode, "image_size_px": config.image_size_px, "observation": config.observation,
+    task_kwargs = {"edge": {"outline": "random"}, "push": {"shape": "random"}}.get(config.task,
+                                                                                 {"trajectory": "random"})
+    kwargs = {**task_kwargs, "randomise": config.randomise, "obs_mode": obs_mode, "image_size_px": config.image_size_px, "observation": config.observation,
               "history": config.history}
     if config.observation in ESTIMATE_OBSERVATIONS:
         kwargs["estimator"] = env_estimator
@@ -120,6 +122,11 @@ def evaluation_settings(config: RLTrainConfig) -> dict[str, dict]:
         from simshear_gym.sim.contours import OUTLINES
 
         return {name: {"outline": name, "randomise": False} for name in OUTLINES}
+    if config.task == "push":
+        from simshear_gym.sim.pushing import PUSH_SHAPES
+
+        return {name: {"shape": name, "randomise": False, "path_angle_deg": PUSH_EVAL_PATH_ANGLE_DEG}
+                for name in PUSH_SHAPES}
     from simshear_gym.envs.colift import OBJECT_NAMES
 
     return {name: {"trajectory": COLIFT_EVAL_TRAJECTORY, "object_name": name, "randomise": False}
