@@ -182,7 +182,7 @@ GOAL_LIMIT_MM = 1000.0
 
 def goal_space() -> spaces.Box:
     """The ``goal`` observation of a pushing task (``SimShearPush-v0``, and the real path's
-    :class:`~simshear_gym.envs.wrappers.PushGoal`): float32 (4,)."""
+    :class:`~simshear_gym.control.push_servo.PushGoalObservation`): float32 (4,)."""
     return spaces.Box(-GOAL_LIMIT_MM, GOAL_LIMIT_MM, (4,), dtype=np.float32)
 
 

@@ -74,3 +74,39 @@ def test_edge_rollout_refuses_what_it_cannot_do(tmp_path, capsys):
                      "--min-depth-mm", "3", "--steps", "1", "--out", str(tmp_path)])
     assert code != 0 and "--min-depth-mm" in capsys.readouterr().err
     assert not (tmp_path / "rollout.json").exists()  # refused before anything connected or moved
+
+
+def test_the_shipped_edge_policy_follows_the_edge_on_the_emulator_with_the_edge_estimator(tmp_path):
+    """``simshear rollout --task edge-follow --policy``: the policy's estimate observation is made by the edge
+    law's estimator (the edge GDNN, its four slots), as in ``SimShearEdgeFollow-v0``."""
+    from simshear_gym.models.zoo import policy_folder
+
+    emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0)).start()
+    out = tmp_path / "rollout"
+    try:
+        code = cli.main(["rollout", "--robot", "127.0.0.1", "--camera", "sim-edge", "--task", "edge-follow",
+                         "--policy", str(policy_folder("edge_ppo") / "model.pt"), "--outline", "wavy", "--steps",
+                         str(STEPS), "--period-s", str(PERIOD_S), "--out", str(out), "--dashboard-port",
+                         str(emulator.dashboard_port), "--motion-port", str(emulator.motion_port),
+                         "--feedback-port", str(emulator.feedback_port)])
+        sent = emulator.received_commands("motion")
+    finally:
+        emulator.stop()
+    summary = json.loads((out / "rollout.json").read_text())
+    assert code == 0 and summary["termination"] == "" and summary["safety_events"] == []
+    assert summary["controller"].startswith("ppo") and summary["config"]["observation"] == "estimate"
+    assert summary["truth_progress_mm"] > 0.6 * STEPS * 0.5
+    assert summary["truth_contact_error_mm"]["mean"] < 1.0 and summary["truth_contact_error_mm"]["max"] < 3.0
+    check_servo_commands_within_limits(sent, START, STEPS, PERIOD_S)
+
+
+def test_the_task_picks_the_law_and_refuses_another(tmp_path, capsys):
+    from simshear_gym.models.zoo import policy_folder
+
+    base = ["rollout", "--robot", "127.0.0.1", "--steps", "1", "--out", str(tmp_path)]
+    code = cli.main([*base, "--camera", "sim-edge", "--task", "edge-follow", "--controller", "servo"])
+    assert code != 0 and "--task edge-follow runs the edge law; got --controller servo" in capsys.readouterr().err
+    code = cli.main([*base, "--camera", "sim-surface", "--task", "tracking", "--policy",
+                     str(policy_folder("edge_ppo") / "model.pt")])
+    assert code != 0 and "a policy trained on edge" in capsys.readouterr().err
+    assert not (tmp_path / "rollout.json").exists()

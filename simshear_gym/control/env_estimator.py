@@ -32,23 +32,40 @@ class ReadingEstimator(TactileEstimator):
 
 
 def env_estimator(env) -> ReadingEstimator:
-    """The estimator :meth:`ServoController.for_env <simshear_gym.control.servo.ServoController.for_env>` builds
-    for ``env`` (the GDNN the env names, its process noise), keeping its readings; for an edge env
-    (``SimShearEdgeFollow-v0``), the edge controller's, its estimate in the observation's four slots
-    (:class:`~simshear_gym.control.edge_servo.EdgeReadingEstimator`); for a pushing env (``SimShearPush-v0``), the
-    push controller's (:func:`~simshear_gym.control.push_servo.push_reading_estimator`). The env's
-    ``controller_law`` says which."""
+    """The estimator the env's controller builds (:meth:`ServoController.for_env
+    <simshear_gym.control.servo.ServoController.for_env>`, or the edge or push controller's ``for_env`` by the env's
+    ``controller_law``: the GDNN the env names, its process noise), keeping its readings
+    (:func:`reading_estimator`)."""
     law = getattr(env.unwrapped, "controller_law", "servo")
+    if law == "push":
+        from simshear_gym.control.push_servo import PushServoController
+
+        return reading_estimator(law, PushServoController.for_env(env))
+    if law == "edge":
+        from simshear_gym.control.edge_servo import EdgeServoController
+
+        return reading_estimator(law, EdgeServoController.for_env(env))
+    return reading_estimator(law, ServoController.for_env(env))
+
+
+def reading_estimator(law: str, controller) -> ReadingEstimator:
+    """An estimate observation's estimator, of the same GDNN and filter settings as ``controller`` (a controller of
+    ``law``: ``servo``, ``edge`` or ``push``): for the servo law a :class:`ReadingEstimator`; for the edge and push
+    laws theirs, their estimates in the observation's four slots
+    (:class:`~simshear_gym.control.edge_servo.EdgeReadingEstimator`,
+    :func:`~simshear_gym.control.push_servo.push_reading_estimator`). Sim envs (:func:`env_estimator`) and
+    ``simshear rollout`` (a policy on the real path) build theirs with it."""
     if law == "push":
         from simshear_gym.control.push_servo import push_reading_estimator
 
-        return push_reading_estimator(env)
+        return push_reading_estimator(controller.estimator.config)
     if law == "edge":
-        from simshear_gym.control.edge_servo import EdgeReadingEstimator, EdgeServoController
+        from simshear_gym.control.edge_servo import EdgeReadingEstimator
 
-        controller = EdgeServoController.for_env(env)
         return EdgeReadingEstimator(controller.estimator.config, controller.law.gains.angle_process_std_deg)
-    return ReadingEstimator(ServoController.for_env(env).estimator.config)
+    if law != "servo":
+        raise ValueError(f"unknown law {law!r}; expected servo, edge or push")
+    return ReadingEstimator(controller.estimator.config)
 
 
 def env_kwargs(settings: PolicySettings) -> dict[str, Any]:
@@ -59,4 +76,4 @@ def env_kwargs(settings: PolicySettings) -> dict[str, Any]:
     return kwargs
 
 
-__all__ = ["ReadingEstimator", "env_estimator", "env_kwargs"]
+__all__ = ["ReadingEstimator", "env_estimator", "env_kwargs", "reading_estimator"]

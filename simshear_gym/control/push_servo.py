@@ -39,12 +39,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import gymnasium as gym
 import numpy as np
 
 from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.policy import as_action_scale
 
+PUSH_PROCESS_STD_MM = 0.5
+"""The push filter's process noise on depth and shear per step (the object's unknown turn and slip; the
+``estimator_process_std_mm`` of ``SimShearPush-v0``)."""
 LABEL_FACE_DEPTH_MM = 2.2
 """The labels' depth of the face itself (``sim.replay.SURFACE_DEPTH_MM``): depth minus this is the indentation."""
 
@@ -199,10 +203,10 @@ def push_state_from_slots(slots: np.ndarray) -> np.ndarray:
     return np.array([depth, shear_x, face_yaw])
 
 
-def push_reading_estimator(env):
-    """The estimator of a pushing env's ``estimate`` observation: the push servo controller's
-    (:meth:`PushServoController.for_env`), its estimates in the observation's four slots."""
-    return _push_estimator(PushServoController.for_env(env).estimator.config, reading_slots=True)
+def push_reading_estimator(config: EstimatorConfig):
+    """The estimator of a pushing policy's ``estimate`` observation: the push servo controller's (its GDNN and
+    filter settings, ``config``), its estimates in the observation's four slots (:func:`push_estimate_slots`)."""
+    return _push_estimator(config, reading_slots=True)
 
 
 @dataclass(frozen=True)
@@ -251,6 +255,37 @@ class _GoalOf:
         return push_goal(tcp[:2], side, axis, target, self._direction).astype(np.float64)
 
 
+class PushGoalObservation(gym.Wrapper):
+    """A real pushing env's observation with ``SimShearPush-v0``'s ``goal`` added (from each step's measured
+    ``info["tcp_pose"]`` and a :class:`PushTarget`), so that a pushing policy trained in sim gets the observation
+    it was trained on."""
+
+    def __init__(self, env: gym.Env, target: PushTarget) -> None:
+        from gymnasium import spaces
+
+        from simshear_gym.contract import goal_space
+
+        super().__init__(env)
+        self.observation_space = spaces.Dict({**env.observation_space.spaces, "goal": goal_space()})
+        self._goal = _GoalOf(target, "PushGoalObservation")
+
+    def _with_goal(self, observation: dict, info: dict) -> dict:
+        if info.get("tcp_pose") is None:
+            raise ValueError("PushGoalObservation needs the env's info['tcp_pose'] (the measured apex pose)")
+        return {**observation, "goal": self._goal({"tcp_pose": info["tcp_pose"]}).astype(np.float32)}
+
+    def reset(self, **kwargs):
+        self._goal.reset()
+        observation, info = self.env.reset(**kwargs)
+        return self._with_goal(observation, info), info
+
+    def step(self, action):
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        if info.get("tcp_pose") is None:  # an episode that stopped before observing: its observation as it is
+            return observation, reward, terminated, truncated, info
+        return self._with_goal(observation, info), reward, terminated, truncated, info
+
+
 class PushServoController:
     """Tactile image and goal -> action: the surface GDNN + filter (depth, shear x, face yaw), then
     :class:`PushLaw`. Call :meth:`reset` per episode.
@@ -270,8 +305,13 @@ class PushServoController:
     def __init__(self, action_scale: ActionScale = ActionScale(), step_mm: float = 0.5,
                  gains: PushGains = PushGains(), use_shear: bool = True,
                  estimator: EstimatorConfig = EstimatorConfig(), target: PushTarget | None = None) -> None:
+        from dataclasses import replace
+
         self.action_scale = as_action_scale(action_scale, "PushServoController")
+        self.target = target
         self._goal = _GoalOf(target, "the push servo controller")
+        if estimator.process_std_mm is None:
+            estimator = replace(estimator, process_std_mm=PUSH_PROCESS_STD_MM)
         self._scale = self.action_scale.as_array()
         self.estimator = _push_estimator(estimator)
         self.law = PushLaw(self._scale, step_mm, gains, use_shear)
@@ -340,5 +380,6 @@ class PushOracleController:
         return self.law(np.array([depth, shear_x, face_yaw]), self._goal(observation))
 
 
-__all__ = ["PushGains", "PushLaw", "PushOracleController", "PushServoController", "PushTarget", "aim_bearing_deg",
-           "push_estimate_slots", "push_reading_estimator", "push_state_from_slots"]
+__all__ = ["PUSH_PROCESS_STD_MM", "PushGains", "PushGoalObservation", "PushLaw", "PushOracleController",
+           "PushServoController", "PushTarget", "aim_bearing_deg", "push_estimate_slots", "push_reading_estimator",
+           "push_state_from_slots"]

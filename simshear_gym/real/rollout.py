@@ -4,19 +4,24 @@
 
     simshear rollout --robot 192.168.1.6 --camera 0 --controller servo --steps 300 --out runs/rollout/surface
     simshear rollout --robot 127.0.0.1 --camera sim-surface --policy runs/rl/ppo/model.zip --dry-run
+    simshear rollout --robot 127.0.0.1 --camera sim-push --task push --steps 300
 
 Controllers: ``--controller servo`` (:class:`~simshear_gym.control.servo.ServoController`: GDNN + Bayesian filter +
 PI law, ``--posenet`` weights, default the shipped ``surface`` GDNN), ``--controller edge``
 (:class:`~simshear_gym.control.edge_servo.EdgeServoController`: edge following at ``--edge-speed-mm-s``, default
 the shipped ``edge`` GDNN), ``--controller push`` (:class:`~simshear_gym.control.push_servo.PushServoController`:
 pushing to ``--push-target-mm`` at ``--push-speed-mm-s`` with the horizontal TacTip, the shipped ``surface`` GDNN)
-or ``--policy MODEL.zip`` (or ``--controller
+(``--task tracking|edge-follow|push`` picks the same three by task, and checks a ``--controller`` or ``--policy``
+against it) or ``--policy MODEL.zip`` (or ``--controller
 MODEL.zip``): a Stable-Baselines3 PPO / SAC agent of ``simshear train rl``, loaded with its run folder's
 ``config.json`` and ``VecNormalize`` statistics (:meth:`~simshear_gym.control.policy.SB3Controller.load`): the
 env gives it the observation it was trained on (observation, history, image size; an estimate observation reads
 the images with ``--posenet`` / ``--sensor``'s GDNN, default the shipped ``surface`` one, relative to
 ``--reference-depth-mm``), its observations are normalised as in training and a residual policy's correction is
-added to the servo law. A bare ``.zip`` (no ``config.json``) gets the ``tactile`` observation at ``--image-size``.
+added to the servo law; a policy of the edge or push task reads its images with that task's estimator (as in
+its env), and a pushing policy gets the env's ``goal`` from the measured pose and ``--push-target-mm``
+(:class:`~simshear_gym.control.push_servo.PushGoalObservation`). A bare ``.zip`` (no ``config.json``) gets the
+``tactile`` observation at ``--image-size``.
 
 Camera (``--camera``): a device index, a video file or an image folder (:class:`~simshear_gym.real.camera.
 CameraSource`, preprocessed with ``--preprocess``), or ``sim-surface``: the hardware-in-the-loop camera
@@ -44,7 +49,7 @@ from typing import Any
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.contract import HorizontalTacTipMount
+from simshear_gym.contract import ESTIMATE_OBSERVATIONS, HorizontalTacTipMount
 from simshear_gym.control.policy import (  # sb3_algorithm is also re-exported for this module's callers
     Controller,
     EstimatingController,
@@ -65,6 +70,14 @@ SIM_CAMERAS = (SIM_SURFACE_CAMERA, SIM_EDGE_CAMERA, SIM_PUSH_CAMERA)
 PUSH_START_POSE_MM_DEG = (340.0, -190.0, 0.0, 90.0)
 """``--controller push``'s default flange start: the horizontal TacTip 60 mm below it pushing along the base's +y,
 as ``SimShearPush-v0``'s follower starts."""
+PUSH_REFERENCE_DEPTH_MM = 2.6
+"""The push law's ``--reference-depth-mm`` default (``SimShearPush-v0``'s: the first touch's depth, labels' z)."""
+LAWS = ("servo", "edge", "push")
+"""The controllers ``--controller`` names: the servo law (tracking), edge following and pushing."""
+TASK_LAWS = {"tracking": "servo", "edge-follow": "edge", "push": "push"}
+"""``--task`` -> the law it runs (its ``--controller`` default)."""
+POLICY_TASK_LAWS = {"tracking": "servo", "colift": "servo", "edge": "edge", "push": "push"}
+"""A policy's task (``simshear train rl --task``) -> the law whose estimator makes its estimate observation."""
 STATE_NAMES = ("depth_mm", "shear_x_mm", "shear_y_mm", "shear_rz_deg")
 """The state estimate's columns, unless the controller names its own (``state_names``)."""
 POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
@@ -131,9 +144,10 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     name = getattr(controller, "name", type(controller).__name__)
+    base = env.unwrapped  # env may be wrapped (a pushing policy's goal): the real env's own parts from it
     observation, info = env.reset()
     controller.reset()
-    truth_source = getattr(env.camera, "history", None)
+    truth_source = getattr(base.camera, "history", None)
     with_estimate = isinstance(controller, EstimatingController)
     names = tuple(getattr(controller, "state_names", STATE_NAMES))
     rows = [_row(0, observation, info, np.zeros(4), None, 0.0, truth_source[-1] if truth_source else None, names)]
@@ -145,7 +159,7 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
         except (ValueError, FloatingPointError) as error:  # e.g. a NaN estimate the servo law refuses: a safe stop
             action = None
             policy_ms.append(1000.0 * (time.perf_counter() - start))
-            observation, _, terminated, truncated, info = env.end_episode(
+            observation, _, terminated, truncated, info = base.end_episode(
                 "controller_error", f"the controller could not compute an action, nothing sent: {error}")
         else:
             policy_ms.append(1000.0 * (time.perf_counter() - start))
@@ -156,7 +170,7 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
         if terminated or truncated:
             termination = info["termination"]
             break
-    events = list(env.safety_events)
+    events = list(base.safety_events)
     columns = _columns(with_estimate, truth_source is not None, names)
     _write_csv(out_dir / "steps.csv", columns, rows)
     figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{name}: {termination or 'completed'}")
@@ -168,13 +182,13 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
         "steps_run": len(rows) - 1,
         "termination": termination,
         "safety_events": events,
-        "commands_sent": env.commands_sent,
-        "dry_run": env.config.dry_run,
+        "commands_sent": base.commands_sent,
+        "dry_run": base.config.dry_run,
         "policy_ms_median": round(float(np.median(policy_ms)), 3) if policy_ms else None,
         "policy_ms_p95": round(float(np.percentile(policy_ms, 95)), 3) if policy_ms else None,
         "period_overruns": int(np.sum(overruns > 0.0)),
         "max_overrun_s": round(float(overruns.max()), 4) if overruns.size else 0.0,
-        "config": env.config.to_dict(),
+        "config": base.config.to_dict(),
         "files": {"steps": "steps.csv", "figure": figure.name},
     }
     truth = [row["truth_contact_error_mm"] for row in rows if "truth_contact_error_mm" in row]
@@ -182,10 +196,10 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
         summary["truth_contact_error_mm"] = {"mean": round(float(np.mean(truth)), 4),
                                              "max": round(float(np.max(truth)), 4),
                                              "final": round(float(truth[-1]), 4)}
-    progress = getattr(env.camera, "progress_mm", None)
+    progress = getattr(base.camera, "progress_mm", None)
     if progress is not None:  # a simulated edge: how far along it the run went
         summary["truth_progress_mm"] = round(float(progress), 3)
-    distance = getattr(env.camera, "target_distance_mm", lambda: None)()
+    distance = getattr(base.camera, "target_distance_mm", lambda: None)()
     if distance is not None:  # a simulated push: how far from its target the object ended
         summary["truth_target_distance_mm"] = round(float(distance), 3)
     write_json(out_dir / "rollout.json", summary)
@@ -271,6 +285,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'servo' (GDNN + filter + PI law), 'edge' (edge following: the edge GDNN + filter + the "
                              "edge law), 'push' (pushing to --push-target-mm with a horizontal TacTip: the surface "
                              "GDNN + filter + the push law) or a Stable-Baselines3 PPO/SAC/TQC .zip (as --policy)")
+    parser.add_argument("--task", default=None, choices=tuple(TASK_LAWS),
+                        help="tracking (the servo law), edge-follow (the edge law) or push (the push law, a "
+                             "horizontal TacTip): its controller when neither --controller nor --policy is given, "
+                             "else a check that they are of this task")
     parser.add_argument("--policy", default=None, metavar="MODEL.zip",
                         help="a PPO/SAC/TQC agent of simshear train rl (model.zip, best_model.zip or a checkpoint), "
                              "with its run's settings and VecNormalize statistics; instead of --controller")
@@ -294,8 +312,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", default=None,
                         help="a sensor's own GDNN for the servo controller: its configs/<name>.toml, the folder of its "
                              "`simshear pipeline run` or that run's sensor.json (instead of --posenet)")
-    parser.add_argument("--reference-depth-mm", type=float, default=4.0,
-                        help="depth the servo controller holds, labels' convention (default 4.0)")
+    parser.add_argument("--reference-depth-mm", type=float, default=None,
+                        help="depth the controller holds (pushing: the first touch's), labels' convention (default "
+                             f"4.0; {PUSH_REFERENCE_DEPTH_MM} with the push law)")
     parser.add_argument("--min-depth-mm", type=float, default=None,
                         help="stop when the GDNN's depth reading falls below this (lost contact); default off")
     parser.add_argument("--preprocess", default="shipped",
@@ -334,19 +353,40 @@ def _preprocess_config(value: str):
     return PreprocessConfig.load(value)
 
 
-def _policy_path(args: argparse.Namespace) -> str | None:
-    """The SB3 model of ``--policy`` or ``--controller MODEL.zip`` (None for ``--controller servo``), checked."""
-    if (args.policy is None) == (args.controller is None):
-        raise ValueError("give --controller servo|MODEL.zip or --policy MODEL.zip (one of them)")
+def _controller_name(args: argparse.Namespace) -> str | None:
+    """``--controller``, or ``--task``'s law when neither ``--controller`` nor ``--policy`` is given."""
+    if args.controller is None and args.policy is None and args.task is not None:
+        return TASK_LAWS[args.task]
+    return args.controller
+
+
+def _policy_path(args: argparse.Namespace, controller: str | None) -> str | None:
+    """The SB3 model of ``--policy`` or ``--controller MODEL.zip`` (None for a law's name), checked."""
+    if (args.policy is None) == (controller is None):
+        raise ValueError("give --controller servo|edge|push|MODEL.zip, --policy MODEL.zip or --task (one of them)")
     if args.policy is not None:
         if not Path(args.policy).is_file() and not has_policy_files(args.policy):
             raise FileNotFoundError(f"--policy {args.policy!r}: no such SB3 .zip file")
         return args.policy
-    if args.controller in ("servo", "edge", "push"):
+    if controller in LAWS:
         return None
-    if not Path(args.controller).is_file() and not has_policy_files(args.controller):
-        raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
-    return args.controller
+    if not Path(controller).is_file() and not has_policy_files(controller):
+        raise FileNotFoundError(f"--controller {controller!r} is neither one of {LAWS} nor an existing SB3 .zip "
+                                "file")
+    return controller
+
+
+def _law(controller: str | None, settings: PolicySettings | None, task: str | None) -> str:
+    """The law the run is of (:data:`LAWS`): the controller's, or the task a policy was trained on; checked against
+    ``--task``."""
+    if controller in LAWS:
+        law, source = controller, f"--controller {controller}"
+    else:
+        law = POLICY_TASK_LAWS.get(settings.task, "servo") if settings is not None else "servo"
+        source = f"a policy trained on {settings.task}" if settings is not None else "a bare SB3 model (tracking)"
+    if task is not None and TASK_LAWS[task] != law:
+        raise ValueError(f"--task {task} runs the {TASK_LAWS[task]} law; got {source} (the {law} law)")
+    return law
 
 
 def _load_sb3(path: str, env, flag: str = "--controller") -> SB3Controller:
@@ -364,22 +404,41 @@ def _sim_camera(args: argparse.Namespace, config, flange_pose):
     if args.camera == SIM_PUSH_CAMERA:
         from simshear_gym.real.hil_push import PushObjectConfig, SimPushCamera
 
-        push_object = PushObjectConfig(shape=args.shape, reference_depth_mm=args.reference_depth_mm,
+        push_object = PushObjectConfig(shape=args.shape, reference_depth_mm=config.reference_depth_mm,
                                        target_xy_mm=_push_target(args, config))
         return SimPushCamera(flange_pose, config.start_pose_mm_deg, push_object, config.mount,
                              raw_frame_layout=config.preprocess)
     if args.camera == SIM_EDGE_CAMERA:
         from simshear_gym.real.hil_edge import EdgeObjectConfig, SimEdgeCamera
 
-        edge_object = EdgeObjectConfig(outline=args.outline, reference_depth_mm=args.reference_depth_mm)
+        edge_object = EdgeObjectConfig(outline=args.outline, reference_depth_mm=config.reference_depth_mm)
         return SimEdgeCamera(flange_pose, config.start_pose_mm_deg, edge_object, config.mount,
                              raw_frame_layout=config.preprocess)
     from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
 
     surface = MovingSurfaceConfig(velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
-                                  reference_depth_mm=args.reference_depth_mm)
+                                  reference_depth_mm=config.reference_depth_mm)
     return SimSurfaceCamera(flange_pose, config.start_pose_mm_deg, surface, config.mount,
                             raw_frame_layout=config.preprocess)
+
+
+def _law_controller(law: str, args: argparse.Namespace, config, estimator_config):
+    """The controller of ``law`` for this run (the one that runs, or whose estimator a policy's estimate
+    observation uses): the servo, edge or push controller at the run's depth, speed and target."""
+    if law == "edge":
+        from simshear_gym.control.edge_servo import EdgeServoController
+
+        return EdgeServoController(config.reference_depth_mm, config.action_scale,
+                                   args.edge_speed_mm_s * args.period_s, estimator=estimator_config)
+    if law == "push":
+        from simshear_gym.control.push_servo import PushServoController, PushTarget
+
+        return PushServoController(config.action_scale, args.push_speed_mm_s * args.period_s,
+                                   estimator=estimator_config,
+                                   target=PushTarget(_push_target(args, config), config.mount))
+    from simshear_gym.control.servo import ServoController
+
+    return ServoController(config.reference_depth_mm, config.action_scale, estimator=estimator_config)
 
 
 def _push_target(args: argparse.Namespace, config) -> tuple[float, float]:
@@ -399,8 +458,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the rollout; 0 when every step ran, 1 when a safety condition stopped it early."""
     import torch
 
+    from simshear_gym.control.env_estimator import reading_estimator
     from simshear_gym.control.estimator import EstimatorConfig
-    from simshear_gym.control.servo import ServoController
     from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv
     from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
@@ -408,21 +467,26 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     if args.steps < 1:
         raise ValueError(f"--steps must be >= 1, got {args.steps}")
-    policy = _policy_path(args)
+    controller_name = _controller_name(args)
+    policy = _policy_path(args, controller_name)
     settings = PolicySettings.of_model(policy) if policy else None
     image_size_px = args.image_size or (settings.image_size_px if settings else 128)
     if args.sensor and args.posenet:
         raise ValueError("give --sensor (a sensor's own GDNN) or --posenet (GDNN weights), not both")
-    edge, push = args.controller == "edge", args.controller == "push"
+    law = _law(controller_name, settings, args.task)
+    edge, push = law == "edge", law == "push"
     if (args.camera == SIM_PUSH_CAMERA) != push and args.camera in SIM_CAMERAS:
-        raise ValueError(f"--camera {SIM_PUSH_CAMERA} and --controller push go together (a horizontal TacTip "
-                         f"pushing): got --camera {args.camera} with --controller {args.controller}")
+        raise ValueError(f"--camera {SIM_PUSH_CAMERA} and the push law (--controller push, --task push or a pushing "
+                         f"policy) go together (a horizontal TacTip pushing): got --camera {args.camera} with the "
+                         f"{law} law")
     if push and args.min_depth_mm is not None:
         raise ValueError("--min-depth-mm stops on a lost surface contact; a push's depth is the object's friction: "
-                         "leave --min-depth-mm out with --controller push")
+                         "leave --min-depth-mm out with the push law")
     if edge and args.min_depth_mm is not None:
         raise ValueError("--min-depth-mm reads the surface GDNN's depth; the edge controller has none of its own "
-                         "yet: leave --min-depth-mm out with --controller edge")
+                         "yet: leave --min-depth-mm out with the edge law")
+    reference_depth_mm = (args.reference_depth_mm if args.reference_depth_mm is not None
+                          else PUSH_REFERENCE_DEPTH_MM if push else 4.0)
     posenet = load_sensor(args.sensor).posenet("edge" if edge else "surface") if args.sensor else args.posenet
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
     preprocess_config = _preprocess_config(args.preprocess)
@@ -439,44 +503,40 @@ def run(args: argparse.Namespace) -> int:
             args.start_pose if args.start_pose is not None else PUSH_START_POSE_MM_DEG if push else (300.0, 0.0, 0.0,
                                                                                                      0.0)),
         observation=settings.observation if settings else "tactile", history=settings.history if settings else 1,
-        reference_depth_mm=args.reference_depth_mm, posenet=posenet, safety=safety, dry_run=args.dry_run,
+        reference_depth_mm=reference_depth_mm, posenet=posenet, safety=safety, dry_run=args.dry_run,
         **({"mount": HorizontalTacTipMount()} if push else {}),
         # a simulated camera has no noise: equal frames in a row are no sign of a frozen driver
         frozen_frame_limit=None if args.camera in SIM_CAMERAS else RealEnvConfig.frozen_frame_limit)
+    estimator_config = EstimatorConfig(posenet=posenet)
+    law_controller = _law_controller(law, args, config, estimator_config)
+    # a policy of the edge or push task reads its estimate observation with that law's estimator
+    policy_estimator = (reading_estimator(law, law_controller)
+                        if settings is not None and settings.observation in ESTIMATE_OBSERVATIONS else None)
     if args.camera not in SIM_CAMERAS:
-        env = RealTactileEnv(config)  # the camera is opened on the first reset
+        env = RealTactileEnv(config, estimator=policy_estimator)  # the camera is opened on the first reset
     else:  # the simulated camera renders where the arm's feedback says the flange is
         holder: list[RealTactileEnv] = []
         camera = _sim_camera(args, config, lambda: holder[0].client.measured_pose())
-        env = RealTactileEnv(config, camera=camera)
+        env = RealTactileEnv(config, camera=camera, estimator=policy_estimator)
         holder.append(env)
-    estimator_config = EstimatorConfig(posenet=posenet)
     try:
         controller: Controller
-        if edge:
-            from simshear_gym.control.edge_servo import EdgeServoController
-
-            edge_servo = EdgeServoController(args.reference_depth_mm, config.action_scale,
-                                             args.edge_speed_mm_s * args.period_s, estimator=estimator_config)
-            controller, estimator = edge_servo, None
-        elif push:
-            from simshear_gym.control.push_servo import PushServoController, PushTarget
-
-            controller = PushServoController(config.action_scale, args.push_speed_mm_s * args.period_s,
-                                             estimator=estimator_config,
-                                             target=PushTarget(_push_target(args, config), config.mount))
-            estimator = None
-        elif policy is None:
-            servo = ServoController(args.reference_depth_mm, config.action_scale, estimator=estimator_config)
-            controller, estimator = servo, servo.estimator
+        estimator = None
+        if policy is None:
+            controller = law_controller
+            estimator = law_controller.estimator if law == "servo" else None
         else:
-            controller, estimator = _load_sb3(policy, env, "--policy" if args.policy else "--controller"), None
+            if push:  # the goal the policy saw in sim, from the measured pose and the target
+                from simshear_gym.control.push_servo import PushGoalObservation
+
+                env = PushGoalObservation(env, law_controller.target)
+            controller = _load_sb3(policy, env, "--policy" if args.policy else "--controller")
         if args.min_depth_mm is not None:
             if estimator is None:
                 from simshear_gym.control.estimator import TactileEstimator
 
                 estimator = TactileEstimator(estimator_config)
-            env.contact_check = EstimatedContact(estimator, args.min_depth_mm)
+            env.unwrapped.contact_check = EstimatedContact(estimator, args.min_depth_mm)
         command = recorded_command("simshear rollout", add_arguments, args)
         summary = run_rollout(env, controller, args.steps, out_dir, command=command)
     finally:

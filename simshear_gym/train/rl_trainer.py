@@ -91,8 +91,8 @@ def env_settings(config: RLTrainConfig, rank: int, training: bool = True) -> dic
         obs_mode = {"real": "oracle_real", "sim": "oracle"}[config.obs_mode]
     task_kwargs = {"edge": {"outline": "random"}, "push": {"shape": "random"}}.get(config.task,
                                                                                  {"trajectory": "random"})
-    kwargs = {**task_kwargs, "randomise": config.randomise, "obs_mode": obs_mode, "image_size_px": config.image_size_px, "observation": config.observation,
-              "history": config.history}
+    kwargs = {**task_kwargs, "randomise": config.randomise, "obs_mode": obs_mode,
+              "image_size_px": config.image_size_px, "observation": config.observation, "history": config.history}
     if config.observation in ESTIMATE_OBSERVATIONS:
         kwargs["estimator"] = env_estimator
     if config.task == "colift":
