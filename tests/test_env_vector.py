@@ -134,3 +134,26 @@ def test_evaluate_env_speed_writes_results_with_the_command(tmp_path):
     assert [row["onnx_threads"] for row in onnx_rows] == [1, 2]
     assert result["single_process"]["real"][0]["steps_per_s"] > 0 and result["single_process"]["sim"]["steps"] == 5
     assert [row["translate_in"] for row in result["vectorised"]] == ["workers", "main"]
+
+
+@pytest.mark.slow
+def test_evaluate_env_speed_measures_several_envs_into_one_record(tmp_path):
+    import json
+
+    import torch
+
+    from simshear_gym import cli
+
+    threads = torch.get_num_threads()
+    try:
+        assert cli.main(["evaluate", "env-speed", "--env", "SimShearEdgeFollow-v0", "SimShearPush-v0", "--steps",
+                         "5", "--vector-steps", "2", "--num-envs", "2", "--threads", "1", "--runtimes", "onnx",
+                         "--out", str(tmp_path), "--name", "tasks"]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    result = json.loads((tmp_path / "tasks.json").read_text())
+    assert "--env SimShearEdgeFollow-v0 SimShearPush-v0" in result["command"] and "machine" in result
+    assert list(result["envs"]) == ["SimShearEdgeFollow-v0", "SimShearPush-v0"]
+    for section in result["envs"].values():
+        assert section["goals"]["single_steps_per_s"] == 300.0
+        assert section["single_process"]["sim"]["steps"] == 5 and section["vectorised"]
