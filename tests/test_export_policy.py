@@ -19,7 +19,7 @@ from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
 from simshear_gym.models.zoo import POLICY_DIR
-from simshear_gym.pipelines.export_policy import (
+from simshear_gym.ship.policy import (
     ENV_MODELS,
     SHIPPED_FILES,
     export,
@@ -155,7 +155,7 @@ def test_the_trainer_registers_the_envs_its_evaluation_makes():
 
 def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
     """best_model.zip is the model of the last evaluation that set a new best, and the card quotes that one."""
-    from simshear_gym.pipelines.export_policy import card_text
+    from simshear_gym.ship.policy import card_text
 
     to = tmp_path / "policy"
     to.mkdir()
@@ -179,7 +179,7 @@ def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
 def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
     from dataclasses import asdict
 
-    from simshear_gym.pipelines.export_policy import card_text
+    from simshear_gym.ship.policy import card_text
 
     to = tmp_path / "policy"
     to.mkdir()

@@ -193,7 +193,7 @@ def test_a_crafted_checkpoint_is_refused_and_runs_nothing(tmp_path):
 def test_an_older_shipped_policy_converts_in_place_only_when_trusted(agent, tmp_path, capsys):
     """`export-policy --convert DIR` turns an older shipped folder (SB3 .zip + .pkl) into the pickle-free files,
     only with --trust-pickle; the converted policy acts as the agent did and its card lists the new files."""
-    from simshear_gym.pipelines.export_policy import SHIPPED_FILES
+    from simshear_gym.ship.policy import SHIPPED_FILES
 
     model, venv = agent
     folder = tmp_path / "policy"

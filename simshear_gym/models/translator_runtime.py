@@ -5,7 +5,7 @@
 (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
 
 An ONNX translator is a shipped generator exported by ``simshear train export-onnx``
-(:mod:`simshear_gym.pipelines.export_onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
+(:mod:`simshear_gym.ship.onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
 image (``floor(255 y + 0.5)`` clamped, as the torch path rounds). Its metadata records the sha256 of the torch
@@ -42,7 +42,7 @@ from simshear_gym.models.device import DEVICES, check_device_name
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
 ONNX_SUFFIX = ".onnx"
-# ONNX graph interface (written by simshear_gym.pipelines.export_onnx, read here)
+# ONNX graph interface (written by simshear_gym.ship.onnx, read here)
 SIM_INPUT = "sim_uint8"
 SHEAR_INPUT = "shear_sensor"
 IMAGE_OUTPUT = "image_uint8"

@@ -51,7 +51,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     stay: a GDNN shipped alone reads the images of translators the run did not ship); returns the files written."""
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator import load_generator, save_generator
-    from simshear_gym.pipelines import export_posenet, export_translator
+    from simshear_gym.ship import posenet, translator
 
     if not models or set(models) - set(MODEL_KINDS):
         raise ValueError(f"models must name some of {list(MODEL_KINDS)}, got {list(models)}")
@@ -79,7 +79,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
             generator, card = load_generator(run / archs[arch])
             card = {**card, "pipeline": _provenance(manifest, records[stage]), "train_command": " && ".join(commands)}
             save_generator(dest, generator, card=card)
-            card["check"] = export_translator.check_figure(dest, contact, CHECK_ROWS["translator"], data)
+            card["check"] = translator.check_figure(dest, contact, CHECK_ROWS["translator"], data)
             save_generator(dest, generator, card=card)
             written += [dest, _write(dest, translator_card(dest, arch, contact, card, manifest, evaluation,
                                                            records[stage], commands, date))]
@@ -94,7 +94,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
                 "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters()),
                 "pipeline": _provenance(manifest, records[stage])}
         save_posenet(dest, model, card)
-        card["check"] = export_posenet.check_figure(dest, contact, CHECK_ROWS["posenet"], data)
+        card["check"] = posenet.check_figure(dest, contact, CHECK_ROWS["posenet"], data)
         save_posenet(dest, model, card)
         written += [dest, _write(dest, posenet_card(dest, contact, card, manifest, evaluation, records, commands,
                                                     date))]
@@ -119,16 +119,16 @@ def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
     """The envs' ONNX translator beside newly shipped shPix2pix weights: exported from them where the export extra
     is installed; else the old ``.onnx`` (and card) are removed (the envs' ``auto`` runtime would skip them anyway:
     their recorded sha256 no longer matches) and the command to export them is printed."""
-    from simshear_gym.pipelines import export_onnx
+    from simshear_gym.ship import onnx as ship_onnx
 
     onnx_path = onnx_path_for(weights)
-    if export_onnx.missing_export_packages():
+    if ship_onnx.missing_export_packages():
         for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
             stale.unlink(missing_ok=True)
         print(f"note: {onnx_path} not written (the export extra is not installed); the envs run the torch "
               f"translator until: pip install -e '.[export]' && simshear train export-onnx --weights {weights}")
         return []
-    exported = export_onnx.export(weights, onnx_path, translation_results=None, data=data)
+    exported = ship_onnx.export(weights, onnx_path, translation_results=None, data=data)
     return [exported["onnx"], exported["card"]]
 
 
@@ -200,7 +200,7 @@ def translator_card(weights: Path, arch: str, contact: str, card: dict, manifest
 
 def posenet_card(weights: Path, contact: str, card: dict, manifest: dict, evaluation: dict, records: dict,
                  commands: list[str], date: str) -> str:
-    from simshear_gym.pipelines.export_posenet import generator_list
+    from simshear_gym.ship.posenet import generator_list
 
     config = card["train_config"]
     record = records[f"posenet/{contact}_shpix2pix"]

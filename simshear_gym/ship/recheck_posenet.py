@@ -23,7 +23,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator_runtime import file_sha256
     from simshear_gym.models.zoo import shipped_translators
-    from simshear_gym.pipelines.export_posenet import check_figure, env_check_figure
+    from simshear_gym.ship.posenet import check_figure, env_check_figure
 
     weights = Path(weights)
     if not weights.is_file():
