@@ -29,6 +29,7 @@ from simshear_gym.train.rl import RLTrainConfig, train
 
 torch.set_num_threads(1)
 COMMAND = "simshear train rl --algo ppo --timesteps 32 --out runs/rl/tiny"
+EXPORT = "simshear train export-policy --run RUN --to policy"
 
 
 @pytest.fixture(scope="module")
@@ -155,7 +156,7 @@ def test_the_trainer_registers_the_envs_its_evaluation_makes():
 
 def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
     """best_model.zip is the model of the last evaluation that set a new best, and the card quotes that one."""
-    from simshear_gym.ship.policy import card_text
+    from simshear_gym.ship.cards import policy_card
 
     to = tmp_path / "policy"
     to.mkdir()
@@ -170,16 +171,18 @@ def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
 
     config = {**asdict(RLTrainConfig(timesteps=300, observation="estimate")), "env_id": "SimShearTracking-v0"}
     provenance = {"train_command": COMMAND, "exported_from": "tiny/best_model.zip", "estimator_models_sha256": {}}
-    best = card_text(config, provenance, to, "best", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    best = policy_card(config, provenance, to, "best", evaluations, {}, {}, "ppo", EXPORT, "2026-01-02",
+                       ENV_MODELS["tracking"])
     assert "At 200 env steps" in best and "0.200 mm" in best and "At 100 env steps" not in best
-    final = card_text(config, provenance, to, "final", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    final = policy_card(config, provenance, to, "final", evaluations, {}, {}, "ppo", EXPORT, "2026-01-02",
+                        ENV_MODELS["tracking"])
     assert "At 300 env steps" in final
 
 
 def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
     from dataclasses import asdict
 
-    from simshear_gym.ship.policy import card_text
+    from simshear_gym.ship.cards import policy_card
 
     to = tmp_path / "policy"
     to.mkdir()
@@ -189,7 +192,8 @@ def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
     provenance = {"train_command": COMMAND, "exported_from": "tiny/model.zip", "estimator_models_sha256": {}}
     imitation = {"noise": 0.1, "epochs": 30, "after": {"actor_mse": 3e-5}, "rounds": [{}, {}], "seconds": 120.0}
     summary = {"timesteps": 0, "seconds": 0.0, "stopped_by": "timesteps", "imitation": imitation}
-    card = card_text(config, provenance, to, "final", [], summary, {}, "ppo", None, "2026-01-02")
+    card = policy_card(config, provenance, to, "final", [], summary, {}, "ppo", EXPORT, "2026-01-02",
+                       ENV_MODELS["colift"])
     assert "Budget: no RL steps" in card and "ran 0 steps" not in card
     assert "DAgger clone of the servo law in velocity form" in card and "2 round(s) of 100 steps" in card
     assert "actor MSE against the teacher 3e-05" in card and "2.0 min" in card

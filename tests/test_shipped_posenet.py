@@ -5,11 +5,8 @@ import torch
 
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.zoo import load_shipped_posenet, posenet_weights
-from simshear_gym.ship.posenet import (
-    check_figure,
-    env_check_figure,
-    generator_list,
-)
+from simshear_gym.ship.cards import generator_list
+from simshear_gym.ship.posenet import check_figure, env_check_figure
 
 torch.set_num_threads(1)
 

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import re
 from pathlib import Path
 
-CHECK_LINE = re.compile(r"^Check figure \(tests\):.*$", re.MULTILINE)
+from simshear_gym.command_line import recorded_command
+from simshear_gym.ship.cards import recheck_line, with_check_line
 
 
 def recheck(weights: Path, data: str | None = None, date: str | None = None) -> dict:
@@ -44,18 +44,8 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     save_posenet(weights, model, {**card, "check": check})
     md = weights.with_suffix(".md")
     if md.is_file():
-        where = (f"a fresh seeded co-lift set ({check['rows']} rows, `EnvCollectConfig(**{check['collect']})`)"
-                 if check.get("kind") == "env" else
-                 f"the first {check['rows']} rows of the real `{card['contact']}_shear` validation set")
-        line = (f"Check figure (tests): MAE on {where}: "
-                + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())
-                + f" (measured again on {date} by `simshear train recheck-posenet {weights}`"
-                + (f", images from the surface shPix2pix with sha256 {check['translator_sha256'][:16]}...; was "
-                   + ", ".join(f"{k} {v:.3f}" for k, v in old["mae"].items()) if "translator_sha256" in check
-                   else "") + ")")
-        text = md.read_text()
-        md.write_text(CHECK_LINE.sub(lambda _: line, text, count=1) if CHECK_LINE.search(text)
-                      else text.rstrip("\n") + "\n\n" + line + "\n")
+        command = recorded_command("simshear train recheck-posenet", add_arguments, argparse.Namespace(weights=weights))
+        md.write_text(with_check_line(md.read_text(), recheck_line(check, card["contact"], old, command)))
     return check
 
 
