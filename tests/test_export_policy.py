@@ -1,4 +1,4 @@
-"""``simshear train export-policy``: a run's policy becomes a shipped folder that the benchmark and the robot load
+"""``simshear ship policy``: a run's policy becomes a shipped folder that the benchmark and the robot load
 like the run itself (same settings, same normalisation, same actions), with a card that names its command; and the
 trainer's evaluation envs exist in the main process whatever the sub-envs' vectorisation."""
 
@@ -29,7 +29,7 @@ from simshear_gym.train.rl import RLTrainConfig, train
 
 torch.set_num_threads(1)
 COMMAND = "simshear train rl --algo ppo --timesteps 32 --out runs/rl/tiny"
-EXPORT = "simshear train export-policy --run RUN --to policy"
+EXPORT = "simshear ship policy --run RUN --to policy"
 
 
 @pytest.fixture(scope="module")
@@ -43,7 +43,7 @@ def run_dir(tmp_path_factory):
 
 def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp_path):
     to = tmp_path / "policies" / "tracking_ppo"
-    code = cli.main(["train", "export-policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
+    code = cli.main(["ship", "policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
                      "--date", "2026-01-02"])
     assert code == 0
     assert {p.name for p in to.iterdir()} == {"model.pt", "model.json", "vecnormalize.json", "config.json",

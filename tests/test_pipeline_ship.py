@@ -1,4 +1,4 @@
-"""``simshear pipeline ship``: a finished run's translators and GDNNs become weights with cards and check figures
+"""``simshear ship run``: a finished run's translators and GDNNs become weights with cards and check figures
 (the shipped weights are what a pipeline run produced); an unfinished run is refused with a clear error."""
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     edge_only = ship(run, tmp_path / "edge_only", str(data_root), date="2026-01-01", contacts=("edge",))
     assert {p.name.split(".")[0] for p in edge_only} == {"shpix2pix_edge", "pix2pix_edge", "edge"}
     card = (tmp_path / "edge_only" / "posenet" / "edge.md").read_text()
-    assert f"simshear pipeline ship {run} --contacts edge" in card
+    assert f"simshear ship run {run} --contacts edge" in card
     gdnn_only = ship(run, tmp_path / "gdnn_only", str(data_root), date="2026-01-01", contacts=("surface",),
                      models=("posenet",))
     assert [p.relative_to(tmp_path / "gdnn_only").as_posix() for p in gdnn_only] == ["posenet/surface.pt",

@@ -4,7 +4,7 @@
 ``translator(sim_uint8, shear_sensor)``: sim uint8 (B, H, W) or (B, 1, H, W), shear (B, 6) in the sensor frame
 (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
 
-An ONNX translator is a shipped generator exported by ``simshear train export-onnx``
+An ONNX translator is a shipped generator exported by ``simshear ship onnx``
 (:mod:`simshear_gym.ship.onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
@@ -86,12 +86,12 @@ def _current_onnx(weights: Path, threads: int) -> OnnxTranslator | Exception:
     """The ONNX translator beside ``weights`` if it was exported from them as they are now, else why not."""
     onnx_path = onnx_path_for(weights)
     if not onnx_path.is_file():
-        return FileNotFoundError(f"{onnx_path} not found (export it: simshear train export-onnx --weights {weights} "
+        return FileNotFoundError(f"{onnx_path} not found (export it: simshear ship onnx --weights {weights} "
                                  f"--to {onnx_path})")
     translator = OnnxTranslator(onnx_path, threads=threads)
     if translator.metadata.get("source_sha256") != file_sha256(weights):
         return ValueError(f"{onnx_path} was not exported from {weights} as it is now (its recorded sha256 differs); "
-                          f"re-export it: simshear train export-onnx --weights {weights} --to {onnx_path}")
+                          f"re-export it: simshear ship onnx --weights {weights} --to {onnx_path}")
     return translator
 
 
@@ -253,7 +253,7 @@ class OnnxTranslator:
         inputs = {node.name: node for node in self._session.get_inputs()}
         if SIM_INPUT not in inputs or set(inputs) - {SIM_INPUT, SHEAR_INPUT}:
             raise ValueError(f"{self.path}: not a simshear ONNX translator (inputs {sorted(inputs)}, expected "
-                             f"{SIM_INPUT!r} and optionally {SHEAR_INPUT!r}; write it with simshear train export-onnx)")
+                             f"{SIM_INPUT!r} and optionally {SHEAR_INPUT!r}; write it with simshear ship onnx)")
         self.shear_conditioned = SHEAR_INPUT in inputs
         size = inputs[SIM_INPUT].shape[-1]
         if not isinstance(size, int):

@@ -1,4 +1,4 @@
-"""Export a shipped translator to ONNX: ``simshear train export-onnx --weights W.pt [--to W.onnx]``.
+"""Export a shipped translator to ONNX: ``simshear ship onnx --weights W.pt [--to W.onnx]``.
 
 Writes ``W.onnx`` (by default beside ``W.pt``, where the envs' ``"auto"`` runtime finds it; see
 :mod:`simshear_gym.models.translator_runtime`) and its card ``W.onnx.md``, both atomically. The graph is the
@@ -267,7 +267,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     "evaluation", "size_bytes"}."""
     missing = missing_export_packages()
     if missing:
-        raise ImportError(f"export-onnx needs {', '.join(missing)} (the export extra): pip install -e '.[export]'")
+        raise ImportError(f"ship onnx needs {', '.join(missing)} (the export extra): pip install -e '.[export]'")
     if not (isinstance(check_rows, int) and check_rows >= 1):
         raise ValueError(f"check_rows (--check-rows) must be an int >= 1, got {check_rows!r}")
     weights = Path(weights)
@@ -282,7 +282,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     if to.suffix != ".onnx":
         raise ValueError(f"--to must name a .onnx file, got {to}")
     contact_name = _contact(weights, contact)
-    command = recorded_command("simshear train export-onnx", add_arguments, argparse.Namespace(
+    command = recorded_command("simshear ship onnx", add_arguments, argparse.Namespace(
         weights=weights, to=to, precision=precision, check_rows=check_rows, contact=contact,
         translation_results=DEFAULT_RESULTS if translation_results is None else Path(translation_results),
         no_translation_results=translation_results is None))
@@ -313,7 +313,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
 def run(args: argparse.Namespace) -> int:
     missing = missing_export_packages()
     if missing:
-        print(f"simshear: error: export-onnx needs {', '.join(missing)} (the export extra): "
+        print(f"simshear: error: ship onnx needs {', '.join(missing)} (the export extra): "
               f"pip install -e '.[export]'", file=sys.stderr)
         return 2
     exported = export(args.weights, args.to, args.precision, args.check_rows, args.contact,

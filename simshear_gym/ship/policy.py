@@ -1,4 +1,4 @@
-"""Ship a policy of ``simshear train rl``: ``simshear train export-policy --run RUN --to DIR --train-command ...``.
+"""Ship a policy of ``simshear train rl``: ``simshear ship policy --run RUN --to DIR --train-command ...``.
 
 A shipped policy is a folder, the layout :meth:`~simshear_gym.control.policy.SB3Controller.load` reads, with no
 pickle in it: ``model.pt`` and ``model.json`` (the policy's pickle-free files,
@@ -120,7 +120,7 @@ def convert_shipped(folder: Path, trust_pickle: bool = False) -> Path:
         raise FileNotFoundError(f"{folder}: not an older shipped policy (expected model.zip and model.md)")
     stats = folder / "vecnormalize.pkl"
     write_policy_files(folder / "model.zip", stats if stats.is_file() else None, folder, trust_pickle)
-    command = recorded_command("simshear train export-policy", add_arguments,
+    command = recorded_command("simshear ship policy", add_arguments,
                                argparse.Namespace(convert=recorded_path(folder), trust_pickle=True))
     card = converted_card((folder / "model.md").read_text(), folder, command)
     atomic_write(folder / "model.md", lambda tmp: Path(tmp).write_text(card), suffix=".md")
@@ -167,7 +167,7 @@ def _export_command(to: Path, model: str, results: Path | None, variant: str) ->
     """The export's command line, its run folder ``RUN`` (a local path) and its train command left out."""
     args = argparse.Namespace(run="RUN", to=recorded_path(to), model=model,
                               results=recorded_path(results) if results else None, variant=variant)
-    return recorded_command("simshear train export-policy", add_arguments, args)
+    return recorded_command("simshear ship policy", add_arguments, args)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -198,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     missing = [flag for flag, value in (("--run", args.run), ("--to", args.to),
                                         ("--train-command", args.train_command)) if value is None]
     if missing:
-        raise ValueError(f"export-policy needs {' and '.join(missing)} (or --convert DIR)")
+        raise ValueError(f"ship policy needs {' and '.join(missing)} (or --convert DIR)")
     card = export(args.run, args.to, args.train_command, args.model, args.results, args.variant, args.date,
                   args.trust_pickle)
     print(f"wrote {args.to / 'model.pt'} and {card}")

@@ -1,4 +1,4 @@
-"""Ship a posenet run: ``simshear train export-posenet --run RUN --contact C --to WEIGHTS.pt --train-command ...``.
+"""Ship a posenet run: ``simshear ship posenet --run RUN --contact C --to WEIGHTS.pt --train-command ...``.
 
 Copies the run's best GDNN into a weights file with a card (training command, run config, best holdout NLL, and a
 check figure: the per-variable MAE on the first ``--check-rows`` rows of the real ``<contact>_shear`` validation
@@ -72,7 +72,7 @@ def env_check_figure(weights: Path, settings: dict = ENV_CHECK) -> dict:
 def write_card(weights: Path, card: dict, results: dict | None, result_name: str, date: str) -> Path:
     """``<weights>.md`` (:func:`~simshear_gym.ship.cards.posenet_card`): data, exact commands, metrics, date."""
     export_args = argparse.Namespace(run="RUN", contact=card["contact"], to=weights)  # RUN: a local path
-    export_command = recorded_command("simshear train export-posenet", add_arguments, export_args)
+    export_command = recorded_command("simshear ship posenet", add_arguments, export_args)
     path = weights.with_suffix(".md")
     path.write_text(posenet_card(weights, card, results, result_name, date, export_command))
     return path

@@ -1,8 +1,8 @@
-"""``simshear train recheck-posenet W.pt``: measure a shipped GDNN's check figure again and record it.
+"""``simshear ship recheck-posenet W.pt``: measure a shipped GDNN's check figure again and record it.
 
 A GDNN's check figure (``tests/test_shipped_posenet.py`` reproduces it) is its MAE on a fixed set of images. For the
 co-lift GDNN that set is collected afresh from the co-lift env, whose images come from the shipped surface
-shPix2pix: when that translator is replaced (``simshear pipeline ship``), the same GDNN sees other images and its
+shPix2pix: when that translator is replaced (``simshear ship run``), the same GDNN sees other images and its
 check figure moves. This command measures it again with the translator shipped now, stores it in the weights file
 (``check``, with the sha256 of the translator that made the images) and rewrites the card's check line, saying when
 and why. The network itself is not touched.
@@ -32,7 +32,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     old = card.get("check")
     if not old:
         raise ValueError(f"{weights}: its card holds no check figure to measure again (export it with "
-                         "simshear train export-posenet)")
+                         "simshear ship posenet)")
     if old.get("kind") == "env":
         check = env_check_figure(weights, old["collect"])
         translator = shipped_translators()[("shpix2pix", "surface")]
@@ -44,7 +44,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     save_posenet(weights, model, {**card, "check": check})
     md = weights.with_suffix(".md")
     if md.is_file():
-        command = recorded_command("simshear train recheck-posenet", add_arguments, argparse.Namespace(weights=weights))
+        command = recorded_command("simshear ship recheck-posenet", add_arguments, argparse.Namespace(weights=weights))
         md.write_text(with_check_line(md.read_text(), recheck_line(check, card["contact"], old, command)))
     return check
 

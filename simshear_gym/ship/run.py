@@ -1,4 +1,4 @@
-"""``simshear pipeline ship RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
+"""``simshear ship run RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
 
 For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2pix translators and its GDNN trained
 on translated images go where the shipped ones lie in DIR (by default the package's shipped folder; the layout:
@@ -6,7 +6,7 @@ on translated images go where the shipped ones lie in DIR (by default the packag
 folder, git commit) and a check figure that the tests reproduce (``tests/test_shipped_translator.py``,
 ``tests/test_shipped_posenet.py``); beside it a card (``.md``): data, settings, the exact commands, the metrics of
 the run's evaluation on the real validation rows, date. Each shPix2pix is also exported to the ``.onnx`` the envs
-run (``simshear train export-onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
+run (``simshear ship onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
 Nothing is trained: shipping a run twice gives the same files, so the shipped weights are exactly what
 ``simshear pipeline run CONFIG --profile P`` produced. ``--contacts`` and ``--models`` (translators, posenet) ship a
 part of the run.
@@ -69,7 +69,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     ship_args = argparse.Namespace(run=run, contacts=list(contacts) if contacts else None,
                                    models=[kind for kind in MODEL_KINDS if kind in models])
     commands = [recorded_command("simshear pipeline run", pipeline_run.add_arguments, run_args),
-                recorded_command("simshear pipeline ship", add_arguments, ship_args)]
+                recorded_command("simshear ship run", add_arguments, ship_args)]
     written = []
     for contact, archs in made.items():
         if contacts and contact not in contacts:
@@ -128,7 +128,7 @@ def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
         for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
             stale.unlink(missing_ok=True)
         print(f"note: {onnx_path} not written (the export extra is not installed); the envs run the torch "
-              f"translator until: pip install -e '.[export]' && simshear train export-onnx --weights {weights}")
+              f"translator until: pip install -e '.[export]' && simshear ship onnx --weights {weights}")
         return []
     exported = ship_onnx.export(weights, onnx_path, translation_results=None, data=data)
     return [exported["onnx"], exported["card"]]
