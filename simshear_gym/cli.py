@@ -42,18 +42,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "quality against training time of translator runs"),
     (("mg400-emulator",), "simshear_gym.real.mg400_emulator",
      "run a loopback Dobot MG400 emulator (dashboard, motion, feedback ports) until Ctrl-C"),
-    (("train", "export-translator"), "simshear_gym.pipelines.export_translator",
-     "ship a translator run as fp16 weights with a check figure"),
-    (("train", "recheck-posenet"), "simshear_gym.pipelines.recheck_posenet",
-     "measure a shipped GDNN's check figure again (after a new translator) and record it in its file and card"),
-    (("train", "export-onnx"), "simshear_gym.pipelines.export_onnx",
-     "export shipped translator weights to ONNX (run by onnxruntime in the envs), with a check and a card"),
     (("train", "posenet"), "simshear_gym.train.posenet",
      "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
-    (("train", "export-posenet"), "simshear_gym.pipelines.export_posenet",
-     "ship a posenet run's best GDNN with its model card"),
-    (("train", "export-policy"), "simshear_gym.pipelines.export_policy",
-     "ship a simshear train rl policy (model, normalisation, settings) with its model card"),
     (("train", "rl"), "simshear_gym.train.rl",
      "train a PPO, SAC or TQC agent on SimShearTracking-v0 or SimShearCoLift-v0 (--preset tracking-first: a "
      "first tracking policy on a 2-core CPU)"),
@@ -107,18 +97,49 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "how many real rows the chain needs: translator and GDNNs trained on the first N real rows, per budget"),
     (("pipeline", "env-model"), "simshear_gym.pipelines.env_model",
      "an env GDNN (the co-lift estimator) from its [env_models.<name>] recipe: env sets, one DAgger round, training"),
-    (("pipeline", "ship"), "simshear_gym.pipelines.ship",
-     "make a finished pipeline run's translators and GDNNs the package's shipped weights, with cards"),
     (("pipeline", "make-example"), "simshear_gym.pipelines.example_sensor",
      "write the example second lab's data set (configs/example_lab.toml) from the real tactip331 images"),
+    (("ship", "translator"), "simshear_gym.ship.translator",
+     "ship a translator run as fp16 weights with a check figure"),
+    (("ship", "posenet"), "simshear_gym.ship.posenet",
+     "ship a posenet run's best GDNN with its model card"),
+    (("ship", "onnx"), "simshear_gym.ship.onnx",
+     "export shipped translator weights to ONNX (run by onnxruntime in the envs), with a check and a card"),
+    (("ship", "policy"), "simshear_gym.ship.policy",
+     "ship a simshear train rl policy (model, normalisation, settings) with its model card"),
+    (("ship", "run"), "simshear_gym.ship.run",
+     "make a finished pipeline run's translators and GDNNs the package's shipped weights, with cards"),
+    (("ship", "recheck-posenet"), "simshear_gym.ship.recheck_posenet",
+     "measure a shipped GDNN's check figure again (after a new translator) and record it in its file and card"),
 )
+
+# Old command words -> the command they name now. Each stays a command of its own (the same module, so the same
+# options and output) for one release, so that the command lines recorded in results/ and the cards still run.
+ALIASES: dict[tuple[str, ...], tuple[str, ...]] = {
+    ("train", "export-translator"): ("ship", "translator"),
+    ("train", "export-posenet"): ("ship", "posenet"),
+    ("train", "export-onnx"): ("ship", "onnx"),
+    ("train", "export-policy"): ("ship", "policy"),
+    ("train", "recheck-posenet"): ("ship", "recheck-posenet"),
+    ("pipeline", "ship"): ("ship", "run"),
+}
+
+
+def _alias_rows() -> tuple[tuple[tuple[str, ...], str, str], ...]:
+    named = {words: (module, help_text) for words, module, help_text in COMMANDS}
+    return tuple((old, named[new][0], f"{named[new][1]} (alias of simshear {' '.join(new)}; kept for one release)")
+                 for old, new in ALIASES.items())
+
+
+COMMANDS += _alias_rows()
 
 
 # the groups of several commands: their one-line help
 GROUPS: dict[str, str] = {
     "evaluate": "benchmarks and evaluations, each writing its record under results/",
-    "train": "train the translator, the pose-and-shear GDNN and RL agents, and ship their weights",
-    "pipeline": "a sensor's experiment config: check it, run its cached pipeline, ship its models",
+    "train": "train the translator, the pose-and-shear GDNN and RL agents",
+    "pipeline": "a sensor's experiment config: check it, run its cached pipeline (simshear ship run ships its models)",
+    "ship": "make a run's translator, GDNN, ONNX export or policy (or a whole pipeline run) shipped weights with cards",
     "experiment": "the paper's two-arm experiments on two MG400s (or the rehearsal rig)",
 }
 

@@ -22,6 +22,7 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("train", "lab"),
     ("evaluate",),
     ("pipelines",),
+    ("ship",),
     ("demo", "cli"),
 )
 FLOOR = {room: level for level, rooms in enumerate(FLOORS) for room in rooms}

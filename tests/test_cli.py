@@ -149,3 +149,37 @@ def test_bad_command_and_library_error_exit_codes(tmp_path, capsys):
 def test_command_parser_rejects_a_group_or_unknown_words():
     with pytest.raises(ValueError, match="no simshear command"):
         cli.command_parser(("evaluate",))
+
+
+SHIP_COMMANDS = ("translator", "posenet", "onnx", "policy", "run", "recheck-posenet")
+
+
+def test_ship_help_lists_its_commands_without_importing_them(help_runs):
+    run = help_runs["ship"]
+    assert run["exit"] == 0 and run["command_modules"] == []
+    text = _help(["ship"])
+    for word in SHIP_COMMANDS:
+        assert f" {word} " in text, f"simshear ship --help does not list {word!r}"
+        assert cli._LEAVES[("ship", word)] == f"simshear_gym.ship.{word.replace('-', '_')}"
+
+
+@pytest.mark.parametrize("old", sorted(cli.ALIASES), ids=" ".join)
+def test_an_old_command_is_an_alias_of_its_ship_command(old):
+    """The old words run the new command's module (same options, same output) and say whose alias they are."""
+    new = cli.ALIASES[old]
+    assert new[0] == "ship" and new[1] in SHIP_COMMANDS
+    assert cli._LEAVES[old] == cli._LEAVES[new]
+    helps = {words: help_text for words, _, help_text in cli.COMMANDS}
+    assert helps[old] == f"{helps[new]} (alias of simshear {' '.join(new)}; kept for one release)"
+    assert f" {old[1]} {helps[old]}" in _help([old[0]])
+    old_parser, new_parser = cli.command_parser(old), cli.command_parser(new)
+    assert ([a.option_strings or a.dest for a in old_parser._actions]
+            == [a.option_strings or a.dest for a in new_parser._actions])
+    argv = {"onnx": ["--weights", "w.pt"], "recheck-posenet": ["w.pt"], "run": ["runs/x"], "policy": ["--run", "r"],
+            "translator": ["--run", "r", "--contact", "edge", "--to", "w.pt", "--train-command", "c"],
+            "posenet": ["--run", "r", "--contact", "edge", "--to", "w.pt", "--train-command", "c"]}[new[1]]
+    old_args = cli.build_parser([*old, *argv]).parse_args([*old, *argv])
+    new_args = cli.build_parser([*new, *argv]).parse_args([*new, *argv])
+    assert old_args._module == new_args._module
+    assert {k: v for k, v in vars(old_args).items() if not k.startswith("command")} == {
+        k: v for k, v in vars(new_args).items() if not k.startswith("command")}

@@ -1,4 +1,4 @@
-"""``simshear train export-policy``: a run's policy becomes a shipped folder that the benchmark and the robot load
+"""``simshear ship policy``: a run's policy becomes a shipped folder that the benchmark and the robot load
 like the run itself (same settings, same normalisation, same actions), with a card that names its command; and the
 trainer's evaluation envs exist in the main process whatever the sub-envs' vectorisation."""
 
@@ -19,7 +19,7 @@ from simshear_gym import cli
 from simshear_gym.control.env_estimator import env_kwargs
 from simshear_gym.control.policy import PolicySettings, SB3Controller, stale_estimator_models
 from simshear_gym.models.zoo import POLICY_DIR
-from simshear_gym.pipelines.export_policy import (
+from simshear_gym.ship.policy import (
     ENV_MODELS,
     SHIPPED_FILES,
     export,
@@ -29,6 +29,7 @@ from simshear_gym.train.rl import RLTrainConfig, train
 
 torch.set_num_threads(1)
 COMMAND = "simshear train rl --algo ppo --timesteps 32 --out runs/rl/tiny"
+EXPORT = "simshear ship policy --run RUN --to policy"
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +43,7 @@ def run_dir(tmp_path_factory):
 
 def test_the_exported_policy_acts_like_the_run_and_carries_its_card(run_dir, tmp_path):
     to = tmp_path / "policies" / "tracking_ppo"
-    code = cli.main(["train", "export-policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
+    code = cli.main(["ship", "policy", "--run", str(run_dir), "--to", str(to), "--train-command", COMMAND,
                      "--date", "2026-01-02"])
     assert code == 0
     assert {p.name for p in to.iterdir()} == {"model.pt", "model.json", "vecnormalize.json", "config.json",
@@ -155,7 +156,7 @@ def test_the_trainer_registers_the_envs_its_evaluation_makes():
 
 def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
     """best_model.zip is the model of the last evaluation that set a new best, and the card quotes that one."""
-    from simshear_gym.pipelines.export_policy import card_text
+    from simshear_gym.ship.cards import policy_card
 
     to = tmp_path / "policy"
     to.mkdir()
@@ -170,16 +171,18 @@ def test_the_card_quotes_the_evaluation_of_the_model_it_ships(tmp_path):
 
     config = {**asdict(RLTrainConfig(timesteps=300, observation="estimate")), "env_id": "SimShearTracking-v0"}
     provenance = {"train_command": COMMAND, "exported_from": "tiny/best_model.zip", "estimator_models_sha256": {}}
-    best = card_text(config, provenance, to, "best", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    best = policy_card(config, provenance, to, "best", evaluations, {}, {}, "ppo", EXPORT, "2026-01-02",
+                       ENV_MODELS["tracking"])
     assert "At 200 env steps" in best and "0.200 mm" in best and "At 100 env steps" not in best
-    final = card_text(config, provenance, to, "final", evaluations, {}, {}, "ppo", None, "2026-01-02")
+    final = policy_card(config, provenance, to, "final", evaluations, {}, {}, "ppo", EXPORT, "2026-01-02",
+                        ENV_MODELS["tracking"])
     assert "At 300 env steps" in final
 
 
 def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
     from dataclasses import asdict
 
-    from simshear_gym.pipelines.export_policy import card_text
+    from simshear_gym.ship.cards import policy_card
 
     to = tmp_path / "policy"
     to.mkdir()
@@ -189,7 +192,8 @@ def test_the_card_of_a_servo_law_clone_says_so(tmp_path):
     provenance = {"train_command": COMMAND, "exported_from": "tiny/model.zip", "estimator_models_sha256": {}}
     imitation = {"noise": 0.1, "epochs": 30, "after": {"actor_mse": 3e-5}, "rounds": [{}, {}], "seconds": 120.0}
     summary = {"timesteps": 0, "seconds": 0.0, "stopped_by": "timesteps", "imitation": imitation}
-    card = card_text(config, provenance, to, "final", [], summary, {}, "ppo", None, "2026-01-02")
+    card = policy_card(config, provenance, to, "final", [], summary, {}, "ppo", EXPORT, "2026-01-02",
+                       ENV_MODELS["colift"])
     assert "Budget: no RL steps" in card and "ran 0 steps" not in card
     assert "DAgger clone of the servo law in velocity form" in card and "2 round(s) of 100 steps" in card
     assert "actor MSE against the teacher 3e-05" in card and "2.0 min" in card

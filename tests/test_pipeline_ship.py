@@ -1,4 +1,4 @@
-"""``simshear pipeline ship``: a finished run's translators and GDNNs become weights with cards and check figures
+"""``simshear ship run``: a finished run's translators and GDNNs become weights with cards and check figures
 (the shipped weights are what a pipeline run produced); an unfinished run is refused with a clear error."""
 
 from __future__ import annotations
@@ -11,10 +11,12 @@ import pytest
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import Translator
 from simshear_gym.models.translator_runtime import load_translator, runtime_of
-from simshear_gym.pipelines import export_onnx, export_posenet, export_translator
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.run import STAGES, run_pipeline
-from simshear_gym.pipelines.ship import read_run, ship
+from simshear_gym.ship import onnx as ship_onnx
+from simshear_gym.ship import posenet as ship_posenet
+from simshear_gym.ship import translator as ship_translator
+from simshear_gym.ship.run import read_run, ship
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -36,7 +38,7 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     manifest = run_pipeline(config, run, data_root, "smoke", STAGES, rows_per_split=24, workers=1)
     to = tmp_path / "weights"
     written = ship(run, to, str(data_root), date="2026-01-01")
-    exported = not export_onnx.missing_export_packages()
+    exported = not ship_onnx.missing_export_packages()
     assert sorted(p.relative_to(to).as_posix() for p in written) == sorted(
         [f"{stem}.{ext}" for stem in ("shpix2pix_surface", "pix2pix_surface", "posenet/surface", "shpix2pix_edge",
                                       "pix2pix_edge", "posenet/edge") for ext in ("pt", "md")]
@@ -49,12 +51,12 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     assert translator.card["pipeline"]["stage"] == next(r["folder"] for r in manifest["results"]
                                                         if r["stage"] == "translator/edge_shpix2pix")
     check = translator.card["check"]
-    assert export_translator.check_figure(to / "shpix2pix_edge.pt", "edge", check["rows"],
-                                          str(data_root))["mape"] == pytest.approx(check["mape"], abs=1e-6)
+    assert ship_translator.check_figure(to / "shpix2pix_edge.pt", "edge", check["rows"],
+                                        str(data_root))["mape"] == pytest.approx(check["mape"], abs=1e-6)
     model, card = load_posenet(to / "posenet" / "surface.pt")
     assert model.variables.name == "surface" and card["train_config"]["source"] == "shpix2pix"
-    measured = export_posenet.check_figure(to / "posenet" / "surface.pt", "surface", card["check"]["rows"],
-                                           str(data_root))
+    measured = ship_posenet.check_figure(to / "posenet" / "surface.pt", "surface", card["check"]["rows"],
+                                         str(data_root))
     assert measured["mae"] == pytest.approx(card["check"]["mae"], rel=1e-5)
     text = (to / "posenet" / "surface.md").read_text()
     assert f"simshear pipeline run {config.path} --profile smoke --out {run}" in text
@@ -63,7 +65,7 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     edge_only = ship(run, tmp_path / "edge_only", str(data_root), date="2026-01-01", contacts=("edge",))
     assert {p.name.split(".")[0] for p in edge_only} == {"shpix2pix_edge", "pix2pix_edge", "edge"}
     card = (tmp_path / "edge_only" / "posenet" / "edge.md").read_text()
-    assert f"simshear pipeline ship {run} --contacts edge" in card
+    assert f"simshear ship run {run} --contacts edge" in card
     gdnn_only = ship(run, tmp_path / "gdnn_only", str(data_root), date="2026-01-01", contacts=("surface",),
                      models=("posenet",))
     assert [p.relative_to(tmp_path / "gdnn_only").as_posix() for p in gdnn_only] == ["posenet/surface.pt",
@@ -80,7 +82,7 @@ def test_ship_writes_into_the_package_weights_folder_by_default():
     import inspect
 
     from simshear_gym.models import zoo
-    from simshear_gym.pipelines import ship as ship_module
+    from simshear_gym.ship import run as ship_module
 
     parser = argparse.ArgumentParser()
     ship_module.add_arguments(parser)

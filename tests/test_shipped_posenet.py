@@ -5,11 +5,8 @@ import torch
 
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.zoo import load_shipped_posenet, posenet_weights
-from simshear_gym.pipelines.export_posenet import (
-    check_figure,
-    env_check_figure,
-    generator_list,
-)
+from simshear_gym.ship.cards import generator_list
+from simshear_gym.ship.posenet import check_figure, env_check_figure
 
 torch.set_num_threads(1)
 
@@ -68,7 +65,7 @@ def test_card_lists_each_generator_once_with_how_often_it_is_drawn():
 def test_recheck_measures_the_check_again_and_rewrites_the_cards_line(data_root, tmp_path):
     import shutil
 
-    from simshear_gym.pipelines.recheck_posenet import recheck
+    from simshear_gym.ship.recheck_posenet import recheck
 
     weights = tmp_path / "edge.pt"
     shutil.copy(posenet_weights("edge"), weights)
@@ -84,7 +81,7 @@ def test_recheck_measures_the_check_again_and_rewrites_the_cards_line(data_root,
 
 
 def test_recheck_of_a_missing_file_is_a_clear_error(tmp_path):
-    from simshear_gym.pipelines.recheck_posenet import recheck
+    from simshear_gym.ship.recheck_posenet import recheck
 
     with pytest.raises(FileNotFoundError, match="not found"):
         recheck(tmp_path / "missing.pt")

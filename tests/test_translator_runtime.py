@@ -79,7 +79,8 @@ def test_shipped_onnx_is_current_small_and_has_a_card(contact):
     assert path.stat().st_size < 10 * 2**20, f"{path.name} is over 10 MiB"
     card = path.with_name(path.name + ".md")
     assert card.is_file(), f"{path.name} has no card"
-    assert "simshear train export-onnx" in card.read_text()
+    text = card.read_text()
+    assert "simshear ship onnx" in text or "simshear train export-onnx" in text  # the old words: older cards
     translator = OnnxTranslator(path)
     assert translator.metadata["source_sha256"] == file_sha256(SHIPPED[contact])
     assert translator.image_size_px == 128 and translator.shear_conditioned
@@ -103,7 +104,7 @@ def test_runtime_choice(tmp_path, monkeypatch):
     alone.parent.mkdir()
     shutil.copy(weights, alone)
     assert isinstance(load_translator(alone, "auto"), Translator)
-    with pytest.raises(FileNotFoundError, match="shpix2pix_surface.onnx not found.*export-onnx"):
+    with pytest.raises(FileNotFoundError, match="shpix2pix_surface.onnx not found.*simshear ship onnx"):
         load_translator(alone, "onnx")
 
     # an .onnx exported from other weights than those beside it: never run by auto, refused by onnx
@@ -227,14 +228,14 @@ def test_env_with_the_onnx_runtime_gives_the_torch_env_observation(monkeypatch, 
 
 def test_export_command_names_the_missing_packages(monkeypatch, capsys, tmp_path):
     from simshear_gym import cli
-    from simshear_gym.pipelines import export_onnx
+    from simshear_gym.ship import onnx as ship_onnx
 
-    monkeypatch.setattr(export_onnx, "missing_export_packages", lambda: ["onnxscript"])
-    code = cli.main(["train", "export-onnx", "--weights", str(SHIPPED["surface"]), "--to", str(tmp_path / "x.onnx")])
+    monkeypatch.setattr(ship_onnx, "missing_export_packages", lambda: ["onnxscript"])
+    code = cli.main(["ship", "onnx", "--weights", str(SHIPPED["surface"]), "--to", str(tmp_path / "x.onnx")])
     assert code == 2 and "onnxscript" in capsys.readouterr().err
     assert not (tmp_path / "x.onnx").exists()
     with pytest.raises(ImportError, match="onnxscript"):
-        export_onnx.export_model(SHIPPED["surface"])
+        ship_onnx.export_model(SHIPPED["surface"])
 
 
 @pytest.mark.slow
@@ -246,7 +247,7 @@ def test_export_of_a_small_generator_agrees_with_torch(tmp_path, shear_dim, prec
 
     from simshear_gym.models.translator import save_generator
     from simshear_gym.models.unet import UNetConfig, UNetGenerator
-    from simshear_gym.pipelines.export_onnx import export_model
+    from simshear_gym.ship.onnx import export_model
 
     torch.manual_seed(0)
     generator = UNetGenerator(UNetConfig(image_size_px=32, depth=4, base_channels=4, max_channels=8,

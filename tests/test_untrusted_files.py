@@ -123,7 +123,7 @@ def test_a_crafted_policy_zip_is_refused_and_runs_nothing(tmp_path, capsys):
                      "--seeds", "1", "--policy-ppo", str(run / "model.zip"), "--out", str(tmp_path / "results")])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("simshear: error:")]
     assert code == 2 and len(lines) == 1 and "model.zip" in lines[0] and "refused" in lines[0]
-    code = cli.main(["train", "export-policy", "--run", str(run), "--to", str(tmp_path / "shipped"), "--model",
+    code = cli.main(["ship", "policy", "--run", str(run), "--to", str(tmp_path / "shipped"), "--model",
                      "final", "--train-command", "x"])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("simshear: error:")]
     assert code == 2 and len(lines) == 1 and "--trust-pickle" in lines[0]
@@ -140,7 +140,7 @@ def test_a_crafted_vecnormalize_pkl_is_refused_and_runs_nothing(agent, tmp_path,
         load(folder / "model.pt")
     (folder / "best_model.pt").write_bytes((folder / "model.pt").read_bytes())
     (folder / "best_model.json").write_text((folder / "model.json").read_text())
-    code = cli.main(["train", "export-policy", "--run", str(folder), "--to", str(tmp_path / "shipped"),
+    code = cli.main(["ship", "policy", "--run", str(folder), "--to", str(tmp_path / "shipped"),
                      "--train-command", "x"])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("simshear: error:")]
     assert code == 2 and len(lines) == 1 and "vecnormalize.pkl" in lines[0]
@@ -191,9 +191,9 @@ def test_a_crafted_checkpoint_is_refused_and_runs_nothing(tmp_path):
 
 
 def test_an_older_shipped_policy_converts_in_place_only_when_trusted(agent, tmp_path, capsys):
-    """`export-policy --convert DIR` turns an older shipped folder (SB3 .zip + .pkl) into the pickle-free files,
+    """`ship policy --convert DIR` turns an older shipped folder (SB3 .zip + .pkl) into the pickle-free files,
     only with --trust-pickle; the converted policy acts as the agent did and its card lists the new files."""
-    from simshear_gym.pipelines.export_policy import SHIPPED_FILES
+    from simshear_gym.ship.policy import SHIPPED_FILES
 
     model, venv = agent
     folder = tmp_path / "policy"
@@ -204,10 +204,10 @@ def test_an_older_shipped_policy_converts_in_place_only_when_trusted(agent, tmp_
     (folder / "model.md").write_text("# PPO policy\n\n- Files: `model.zip`, `vecnormalize.pkl`\n- Date: 2026-01-02\n")
     with pytest.raises(PolicyFileError, match="unpickles"):
         load(folder / "model.zip")
-    code = cli.main(["train", "export-policy", "--convert", str(folder)])
+    code = cli.main(["ship", "policy", "--convert", str(folder)])
     lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("simshear: error:")]
     assert code == 2 and len(lines) == 1 and "--trust-pickle" in lines[0]
-    assert cli.main(["train", "export-policy", "--convert", str(folder), "--trust-pickle"]) == 0
+    assert cli.main(["ship", "policy", "--convert", str(folder), "--trust-pickle"]) == 0
     assert {p.name for p in folder.iterdir()} == set(SHIPPED_FILES)
     card = (folder / "model.md").read_text()
     assert "`model.pt`" in card and "Converted to pickle-free files" in card and "- Date: 2026-01-02" in card

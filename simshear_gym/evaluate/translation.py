@@ -11,7 +11,7 @@ Reference rows: ``nearest-label retrieval`` (the real training image whose label
 their ranges, the edge angle as sin/cos), and each model fed the **published** Tactile Gym sim images of the same
 rows instead of ours. ``simshear evaluate translation --model shpix2pix=PATH --model pix2pix=PATH`` writes
 ``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real). A ``.pt`` file
-runs on torch, a ``.onnx`` file (``simshear train export-onnx``) on ONNX Runtime, e.g.
+runs on torch, a ``.onnx`` file (``simshear ship onnx``) on ONNX Runtime, e.g.
 ``--model shpix2pix:surface=W.pt --model shpix2pix_onnx:surface=W.onnx`` compares the two runtimes.
 
 Pose fidelity (``--reader CONTACT=PATH``, optional): a GDNN trained on the **real** training images of that contact

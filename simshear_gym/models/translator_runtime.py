@@ -4,8 +4,8 @@
 ``translator(sim_uint8, shear_sensor)``: sim uint8 (B, H, W) or (B, 1, H, W), shear (B, 6) in the sensor frame
 (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
 
-An ONNX translator is a shipped generator exported by ``simshear train export-onnx``
-(:mod:`simshear_gym.pipelines.export_onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
+An ONNX translator is a shipped generator exported by ``simshear ship onnx``
+(:mod:`simshear_gym.ship.onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
 image (``floor(255 y + 0.5)`` clamped, as the torch path rounds). Its metadata records the sha256 of the torch
@@ -42,7 +42,7 @@ from simshear_gym.models.device import DEVICES, check_device_name
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
 ONNX_SUFFIX = ".onnx"
-# ONNX graph interface (written by simshear_gym.pipelines.export_onnx, read here)
+# ONNX graph interface (written by simshear_gym.ship.onnx, read here)
 SIM_INPUT = "sim_uint8"
 SHEAR_INPUT = "shear_sensor"
 IMAGE_OUTPUT = "image_uint8"
@@ -86,12 +86,12 @@ def _current_onnx(weights: Path, threads: int) -> OnnxTranslator | Exception:
     """The ONNX translator beside ``weights`` if it was exported from them as they are now, else why not."""
     onnx_path = onnx_path_for(weights)
     if not onnx_path.is_file():
-        return FileNotFoundError(f"{onnx_path} not found (export it: simshear train export-onnx --weights {weights} "
+        return FileNotFoundError(f"{onnx_path} not found (export it: simshear ship onnx --weights {weights} "
                                  f"--to {onnx_path})")
     translator = OnnxTranslator(onnx_path, threads=threads)
     if translator.metadata.get("source_sha256") != file_sha256(weights):
         return ValueError(f"{onnx_path} was not exported from {weights} as it is now (its recorded sha256 differs); "
-                          f"re-export it: simshear train export-onnx --weights {weights} --to {onnx_path}")
+                          f"re-export it: simshear ship onnx --weights {weights} --to {onnx_path}")
     return translator
 
 
@@ -253,7 +253,7 @@ class OnnxTranslator:
         inputs = {node.name: node for node in self._session.get_inputs()}
         if SIM_INPUT not in inputs or set(inputs) - {SIM_INPUT, SHEAR_INPUT}:
             raise ValueError(f"{self.path}: not a simshear ONNX translator (inputs {sorted(inputs)}, expected "
-                             f"{SIM_INPUT!r} and optionally {SHEAR_INPUT!r}; write it with simshear train export-onnx)")
+                             f"{SIM_INPUT!r} and optionally {SHEAR_INPUT!r}; write it with simshear ship onnx)")
         self.shear_conditioned = SHEAR_INPUT in inputs
         size = inputs[SIM_INPUT].shape[-1]
         if not isinstance(size, int):

@@ -11,7 +11,7 @@ and the GDNN on every set. Each step is a cached stage (:mod:`simshear_gym.pipel
 
 A rerun finds every record and does nothing; a run killed mid-stage resumes that stage (a trainer from its
 checkpoint; a set is collected again). ``DIR/manifest.json`` names the final run, its metrics and each stage's
-wall time, and ``DIR/<NAME>.pt`` is the final GDNN, the file ``simshear train export-posenet --run
+wall time, and ``DIR/<NAME>.pt`` is the final GDNN, the file ``simshear ship posenet --run
 DIR/envposenet/final/<hash>/run --contact NAME`` ships with its card.
 """
 

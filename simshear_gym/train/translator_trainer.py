@@ -81,8 +81,8 @@ def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch:
 
     teacher = Path(teacher)
     if not teacher.is_file():
-        raise FileNotFoundError(f"teacher translator {teacher} not found (expected a .pt of simshear train "
-                                f"export-translator)")
+        raise FileNotFoundError(f"teacher translator {teacher} not found (expected a .pt of simshear ship "
+                                f"translator)")
     generator, card = load_generator(teacher)
     teacher_arch = "shpix2pix" if generator.config.shear_dim else "pix2pix"
     if teacher_arch != arch or generator.config.image_size_px != pairs.sim.shape[-1]:

@@ -1,4 +1,4 @@
-"""Export a shipped translator to ONNX: ``simshear train export-onnx --weights W.pt [--to W.onnx]``.
+"""Export a shipped translator to ONNX: ``simshear ship onnx --weights W.pt [--to W.onnx]``.
 
 Writes ``W.onnx`` (by default beside ``W.pt``, where the envs' ``"auto"`` runtime finds it; see
 :mod:`simshear_gym.models.translator_runtime`) and its card ``W.onnx.md``, both atomically. The graph is the
@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.ship.cards import onnx_card
 
 EXPORT_PACKAGES = ("onnx", "onnxscript")
 PRECISIONS = ("fp32", "fp16")
@@ -229,54 +230,6 @@ def full_evaluation(results: Path, onnx_path: Path, contact: str) -> dict:
     return {"command": record.get("command"), "file": str(results), "sets": figures} if figures else {}
 
 
-def card_text(onnx_path: Path, weights: Path, command: str, precision: str, config, check: dict, evaluation: dict,
-              date: str, size_bytes: int) -> str:
-    arch = "shpix2pix" if config.shear_dim else "pix2pix"
-    contact = check["contact"]
-    lines = [
-        f"# {arch} translator, {contact} contacts, ONNX",
-        "",
-        f"- File: `{onnx_path.name}` ({size_bytes / 2**20:.1f} MiB, opset {OPSET}, weights stored "
-        f"{'fp16, computed in fp32 (ONNX Runtime folds the casts at load)' if precision == 'fp16' else 'fp32'}, "
-        "dynamic batch size).",
-        f"- Date: {date}",
-        f"- Data: the torch generator `{weights.name}` (sha256 `{check['source_sha256'][:16]}...`, recorded in the "
-        f"file's metadata; its card `{weights.with_suffix('.md').name}` says how it was trained). Nothing was "
-        "trained or tuned for this file.",
-        f"- Exact command: `{command}`",
-        "- Contract: inputs `sim_uint8` uint8 (B, H, W) and `shear_sensor` float32 (B, 6) sensor-frame shear (mm, "
-        "deg) as the shear tracker gives it; output `image_uint8` uint8 (B, H, W). The sim scaling and the shear "
-        "mask and scale of `simshear_gym.models.translator` are inside the graph; run it with "
-        "`simshear_gym.models.translator_runtime` (the envs' `auto` runtime picks it when onnxruntime is installed).",
-        "",
-        f"## Check at export: torch and ONNX Runtime on the first {check['rows']} real val rows per set",
-        "",
-        "| set | MAPE torch | MAPE ONNX | pixels differing | max difference (grey levels) |",
-        "|---|---|---|---|---|",
-    ]
-    for set_name, row in check["sets"].items():
-        lines.append(f"| {set_name} | {row['mape_torch']:.5f} | {row['mape_onnx']:.5f} | "
-                     f"{100 * row['pixels_differing']:.3f} % | {row['max_abs_difference_grey']} |")
-    latency = check["latency"]
-    lines += ["", f"Batch-1 latency on one thread (median): torch {latency['torch_ms_batch1']:.2f} ms, ONNX Runtime "
-              f"{latency['onnx_ms_batch1']:.2f} ms (load average {latency['load_average_before']} on a shared 2-core "
-              "CPU; `simshear evaluate env-speed` measures both in the env step)."]
-    lines += ["", "## Metrics on the real validation images (2000 per set)", ""]
-    if evaluation:
-        lines += [f"From `{evaluation['command']}` (`{evaluation['file']}`); gate: ONNX MAPE at most "
-                  f"{100 * GATE_RELATIVE:.0f} % above torch's on every set.", "",
-                  "| set | MAPE torch | MAPE ONNX | relative | SSIM torch | SSIM ONNX | gate |",
-                  "|---|---|---|---|---|---|---|"]
-        for set_name, row in evaluation["sets"].items():
-            passed = "met" if row["relative"] <= GATE_RELATIVE else "FAILED"
-            lines.append(f"| {set_name} | {row['torch']:.5f} | {row['onnx']:.5f} | {100 * row['relative']:+.3f} % | "
-                         f"{row['ssim_torch']:.4f} | {row['ssim_onnx']:.4f} | {passed} |")
-    else:
-        lines.append(f"Not evaluated yet: run `simshear evaluate translation --model {arch}:{contact}={weights} "
-                     f"--model {arch}_onnx:{contact}={onnx_path} --name translation_onnx`, then this command again.")
-    return "\n".join(lines) + "\n"
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weights", type=Path, required=True, help="translator weights (.pt) to export")
     parser.add_argument("--to", type=Path, default=None,
@@ -314,7 +267,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     "evaluation", "size_bytes"}."""
     missing = missing_export_packages()
     if missing:
-        raise ImportError(f"export-onnx needs {', '.join(missing)} (the export extra): pip install -e '.[export]'")
+        raise ImportError(f"ship onnx needs {', '.join(missing)} (the export extra): pip install -e '.[export]'")
     if not (isinstance(check_rows, int) and check_rows >= 1):
         raise ValueError(f"check_rows (--check-rows) must be an int >= 1, got {check_rows!r}")
     weights = Path(weights)
@@ -329,7 +282,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     if to.suffix != ".onnx":
         raise ValueError(f"--to must name a .onnx file, got {to}")
     contact_name = _contact(weights, contact)
-    command = recorded_command("simshear train export-onnx", add_arguments, argparse.Namespace(
+    command = recorded_command("simshear ship onnx", add_arguments, argparse.Namespace(
         weights=weights, to=to, precision=precision, check_rows=check_rows, contact=contact,
         translation_results=DEFAULT_RESULTS if translation_results is None else Path(translation_results),
         no_translation_results=translation_results is None))
@@ -349,7 +302,8 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
     size_bytes = to.stat().st_size
     evaluation = full_evaluation(translation_results, to, contact_name) if translation_results is not None else {}
     date = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d")
-    card = card_text(to, weights, command, precision, config, check, evaluation, date, size_bytes)
+    card = onnx_card(to, weights, command, precision, config, check, evaluation, date, size_bytes, OPSET,
+                     GATE_RELATIVE)
     card_path = to.with_name(to.name + ".md")
     atomic_write(card_path, lambda tmp: Path(tmp).write_text(card))
     return {"onnx": to, "card": card_path, "command": command, "check": check, "evaluation": evaluation,
@@ -359,7 +313,7 @@ def export(weights: Path, to: Path | None = None, precision: str = "fp16", check
 def run(args: argparse.Namespace) -> int:
     missing = missing_export_packages()
     if missing:
-        print(f"simshear: error: export-onnx needs {', '.join(missing)} (the export extra): "
+        print(f"simshear: error: ship onnx needs {', '.join(missing)} (the export extra): "
               f"pip install -e '.[export]'", file=sys.stderr)
         return 2
     exported = export(args.weights, args.to, args.precision, args.check_rows, args.contact,

@@ -1,4 +1,4 @@
-"""Ship a translator run: ``simshear train export-translator --run RUN --contact C --to WEIGHTS.pt``.
+"""Ship a translator run: ``simshear ship translator --run RUN --contact C --to WEIGHTS.pt``.
 
 Writes the run's best generator as fp16 weights and records a check figure in the file: the MAPE of the
 exported model on the first ``--check-rows`` rows of the real ``<contact>_shear`` validation set, which the tests
@@ -50,5 +50,5 @@ def run(args: argparse.Namespace) -> int:
     save_generator(args.to, generator, card={**card, "check": check})
     read_weights(args.to, "translator")  # readable as written (weights_only, its sha256 checked)
     print(f"exported {args.to} ({args.to.stat().st_size / 2**20:.1f} MiB); check: {check}")
-    print("command:", recorded_command("simshear train export-translator", add_arguments, args))
+    print("command:", recorded_command("simshear ship translator", add_arguments, args))
     return 0

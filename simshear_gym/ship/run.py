@@ -1,4 +1,4 @@
-"""``simshear pipeline ship RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
+"""``simshear ship run RUN [--to DIR]``: a finished pipeline run's models become the package's shipped weights.
 
 For each contact type of the run (``RUN/manifest.json``): its shPix2pix and pix2pix translators and its GDNN trained
 on translated images go where the shipped ones lie in DIR (by default the package's shipped folder; the layout:
@@ -6,7 +6,7 @@ on translated images go where the shipped ones lie in DIR (by default the packag
 folder, git commit) and a check figure that the tests reproduce (``tests/test_shipped_translator.py``,
 ``tests/test_shipped_posenet.py``); beside it a card (``.md``): data, settings, the exact commands, the metrics of
 the run's evaluation on the real validation rows, date. Each shPix2pix is also exported to the ``.onnx`` the envs
-run (``simshear train export-onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
+run (``simshear ship onnx``; where the ``export`` extra is missing, the old ``.onnx`` is removed instead).
 Nothing is trained: shipping a run twice gives the same files, so the shipped weights are exactly what
 ``simshear pipeline run CONFIG --profile P`` produced. ``--contacts`` and ``--models`` (translators, posenet) ship a
 part of the run.
@@ -22,6 +22,7 @@ from pathlib import Path
 from simshear_gym.command_line import recorded_command
 from simshear_gym.models.translator_runtime import onnx_path_for
 from simshear_gym.models.zoo import WEIGHTS_DIR, posenet_file, translator_file
+from simshear_gym.ship import cards
 
 CHECK_ROWS = {"translator": 16, "posenet": 64}  # rows of the real <contact>_shear val set in the check figures
 
@@ -51,7 +52,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     stay: a GDNN shipped alone reads the images of translators the run did not ship); returns the files written."""
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator import load_generator, save_generator
-    from simshear_gym.pipelines import export_posenet, export_translator
+    from simshear_gym.ship import posenet, translator
 
     if not models or set(models) - set(MODEL_KINDS):
         raise ValueError(f"models must name some of {list(MODEL_KINDS)}, got {list(models)}")
@@ -68,7 +69,7 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
     ship_args = argparse.Namespace(run=run, contacts=list(contacts) if contacts else None,
                                    models=[kind for kind in MODEL_KINDS if kind in models])
     commands = [recorded_command("simshear pipeline run", pipeline_run.add_arguments, run_args),
-                recorded_command("simshear pipeline ship", add_arguments, ship_args)]
+                recorded_command("simshear ship run", add_arguments, ship_args)]
     written = []
     for contact, archs in made.items():
         if contacts and contact not in contacts:
@@ -79,10 +80,11 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
             generator, card = load_generator(run / archs[arch])
             card = {**card, "pipeline": _provenance(manifest, records[stage]), "train_command": " && ".join(commands)}
             save_generator(dest, generator, card=card)
-            card["check"] = export_translator.check_figure(dest, contact, CHECK_ROWS["translator"], data)
+            card["check"] = translator.check_figure(dest, contact, CHECK_ROWS["translator"], data)
             save_generator(dest, generator, card=card)
-            written += [dest, _write(dest, translator_card(dest, arch, contact, card, manifest, evaluation,
-                                                           records[stage], commands, date))]
+            written += [dest, _write(dest, cards.pipeline_translator_card(
+                dest, arch, contact, card, _parameters(dest), manifest, evaluation, records[stage],
+                _datasets(manifest, contact), commands, date))]
             if arch == "shpix2pix":
                 written += _onnx_beside(dest, data)
         if "posenet" not in models:
@@ -94,10 +96,10 @@ def ship(run: Path, to: Path = WEIGHTS_DIR, data: str | None = None, date: str |
                 "variables": list(model.variables.names), "parameters": sum(p.numel() for p in model.parameters()),
                 "pipeline": _provenance(manifest, records[stage])}
         save_posenet(dest, model, card)
-        card["check"] = export_posenet.check_figure(dest, contact, CHECK_ROWS["posenet"], data)
+        card["check"] = posenet.check_figure(dest, contact, CHECK_ROWS["posenet"], data)
         save_posenet(dest, model, card)
-        written += [dest, _write(dest, posenet_card(dest, contact, card, manifest, evaluation, records, commands,
-                                                    date))]
+        written += [dest, _write(dest, cards.pipeline_posenet_card(
+            dest, contact, card, manifest, evaluation, records[stage], _datasets(manifest, contact), commands, date))]
     return written
 
 
@@ -119,16 +121,16 @@ def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
     """The envs' ONNX translator beside newly shipped shPix2pix weights: exported from them where the export extra
     is installed; else the old ``.onnx`` (and card) are removed (the envs' ``auto`` runtime would skip them anyway:
     their recorded sha256 no longer matches) and the command to export them is printed."""
-    from simshear_gym.pipelines import export_onnx
+    from simshear_gym.ship import onnx as ship_onnx
 
     onnx_path = onnx_path_for(weights)
-    if export_onnx.missing_export_packages():
+    if ship_onnx.missing_export_packages():
         for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
             stale.unlink(missing_ok=True)
         print(f"note: {onnx_path} not written (the export extra is not installed); the envs run the torch "
-              f"translator until: pip install -e '.[export]' && simshear train export-onnx --weights {weights}")
+              f"translator until: pip install -e '.[export]' && simshear ship onnx --weights {weights}")
         return []
-    exported = export_onnx.export(weights, onnx_path, translation_results=None, data=data)
+    exported = ship_onnx.export(weights, onnx_path, translation_results=None, data=data)
     return [exported["onnx"], exported["card"]]
 
 
@@ -148,100 +150,6 @@ def _datasets(manifest: dict, contact: str) -> list[str]:
     from simshear_gym.pipelines.config import load_config
 
     return [name for name, dataset in load_config(manifest["config"]).datasets.items() if dataset.contact == contact]
-
-
-def _training_line(record: dict, metric: str) -> str:
-    metrics = record["metrics"]
-    return (f"- Training: {metrics['epochs']} epochs ({metrics['steps']} steps), stopped by {metrics['stopped_by']}; "
-            f"best holdout {metric} {metrics[f'best_holdout_{metric}']:.4f}; {record['wall_s'] / 60:.1f} min "
-            f"of the run (`{record['folder']}`).")
-
-
-def translator_card(weights: Path, arch: str, contact: str, card: dict, manifest: dict, evaluation: dict,
-                    record: dict, commands: list[str], date: str) -> str:
-    config = card["train_config"]
-    params = _parameters(weights)
-    losses = f"L1 x {config['l1_weight']}"
-    if config.get("density_weight"):
-        losses += f" + density x {config['density_weight']}"
-    if config.get("pose_weight"):
-        losses += f" + pose consistency x {config['pose_weight']} on {config.get('pose_variables') or 'all'}"
-    if config.get("gan_weight"):
-        losses += f" + LSGAN x {config['gan_weight']}"
-    lines = [
-        f"# {arch} translator, {contact} contacts", "",
-        f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp16, {params / 1e6:.2f} M parameters)",
-        f"- Date: {date}",
-        f"- Made by: `{manifest['config']}`, profile `{manifest['profile']}` (git {manifest['git_commit'][:10]}).",
-        f"- Architecture: U-Net generator, {config['image_size_px']} px, base {config['base_channels']} channels "
-        f"(max {config['max_channels']}), decoder at {config['decoder_scale']} x the encoder's width, learned at-rest "
-        f"template {'on' if config['template'] else 'off'}, shear at the bottleneck "
-        f"{'on' if arch == 'shpix2pix' else 'off (pix2pix baseline)'}.",
-        f"- Data: the paired sets {config['paired_dirs']} of the run (the config's `{contact}` training rows replayed "
-        f"in simulation, beside their real images); {config['holdout'] * 100:.0f} % held out for the best epoch. "
-        "The real validation rows were not used in training or selection.",
-        f"- Objective: {losses}; Adam lr {config['lr']} ({config['lr_schedule']} over the steps), batch "
-        f"{config['batch_size']}, seed {config['seed']}, {config['threads']} CPU thread(s).",
-        _training_line(record, "l1"),
-        f"- Exact commands: `{commands[0]}`, then `{commands[1]}`.", "",
-        "## Metrics on the real validation rows", "",
-        f"From the run's evaluation (`{manifest['evaluation']}`):", "",
-        "| set | rows | MAPE | SSIM | nearest-label retrieval MAPE / SSIM |", "|---|---|---|---|---|"]
-    for name in _datasets(manifest, contact):
-        entry = evaluation["translation"][name]
-        retrieval = entry["nearest-label retrieval"]
-        lines.append(f"| {name} | {entry['rows']} | {entry[arch]['mape']:.4f} | {entry[arch]['ssim']:.3f} | "
-                     f"{retrieval['mape']:.4f} / {retrieval['ssim']:.3f} |")
-    check = card["check"]
-    lines += ["", f"Check figure (tests): MAPE {check['mape']:.4f} on the first {check['rows']} rows of the real "
-                  f"`{contact}_{check['kind']}` validation set."]
-    return "\n".join(lines) + "\n"
-
-
-def posenet_card(weights: Path, contact: str, card: dict, manifest: dict, evaluation: dict, records: dict,
-                 commands: list[str], date: str) -> str:
-    from simshear_gym.pipelines.export_posenet import generator_list
-
-    config = card["train_config"]
-    record = records[f"posenet/{contact}_shpix2pix"]
-    lines = [
-        f"# Pose-and-shear GDNN, {contact} contacts", "",
-        f"- File: `{weights.name}` ({weights.stat().st_size / 2**20:.1f} MiB, fp32, {card['parameters'] / 1e6:.2f} M "
-        "parameters)",
-        f"- Date: {date}",
-        f"- Made by: `{manifest['config']}`, profile `{manifest['profile']}` (git {manifest['git_commit'][:10]}).",
-        f"- Architecture: GDNN, {config['image_size_px']} px input, conv channels {config['conv_channels']} kernels "
-        f"{config['conv_kernels']}, dense {config['dense']}; mean and std per variable "
-        f"({', '.join(card['variables'])}).",
-        f"- Data: the sim renders of the paired sets {config['paired_dirs']} of the run, each row translated by a "
-        f"generator drawn at random from {generator_list(list(config['translators']))} (one listed k times drawn k "
-        f"times as often); {config['holdout'] * 100:.0f} % held out for the best epoch. The real images were not "
-        "used in training or selection.",
-        f"- Objective: beta-NLL (beta {config['beta']}); Adam lr {config['lr']} ({config['lr_schedule']} over the "
-        f"steps), batch {config['batch_size']}, shift augmentation {config['shift']}, seed {config['seed']}, "
-        f"{config['threads']} CPU thread(s).",
-        _training_line(record, "nll"),
-        f"- Exact commands: `{commands[0]}`, then `{commands[1]}`."]
-    for name in _datasets(manifest, contact):
-        readings = evaluation["posenet"][name]
-        if "shpix2pix" not in readings:
-            continue
-        lines += ["", f"## Metrics on the real `{name}` validation rows "
-                      f"({evaluation['translation'][name]['rows']})", "",
-                  "Against the same GDNN trained on the real training images (`real`, the reference): the ratio "
-                  "counts where the reference reads the variable (MAE <= 0.5 x chance).", "",
-                  "| variable | MAE | chance MAE | real-trained MAE | ratio |", "|---|---|---|---|---|"]
-        for variable, per in readings["shpix2pix"].items():
-            if variable == "mean_nll":
-                continue
-            ratio = readings["ratio_shpix2pix_to_real"][variable]
-            read = variable in readings.get("read_by_real", [])
-            lines.append(f"| {variable} | {per['mae']:.3f} | {per['chance_mae']:.3f} | "
-                         f"{readings['real'][variable]['mae']:.3f} | {ratio:.2f}{'' if read else ' (not read)'} |")
-    check = card["check"]
-    lines += ["", f"Check figure (tests): MAE on the first {check['rows']} rows of the real `{contact}_shear` "
-                  "validation set: " + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())]
-    return "\n".join(lines) + "\n"
 
 
 def _parameters(weights: Path) -> int:

@@ -1,8 +1,8 @@
-"""``simshear train recheck-posenet W.pt``: measure a shipped GDNN's check figure again and record it.
+"""``simshear ship recheck-posenet W.pt``: measure a shipped GDNN's check figure again and record it.
 
 A GDNN's check figure (``tests/test_shipped_posenet.py`` reproduces it) is its MAE on a fixed set of images. For the
 co-lift GDNN that set is collected afresh from the co-lift env, whose images come from the shipped surface
-shPix2pix: when that translator is replaced (``simshear pipeline ship``), the same GDNN sees other images and its
+shPix2pix: when that translator is replaced (``simshear ship run``), the same GDNN sees other images and its
 check figure moves. This command measures it again with the translator shipped now, stores it in the weights file
 (``check``, with the sha256 of the translator that made the images) and rewrites the card's check line, saying when
 and why. The network itself is not touched.
@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import re
 from pathlib import Path
 
-CHECK_LINE = re.compile(r"^Check figure \(tests\):.*$", re.MULTILINE)
+from simshear_gym.command_line import recorded_command
+from simshear_gym.ship.cards import recheck_line, with_check_line
 
 
 def recheck(weights: Path, data: str | None = None, date: str | None = None) -> dict:
@@ -23,7 +23,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     from simshear_gym.models.posenet_io import load_posenet, save_posenet
     from simshear_gym.models.translator_runtime import file_sha256
     from simshear_gym.models.zoo import shipped_translators
-    from simshear_gym.pipelines.export_posenet import check_figure, env_check_figure
+    from simshear_gym.ship.posenet import check_figure, env_check_figure
 
     weights = Path(weights)
     if not weights.is_file():
@@ -32,7 +32,7 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     old = card.get("check")
     if not old:
         raise ValueError(f"{weights}: its card holds no check figure to measure again (export it with "
-                         "simshear train export-posenet)")
+                         "simshear ship posenet)")
     if old.get("kind") == "env":
         check = env_check_figure(weights, old["collect"])
         translator = shipped_translators()[("shpix2pix", "surface")]
@@ -44,18 +44,8 @@ def recheck(weights: Path, data: str | None = None, date: str | None = None) -> 
     save_posenet(weights, model, {**card, "check": check})
     md = weights.with_suffix(".md")
     if md.is_file():
-        where = (f"a fresh seeded co-lift set ({check['rows']} rows, `EnvCollectConfig(**{check['collect']})`)"
-                 if check.get("kind") == "env" else
-                 f"the first {check['rows']} rows of the real `{card['contact']}_shear` validation set")
-        line = (f"Check figure (tests): MAE on {where}: "
-                + ", ".join(f"{k} {v:.3f}" for k, v in check["mae"].items())
-                + f" (measured again on {date} by `simshear train recheck-posenet {weights}`"
-                + (f", images from the surface shPix2pix with sha256 {check['translator_sha256'][:16]}...; was "
-                   + ", ".join(f"{k} {v:.3f}" for k, v in old["mae"].items()) if "translator_sha256" in check
-                   else "") + ")")
-        text = md.read_text()
-        md.write_text(CHECK_LINE.sub(lambda _: line, text, count=1) if CHECK_LINE.search(text)
-                      else text.rstrip("\n") + "\n\n" + line + "\n")
+        command = recorded_command("simshear ship recheck-posenet", add_arguments, argparse.Namespace(weights=weights))
+        md.write_text(with_check_line(md.read_text(), recheck_line(check, card["contact"], old, command)))
     return check
 
 

@@ -1,4 +1,4 @@
-"""Ship a policy of ``simshear train rl``: ``simshear train export-policy --run RUN --to DIR --train-command ...``.
+"""Ship a policy of ``simshear train rl``: ``simshear ship policy --run RUN --to DIR --train-command ...``.
 
 A shipped policy is a folder, the layout :meth:`~simshear_gym.control.policy.SB3Controller.load` reads, with no
 pickle in it: ``model.pt`` and ``model.json`` (the policy's pickle-free files,
@@ -28,12 +28,11 @@ from pathlib import Path
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.models.zoo import estimator_file
-from simshear_gym.train.rl_config import ended_early
+from simshear_gym.ship.cards import converted_card, policy_card
 
 SHIPPED_FILES = ("model.pt", "model.json", "vecnormalize.json", "config.json", "model.md")
 """The files of a shipped policy."""
 PICKLES = ("model.zip", "vecnormalize.pkl")
-CONVERTED = "- Converted to pickle-free files"
 """The pickle-bearing files of older shipped policies (removed by a conversion)."""
 MODEL_CHOICES = ("best", "final")
 ENV_MODELS = {"tracking": ("SimShearTracking-v0", "surface"), "colift": ("SimShearCoLift-v0", "colift"),
@@ -121,23 +120,11 @@ def convert_shipped(folder: Path, trust_pickle: bool = False) -> Path:
         raise FileNotFoundError(f"{folder}: not an older shipped policy (expected model.zip and model.md)")
     stats = folder / "vecnormalize.pkl"
     write_policy_files(folder / "model.zip", stats if stats.is_file() else None, folder, trust_pickle)
-    card = (folder / "model.md").read_text().splitlines()
-    card = [line for line in card if not line.startswith(CONVERTED)]
-    at = next((i for i, line in enumerate(card) if line.startswith("- Files:")), 1)
-    card[at:at + 1] = [files_line(folder), f"{CONVERTED} from the pickled SB3 `model.zip` and `vecnormalize.pkl` it "
-                       f"was trained as (`simshear train export-policy --convert {recorded_path(folder)} "
-                       "--trust-pickle`): the same network and statistics, so the same actions."]
-    atomic_write(folder / "model.md", lambda tmp: Path(tmp).write_text("\n".join(card) + "\n"), suffix=".md")
+    command = recorded_command("simshear ship policy", add_arguments,
+                               argparse.Namespace(convert=recorded_path(folder), trust_pickle=True))
+    card = converted_card((folder / "model.md").read_text(), folder, command)
+    atomic_write(folder / "model.md", lambda tmp: Path(tmp).write_text(card), suffix=".md")
     return folder / "model.md"
-
-
-def files_line(to: Path) -> str:
-    """The card's line on a shipped policy's files."""
-    size_mib = (to / "model.pt").stat().st_size / 2**20
-    stats = ", `vecnormalize.json` (observation statistics)" if (to / "vecnormalize.json").is_file() else ""
-    return (f"- Files: `model.pt` ({size_mib:.2f} MiB, the policy network's state dict), `model.json` (what rebuilds "
-            f"the network, with the sha256 of `model.pt`){stats}, `config.json` (the env settings it was trained "
-            "with); no pickle: loading runs no code from them")
 
 
 def model_hashes(task: str) -> dict[str, str]:
@@ -165,8 +152,9 @@ def export(run: Path, to: Path, train_command: str, model: str = "best", results
     evaluations = _read_json(run / "evaluations.json").get("evaluations", [])
     summary = _read_json(run / "summary.json")
     servo = _read_json(results) if results is not None else {}
-    card = card_text(config, provenance, to, model, evaluations, summary, servo, variant, results,
-                     date or datetime.date.today().isoformat())
+    card = policy_card(config, provenance, to, model, evaluations, summary, servo, variant,
+                       _export_command(to, model, results, variant), date or datetime.date.today().isoformat(),
+                       ENV_MODELS[config["task"]])
     atomic_write(to / "model.md", lambda tmp: Path(tmp).write_text(card), suffix=".md")
     return to / "model.md"
 
@@ -175,102 +163,11 @@ def _read_json(path: Path) -> dict:
     return json.loads(Path(path).read_text()) if Path(path).is_file() else {}
 
 
-def card_text(config: dict, provenance: dict, to: Path, model: str, evaluations: list[dict], summary: dict,
-              servo: dict, variant: str, results: Path | None, date: str) -> str:
-    """The Markdown card of a shipped policy."""
-    env_id, posenet = ENV_MODELS[config["task"]]
-    # best_model.zip is the model of the last evaluation that set a new best
-    chosen = next((entry for entry in reversed(evaluations) if entry.get("best")), None) if model == "best" else (
-        evaluations[-1] if evaluations else None)
-    arch = config.get("net_arch") or "the algorithm's default"
-    observation = {"tactile": "the translated tactile image and the TCP pose (CNN)",
-                   "estimate": f"the servo controller's estimate: the shipped `{posenet}` GDNN's mean and std and the "
-                               "Bayesian filter's state, normalised (MLP)",
-                   "tactile+estimate": "the translated image and the estimate",
-                   "estimate+action": f"the servo controller's estimate (the shipped `{posenet}` GDNN's mean and std "
-                                      "and the Bayesian filter's state, normalised) and the last action (MLP)",
-                   }[config["observation"]]
-    lines = [
-        f"# {config['algo'].upper()} policy, {config['task']}",
-        "",
-        files_line(to),
-        f"- Date: {date}",
-        f"- Env: `{env_id}`, randomised episodes ("
-        + {"edge": "random outlines; size, start point, offset and turn",
-           "push": "random shapes, paths, masses and frictions"}.get(
-            config["task"], "random trajectories; scale, speed, turn and start") + " drawn per reset), "
-        f"`obs_mode={config['obs_mode']}` ({config['image_size_px']} px images through the shipped shPix2pix), "
-        f"{config['n_envs']} sub-envs ({config['vec']}).",
-        f"- Observation: {observation}; history {config['history']} frames"
-        + ("; residual on the servo law, bound " f"{config['residual_bound']}" if config.get("residual_bound") else
-           "; acts alone (not residual)") + ".",
-        f"- Agent: {config['algo'].upper()}, hidden layers {arch}, n_steps {config['n_steps']} per sub-env, batch "
-        f"{config['batch_size']}, {config['n_epochs']} epochs, gamma {config['gamma']}, learning rate "
-        f"{config['learning_rate']}, seed {config['seed']}, {config['threads']} torch thread(s), "
-        f"{config['device']}.",
-        ("- Budget: no RL steps (the clone's env steps below)." if not config["timesteps"] else
-         f"- Budget: {config['timesteps']} env steps"
-         + (f", capped at {config['minutes']:g} min" if config.get("minutes") else "")
-         + (f"; ran {summary['timesteps']} steps in {summary['seconds'] / 60:.1f} min on a 2-core CPU (stopped by "
-            f"{summary['stopped_by']})" if summary else "") + "."),
-        *([_imitation_line(summary["imitation"], config)] if summary.get("imitation") else []),
-        f"- Exact command: `{provenance['train_command']}`, then `{_export_command(to, model, results, variant)}`.",
-        "- Made its observations with (sha256 at export): "
-        + ", ".join(f"{name} `{digest[:12]}`" for name, digest in provenance["estimator_models_sha256"].items())
-        + ". A new translator or GDNN changes what it sees: train it again.",
-    ]
-    if chosen is not None:
-        lines += ["", f"## Training evaluation ({model} model)", "",
-                  f"At {chosen['timesteps']} env steps ({chosen['wall_s'] / 60:.1f} min), the deterministic policy on "
-                  f"the nominal episodes: mean contact error {chosen['contact_error_mean_mm']:.3f} mm, "
-                  f"{ended_early(chosen['episodes'])} ended early; "
-                  + ", ".join(f"{name} {run['contact_error_mean_mm']:.3f} mm ({run['steps']} steps)"
-                              for name, run in chosen["episodes"].items()) + "."]
-    section = servo.get("results", {}).get(variant, {})
-    if section and servo.get("env") == "SimShearEdgeFollow-v0":
-        lines += ["", "## Closed loop (`simshear evaluate edge-follow`)", "", f"From `{servo.get('command')}`:", "",
-                  "| outline | laps | offset mean (mm) | worst run (mm) | max (mm) | depth error mean (mm) |",
-                  "|---|---|---|---|---|---|"]
-        for name, row in section.items():
-            lines.append(f"| {name} | {row['laps_completed']}/{row['runs']} | {row['offset_mean_mm']:.3f} | "
-                         f"{row['offset_mean_worst_run_mm']:.3f} | {row['offset_max_mm']:.2f} | "
-                         f"{row['depth_error_mean_mm']:.3f} |")
-    elif section and servo.get("env") == "SimShearPush-v0":
-        lines += ["", "## Closed loop (`simshear evaluate push`)", "", f"From `{servo.get('command')}`:", "",
-                  "| episodes | within 10 mm | median distance (mm) | path deviation mean (mm) | ends |",
-                  "|---|---|---|---|---|",
-                  f"| {section['episodes']} | {section['within_10mm']:.0%} | "
-                  f"{section['target_distance_median_mm']:.1f} | {section['path_deviation_mean_mm']:.2f} | "
-                  + ", ".join(f"{name} {count}" for name, count in section["terminations"].items()) + " |"]
-    elif section:
-        lines += ["", "## Closed loop (`simshear evaluate servo`)", "", f"From `{servo.get('command')}`:", "",
-                  "| run | contact error mean +- std over runs (mm) | max (mm) | runs | ended early | contact losses "
-                  "| drops |", "|---|---|---|---|---|---|---|"]
-        for name, row in section.items():
-            lines.append(f"| {name} | {row['contact_error_mean_mm']:.3f} +- {row['contact_error_mean_std_mm']:.3f} | "
-                         f"{row['contact_error_max_mm']:.2f} | {row['seeds']} | {row['runs_ended_early']} | "
-                         f"{row['runs_with_contact_loss']} | {row['drops']} |")
-    return "\n".join(lines) + "\n"
-
-
 def _export_command(to: Path, model: str, results: Path | None, variant: str) -> str:
     """The export's command line, its run folder ``RUN`` (a local path) and its train command left out."""
     args = argparse.Namespace(run="RUN", to=recorded_path(to), model=model,
                               results=recorded_path(results) if results else None, variant=variant)
-    return recorded_command("simshear train export-policy", add_arguments, args)
-
-
-def _imitation_line(imitation: dict, config: dict) -> str:
-    """The card's line on the servo law's clone (``--bc-steps``) the policy started from."""
-    rounds = imitation.get("rounds", [])
-    teacher = ("the servo law in velocity form (the last action plus the change between the newest two frames)"
-               if config["observation"] == "estimate+action" else "the servo law on the filter estimate")
-    after = imitation.get("after", {}).get("actor_mse")
-    return (f"- Start: a DAgger clone of {teacher}: {len(rounds)} round(s) of {config['bc_steps']} steps with "
-            f"action noise {imitation.get('noise')}, {imitation.get('epochs')} epochs each"
-            + (f", actor MSE against the teacher {after:.2g} after the last round" if after is not None else "")
-            + (f", {imitation['seconds'] / 60:.1f} min on a 2-core CPU" if imitation.get("seconds") else "")
-            + ("; no RL steps after it (`--timesteps 0`)" if not config["timesteps"] else "") + ".")
+    return recorded_command("simshear ship policy", add_arguments, args)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -301,7 +198,7 @@ def run(args: argparse.Namespace) -> int:
     missing = [flag for flag, value in (("--run", args.run), ("--to", args.to),
                                         ("--train-command", args.train_command)) if value is None]
     if missing:
-        raise ValueError(f"export-policy needs {' and '.join(missing)} (or --convert DIR)")
+        raise ValueError(f"ship policy needs {' and '.join(missing)} (or --convert DIR)")
     card = export(args.run, args.to, args.train_command, args.model, args.results, args.variant, args.date,
                   args.trust_pickle)
     print(f"wrote {args.to / 'model.pt'} and {card}")
