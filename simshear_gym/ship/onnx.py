@@ -20,7 +20,9 @@ quantisation, per-channel, MinMax on 200 training rows) ran 1.48 ms against 1.58
 the first 200 real val rows by 1.2 % (shear) and 5.6 % (tap), over the 3 % gate; the transposed convolutions
 rewritten as 3x3 convolutions + depth-to-space (equal outputs) ran 2.26 ms against 1.41 ms, and as one 2x2
 convolution per output phase + depth-to-space 2.05 ms against 1.60 ms; a batch-1-only graph
-and ORT's extended (not NCHWc) optimisation level were no faster (1.40 ms, 1.87 ms).
+and ORT's extended (not NCHWc) optimisation level were no faster (1.40 ms, 1.87 ms). OpenVINO 2026.4 on the same
+ONNX file (2026-11-29, AMD EPYC with AVX-512, batch 1, one thread, the other core busy): equal images in f32 but
+2.46-2.75 ms against ONNX Runtime's 1.80-1.90 ms, and slower still in its default bf16 (2.78 ms).
 
 Needs the ``export`` extra (``pip install -e ".[export]"``: onnx, onnxscript); running the ``.onnx`` needs only
 onnxruntime.
