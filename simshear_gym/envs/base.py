@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium as gym
@@ -53,6 +53,7 @@ from simshear_gym.contract import (
     TRUE_POSE_SHEAR_LIMIT,
     ActionScale,
     HorizontalTacTipMount,
+    ServoHints,
     TacTipMount,
     action_space,
     action_to_move,
@@ -172,7 +173,7 @@ class SimShearEnv(gym.Env, EzPickle):
         sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its
             ``simshear pipeline run`` or that run's ``sensor.json``; :func:`~simshear_gym.models.zoo.load_sensor`):
             the TacTip renders with its dome and camera settings, its translator makes the images, and an
-            image-based controller reads them with its GDNN (``estimator_posenet``).
+            image-based controller reads them with its GDNN (``servo_hints.posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
             caller (the batched vector env); the observation space's image is then 1x128x128 (``observation``
             ``"tactile"`` with ``history`` 1 only).
@@ -185,7 +186,7 @@ class SimShearEnv(gym.Env, EzPickle):
             (16 k,)), oldest first; at reset all k are the first frame.
         estimator: for the estimate observations: the servo controller's estimator, or a callable that builds
             it from this env (``simshear_gym.control.env_estimator.env_estimator``: the GDNN the env names in
-            ``estimator_posenet`` and its process noise, as ``ServoController.for_env``). Envs do not import the
+            ``servo_hints`` and its process noise, as ``ServoController.for_env``). Envs do not import the
             controllers (same floor), so it is passed in; it is called once, at construction.
         device: where the translator runs (``"cpu"``, ``"cuda"``, ``"auto"``; default ``$SIMSHEAR_TRANSLATOR_DEVICE``
             or ``"cpu"``: :func:`~simshear_gym.models.translator_runtime.choose_translator_device`); the physics
@@ -198,8 +199,7 @@ class SimShearEnv(gym.Env, EzPickle):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     translator_contact = "surface"
-    estimator_posenet = "surface"  # the shipped GDNN an image-based controller reads this env's images with
-    controller_law = "servo"  # the controller whose estimator the estimate observation runs: servo, edge or push
+    servo_hints = ServoHints()  # what a controller made for this env takes from it (the shipped surface GDNN)
 
     def __init__(self, *, obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = 4.0,
@@ -255,7 +255,7 @@ class SimShearEnv(gym.Env, EzPickle):
             models = load_sensor(sensor)
             tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})
             self.translator_weights = models.translator(self.translator_contact)
-            self.estimator_posenet = models.posenet(self.translator_contact)
+            self.servo_hints = replace(self.servo_hints, posenet=models.posenet(self.translator_contact))
         self.tactip = TacTip(self.world, tactip_config)
         self.shear_tracker = ShearTracker(shear_config)
         self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])

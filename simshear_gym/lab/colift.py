@@ -117,7 +117,7 @@ class CoLiftConfig(ExperimentConfig):
     lift_mm: float = 10.0
     settle_s: float = 2.0
     release_s: float = 1.0
-    estimator_process_std_mm: float | None = 1.5  # SimShearCoLiftEnv.estimator_process_std_mm
+    estimator_process_std_mm: float | None = 1.5  # SimShearCoLiftEnv.servo_hints.process_std_mm
     mount: HorizontalTacTipMount = HorizontalTacTipMount()
     plate: Any = None
     leader_start_pose_mm_deg: tuple[float, float, float, float] = COLIFT_LEADER_START_POSE_MM_DEG
