@@ -347,6 +347,11 @@ def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
     return resized.reshape(*lead, image_size_px, image_size_px)
 
 
+RAW_SHEAR_KEY = "shear_sensor_mm_deg"
+"""The key of a raw observation's shear (``raw_tactile``: the batched vector env's sub-envs): float32 (6,), mm and
+deg, sensor frame, the shear the image was rendered at, which :func:`finish_tactile` takes with it."""
+
+
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,
                    contact: str, translator_weights: str | None = None,
                    translator_runtime: str | None = None, translator_device: str | None = None) -> np.ndarray:

@@ -48,6 +48,7 @@ from simshear_gym.contract import (
     ESTIMATE_OBSERVATIONS,
     OBS_MODES,
     ORACLE_MODES,
+    RAW_SHEAR_KEY,
     RENDER_SIZE_PX,
     TRANSLATED_MODES,
     TRUE_POSE_SHEAR_LIMIT,
@@ -176,7 +177,8 @@ class SimShearEnv(gym.Env, EzPickle):
             image-based controller reads them with its GDNN (``servo_hints.posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
             caller (the batched vector env); the observation space's image is then 1x128x128 (``observation``
-            ``"tactile"`` with ``history`` 1 only).
+            ``"tactile"`` with ``history`` 1 only), and the observation carries the shear to finish it with
+            (:data:`~simshear_gym.contract.RAW_SHEAR_KEY`, float32 (6,)).
         observation: what the policy sees (:func:`~simshear_gym.contract.observation_space`, the same in
             ``RealTactileEnv``): ``"tactile"`` (the image of ``obs_mode`` and ``tcp_pose``: the default, as
             before), ``"estimate"`` (the estimator's GDNN reading and Bayesian filter state of that image,
@@ -273,6 +275,9 @@ class SimShearEnv(gym.Env, EzPickle):
         self.observation_space = observation_space(RENDER_SIZE_PX if raw_tactile else image_size_px,
                                                    oracle=obs_mode in ORACLE_MODES, observation=observation,
                                                    history=history)
+        if raw_tactile:
+            self.observation_space = gym.spaces.Dict({**self.observation_space.spaces, RAW_SHEAR_KEY: gym.spaces.Box(
+                -np.inf, np.inf, (6,), dtype=np.float32)})
         self.action_space = action_space()
         if observation in ESTIMATE_OBSERVATIONS:
             if estimator is None:
@@ -487,6 +492,8 @@ class SimShearEnv(gym.Env, EzPickle):
             obs = self._policy_observation.step(image, tcp, move)
         if self.obs_mode in ORACLE_MODES:
             obs["true_pose_shear"] = self._oracle_variables(state)
+        if self.raw_tactile:
+            obs[RAW_SHEAR_KEY] = state.shear_sensor.astype(np.float32)
         return obs
 
     def _info(self, state: ContactState, termination: str) -> dict[str, Any]:
