@@ -45,12 +45,11 @@ import numpy as np
 from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy, servo_hints
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.policy import as_action_scale
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 
 PUSH_PROCESS_STD_MM = 0.5
 """The push filter's process noise on depth and shear per step (the object's unknown turn and slip; the
 ``servo_hints.process_std_mm`` of ``SimShearPush-v0``)."""
-LABEL_FACE_DEPTH_MM = 2.2
-"""The labels' depth of the face itself (``sim.replay.SURFACE_DEPTH_MM``): depth minus this is the indentation."""
 
 
 @dataclass(frozen=True)
@@ -143,7 +142,7 @@ class PushLaw:
         g = self.gains
         centre_x = 0.0
         if self.use_shear:  # the centre of pressure's side, from the tangential over the normal force
-            indentation = max(depth - LABEL_FACE_DEPTH_MM, g.min_indentation_mm)
+            indentation = max(depth - SURFACE_DEPTH_MM, g.min_indentation_mm)
             centre_x = min(max(g.k_shear * shear_x / indentation, -g.max_centre_offset_mm), g.max_centre_offset_mm)
         bearing, side_mm = aim_bearing_deg(goal, g.half_width_mm, g.lookahead_mm, centre_x)
         if g.ki_side > 0:
