@@ -3,6 +3,7 @@ cannot tell which one it drives.
 
 - The TacTip's mount on the MG400 flange (:class:`TacTipMount`) and the action: a sensor-frame move
   ``(dx, dy, dz mm, dRz deg)`` scaled from ``[-1, 1]`` by :class:`ActionScale` (:func:`action_to_move`).
+- What a controller made for an env takes from it (:class:`ServoHints`: its law, GDNN and filter settings).
 - The spaces (:func:`observation_space`, :func:`action_space`): one definition for ``SimShearEnv`` and
   ``RealTactileEnv``; a 6-DoF follower's action adds the two tilt rates (:func:`action_space_6d`,
   :func:`action_to_move_6d`).
@@ -100,6 +101,64 @@ class ActionScale:
 
     def as_array(self) -> np.ndarray:
         return np.array([self.step_mm, self.step_mm, self.step_mm, self.step_deg])
+
+
+CONTROLLER_LAWS: tuple[str, ...] = ("servo", "edge", "push")
+"""The controllers an env is made for (:attr:`ServoHints.law`)."""
+
+
+@dataclass(frozen=True)
+class ServoHints:
+    """What a controller made for an env (the controllers' ``for_env``) takes from it besides its spaces, reference
+    depth and action scale. Every sim env and ``RealTactileEnv`` carries one, ``servo_hints``.
+
+    Attributes:
+        law: the controller the env is for (:data:`CONTROLLER_LAWS`): ``"servo"`` (depth and shear PI law),
+            ``"edge"`` (edge following) or ``"push"`` (pushing); the estimate observation runs that law's estimator.
+        posenet: the GDNN an image-based controller reads the env's images with: a shipped GDNN's name
+            (:func:`~simshear_gym.models.zoo.posenet_weights`) or a sensor's own weights file (``.pt``).
+        process_std_mm: the estimator's process noise, mm per step (how far the contact moves in a step unknown
+            to the follower); None: the estimator's default.
+        hold_load: the servo law holds the shear of the episode's first image (a carried load's) instead of zero.
+        load_margin_mm: (x, y) mm added to that held shear, sensor frame (along the weight: carry more).
+        shear_gains: the servo law's (kp, ki) on shear x and y while it holds a load; None: its defaults.
+    """
+
+    law: str = "servo"
+    posenet: str = "surface"
+    process_std_mm: float | None = None
+    hold_load: bool = False
+    load_margin_mm: tuple[float, float] = (0.0, 0.0)
+    shear_gains: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.law not in CONTROLLER_LAWS:
+            raise ValueError(f"ServoHints.law must be one of {CONTROLLER_LAWS}, got {self.law!r}")
+        if not (isinstance(self.posenet, str) and self.posenet):
+            raise ValueError(f"ServoHints.posenet must be a shipped GDNN's name or a .pt path, got {self.posenet!r}")
+        if self.process_std_mm is not None and not (math.isfinite(self.process_std_mm) and self.process_std_mm > 0):
+            raise ValueError(f"ServoHints.process_std_mm must be None or > 0 mm, got {self.process_std_mm!r}")
+        if len(self.load_margin_mm) != 2 or not all(math.isfinite(v) for v in self.load_margin_mm):
+            raise ValueError(f"ServoHints.load_margin_mm must be 2 finite values (x, y mm), got "
+                             f"{self.load_margin_mm!r}")
+        if self.shear_gains is not None and (len(self.shear_gains) != 2 or not all(
+                math.isfinite(v) and v >= 0 for v in self.shear_gains)):
+            raise ValueError(f"ServoHints.shear_gains must be None or (kp, ki) >= 0, got {self.shear_gains!r}")
+
+
+def servo_hints(env) -> ServoHints:
+    """The :class:`ServoHints` of an env (wrappers looked through)."""
+    base = env.unwrapped
+    try:
+        hints = base.servo_hints
+    except AttributeError:
+        hints = None
+    if not isinstance(hints, ServoHints):
+        raise TypeError(f"{type(base).__name__} has no servo_hints (a simshear_gym.contract.ServoHints: the law, "
+                        "GDNN and filter settings a controller made for an env reads); the sim envs and "
+                        "RealTactileEnv have theirs: give this env one, or build the controller with its own "
+                        "arguments")
+    return hints
 
 
 def action_to_move(action, action_scale: ActionScale) -> np.ndarray:
@@ -286,6 +345,11 @@ def resize_tactile(images: np.ndarray, image_size_px: int) -> np.ndarray:
     resized = np.stack([cv2.resize(image, (image_size_px, image_size_px), interpolation=cv2.INTER_AREA)
                         for image in flat])
     return resized.reshape(*lead, image_size_px, image_size_px)
+
+
+RAW_SHEAR_KEY = "shear_sensor_mm_deg"
+"""The key of a raw observation's shear (``raw_tactile``: the batched vector env's sub-envs): float32 (6,), mm and
+deg, sensor frame, the shear the image was rendered at, which :func:`finish_tactile` takes with it."""
 
 
 def finish_tactile(sim_uint8: np.ndarray, shear_sensor: np.ndarray, obs_mode: str, image_size_px: int,

@@ -65,6 +65,31 @@ def test_autoreset_next_step_and_truncation():
     envs.close()
 
 
+def test_the_raw_sub_envs_carry_the_shear_in_their_observation_and_the_vector_env_takes_it_out():
+    """The sub-envs' raw observation holds the shear the image was rendered at (no data through info); the vector
+    env's observations, an ended episode's last one included, are the single env's."""
+    from simshear_gym.contract import RAW_SHEAR_KEY
+
+    raw = gym.make("SimShearTracking-v0", obs_mode="sim", raw_tactile=True)
+    try:
+        obs, info = raw.reset(seed=0)
+        assert raw.observation_space.contains(obs)
+        np.testing.assert_array_equal(obs[RAW_SHEAR_KEY], info["shear_sensor_mm_deg"].astype(np.float32))
+    finally:
+        raw.close()
+    envs = gym.make_vec("SimShearTracking-v0", num_envs=2, obs_mode="real", image_size_px=64, workers=0,
+                        max_episode_steps=2, autoreset_mode=AutoresetMode.SAME_STEP)
+    try:
+        obs, _ = envs.reset(seed=0)
+        assert set(obs) == set(envs.single_observation_space.spaces)
+        for _ in range(2):
+            obs, _, _, truncated, info = envs.step(np.zeros((2, 4), dtype=np.float32))
+        assert truncated.all() and set(obs) == set(envs.single_observation_space.spaces)
+        assert all(envs.single_observation_space.contains(final) for final in info["final_obs"])
+    finally:
+        envs.close()
+
+
 @pytest.mark.parametrize("translate_in, workers", [("workers", 0), ("main", 2)])
 def test_batched_translation_matches_the_single_env(translate_in, workers):
     envs = gym.make_vec("SimShearTracking-v0", num_envs=2, obs_mode="real", image_size_px=64, workers=workers,

@@ -281,16 +281,16 @@ def test_make_vec_batches_colift_envs():
 
 def test_the_heavy_payload_grips_firmly_deeper_and_asks_the_servo_to_hold_the_load():
     """payload="heavy": the heavy objects on the firm TacTip, squeezed 4 mm; the weight shows as downward shear in the
-    env's info from the first step; the servo holds the load (servo_hold_load) and reads with the heavy GDNN."""
+    env's info from the first step; the servo holds the load (servo_hints.hold_load) and reads with the heavy GDNN."""
     env = gym.make("SimShearCoLift-v0", obs_mode="oracle", payload="heavy", object_name="egg")
     base = env.unwrapped
     assert base.scene_config.object.mass_kg == 1.5 and base.scene_config.tip_contact_stiffness_npm == 4000.0
     assert base.reference_depth_mm == pytest.approx(SURFACE_DEPTH_MM + 4.0)
-    assert base.servo_hold_load and base.estimator_posenet == "colift_heavy"
+    assert base.servo_hints.hold_load and base.servo_hints.posenet == "colift_heavy"
     _, info = env.reset(seed=0)
     assert info["shear_sensor_mm_deg"][1] < -1.0  # sensor +y is down: the load's sag
     light = gym.make("SimShearCoLift-v0", obs_mode="oracle").unwrapped
-    assert not light.servo_hold_load and light.estimator_posenet == "colift"
+    assert not light.servo_hints.hold_load and light.servo_hints.posenet == "colift"
     assert light.scene_config.object.mass_kg == 0.03
     with pytest.raises(ValueError, match="payload"):
         gym.make("SimShearCoLift-v0", obs_mode="oracle", payload="medium")

@@ -97,7 +97,7 @@ def test_a_pushing_policy_runs_on_the_emulator_with_the_goal_and_the_push_estima
     from simshear_gym.envs.push import SimShearPushEnv
     from simshear_gym.train.rl import RLTrainConfig, train
 
-    assert SimShearPushEnv.estimator_process_std_mm == PUSH_PROCESS_STD_MM
+    assert SimShearPushEnv.servo_hints.process_std_mm == PUSH_PROCESS_STD_MM
     estimator = reading_estimator("push", PushServoController())
     assert type(estimator).__name__ == "PushReadingEstimator"
     assert estimator.config.process_std_mm == PUSH_PROCESS_STD_MM

@@ -61,12 +61,11 @@ def test_endpoint_parsing():
 
 def test_the_lab_layout_is_the_sim_scenes():
     from simshear_gym.envs.tracking import FOLLOWER_T_WORLD_BASE, PLATE
-    from simshear_gym.lab.frames import FACE_DEPTH_MM, LEADER_START_POSE
-    from simshear_gym.sim.replay import SURFACE_DEPTH_MM
+    from simshear_gym.lab.frames import LEADER_START_POSE
     from simshear_gym.transforms import invert
 
     assert np.allclose(PlateMount().T_flange_face(), T_FLANGE_PLATE)
-    assert PlateMount().size_mm == PLATE.size_mm and FACE_DEPTH_MM == SURFACE_DEPTH_MM
+    assert PlateMount().size_mm == PLATE.size_mm
     assert np.allclose(BaseToBase().T_follower_leader(), invert(FOLLOWER_T_WORLD_BASE))
     assert LEADER_START_POSE == pytest.approx(LEADER_START_POSE_MM_DEG)
 

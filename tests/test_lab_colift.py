@@ -43,7 +43,7 @@ def test_the_lab_layout_is_the_colift_scenes():
                        invert(FOLLOWER_T_WORLD_BASE))
     config = CoLiftConfig()
     assert config.reference_depth_mm == pytest.approx(SURFACE_DEPTH_MM + SQUEEZE_MM["light"])
-    assert config.estimator_process_std_mm == SimShearCoLiftEnv.estimator_process_std_mm
+    assert config.estimator_process_std_mm == SimShearCoLiftEnv.servo_hints.process_std_mm
 
 
 @pytest.mark.parametrize("name", sorted(OBJECT_FACE_MM))

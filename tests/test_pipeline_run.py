@@ -294,3 +294,44 @@ def test_a_sensor_without_a_pipeline_run_says_how_to_make_one(tmp_path):
     (tmp_path / "sensor.json").write_text('{"sensor": "lab"}')
     with pytest.raises(ValueError, match="not a sensor file"):
         load_sensor(tmp_path / "sensor.json")
+
+
+def test_the_runs_variable_sets_come_from_the_gdnns_codec(monkeypatch):
+    """A contact type's variables: the named set where the data vary as it does (the edge's Rz as its angle), else
+    the inline spec the GDNN's codec writes (ranges to 6 digits, a wide angle periodic); each set read once."""
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from simshear_gym.data.adapter import CANONICAL_COLUMNS
+    from simshear_gym.models.gdnn import variable_set
+    from simshear_gym.pipelines import run
+
+    def table(**columns):
+        rows = {column: [0.0, 0.0] for column in CANONICAL_COLUMNS.values()}
+        rows.update({CANONICAL_COLUMNS[name]: values for name, values in columns.items()})
+        return pd.DataFrame(rows)
+
+    tables = {"edge/train": table(pose_y=[-5.0, 5.0], pose_z=[3.0, 4.0], pose_rz=[-179.0, 179.0], move_x=[0.0, 1.0],
+                                  move_y=[1.0, 0.0], move_rz=[2.0, 0.0]),
+              "edge/val": table(pose_y=[-4.0, 4.0], pose_z=[3.5, 4.5], pose_rz=[0.0, 10.0]),
+              "shear/train": table(pose_z=[3.0, 4.123456789], move_x=[-1.0, 2.0], move_rz=[0.0, -3.0]),
+              "shear/val": table(pose_z=[3.2, 3.3])}
+    reads = []
+    monkeypatch.setattr(run, "read_set", lambda path: reads.append(path.name) or SimpleNamespace(
+        targets=tables[f"{path.parent.name}/{path.name}"]))
+    config = SimpleNamespace(datasets={"edge": SimpleNamespace(contact="edge", kind="shear"),
+                                       "shear": SimpleNamespace(contact="surface", kind="shear")})
+    adapted = {name: {split: f"{name}/{split}" for split in ("train", "val")} for name in config.datasets}
+    root = Path("/nowhere")
+    assert run.variables_for(config, ["edge"], adapted, root) == "edge"
+    assert sorted(reads) == ["train", "val"]
+    spec = run.variables_for(config, ["shear"], adapted, root)
+    assert spec == ("z_mm:pose_3:3:4.12346,shear_x_mm:shear_sensor_x_mm:-3:3,"
+                    "shear_rz_deg:shear_sensor_rz_deg:-3:3")
+    assert [v.name for v in variable_set(spec).variables] == ["z_mm", "shear_x_mm", "shear_rz_deg"]
+    reads.clear()
+    assert run.label_ranges(config, ["edge"], adapted, root) == {
+        "pose_2": [-5.0, 5.0], "pose_3": [3.0, 4.0], "pose_6": [-179.0, 179.0], "move_1": [0.0, 1.0],
+        "move_2": [0.0, 1.0], "move_6": [0.0, 2.0]}
+    assert reads == ["train"]

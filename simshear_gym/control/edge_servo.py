@@ -25,12 +25,12 @@ the move it commanded (a sensor-frame move ``(dx, dy)`` shifts the offset by ``s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.contract import ActionScale
+from simshear_gym.contract import ActionScale, servo_hints
 from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
 from simshear_gym.control.policy import as_action_scale
 
@@ -194,8 +194,6 @@ class EdgeServoController:
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  step_mm: float = 0.5, gains: EdgeGains = EdgeGains(),
                  estimator: EstimatorConfig = EstimatorConfig()) -> None:
-        from dataclasses import replace
-
         from simshear_gym.models.zoo import posenet_weights
 
         self.action_scale = as_action_scale(action_scale, "EdgeServoController")
@@ -211,16 +209,14 @@ class EdgeServoController:
     @classmethod
     def for_env(cls, env, gains: EdgeGains = EdgeGains(),
                 estimator: EstimatorConfig = EstimatorConfig()) -> EdgeServoController:
-        """A controller matched to an edge env's reference depth, action scale, speed and GDNN."""
+        """A controller matched to an edge env's reference depth, action scale, speed and GDNN and process noise
+        (its :class:`~simshear_gym.contract.ServoHints`)."""
         base = env.unwrapped
-        if estimator.posenet is None and base.estimator_posenet.endswith(".pt"):  # a sensor's own GDNN
-            from dataclasses import replace
-
-            estimator = replace(estimator, posenet=base.estimator_posenet)
-        if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
-            from dataclasses import replace
-
-            estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
+        hints = servo_hints(env)
+        if estimator.posenet is None and hints.posenet.endswith(".pt"):  # a sensor's own GDNN
+            estimator = replace(estimator, posenet=hints.posenet)
+        if estimator.process_std_mm is None and hints.process_std_mm is not None:
+            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
         return cls(base.reference_depth_mm, base.action_scale, base.speed_mm_s * base.dt_s, gains, estimator)
 
     def reset(self) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from simshear_gym.contract import ESTIMATE_OBSERVATIONS
+from simshear_gym.contract import ESTIMATE_OBSERVATIONS, servo_hints
 from simshear_gym.control.estimator import TactileEstimator
 from simshear_gym.control.policy import PolicySettings
 from simshear_gym.control.servo import ServoController
@@ -34,9 +34,9 @@ class ReadingEstimator(TactileEstimator):
 def env_estimator(env) -> ReadingEstimator:
     """The estimator the env's controller builds (:meth:`ServoController.for_env
     <simshear_gym.control.servo.ServoController.for_env>`, or the edge or push controller's ``for_env`` by the env's
-    ``controller_law``: the GDNN the env names, its process noise), keeping its readings
-    (:func:`reading_estimator`)."""
-    law = getattr(env.unwrapped, "controller_law", "servo")
+    :class:`~simshear_gym.contract.ServoHints` law: the GDNN the env names, its process noise), keeping its
+    readings (:func:`reading_estimator`)."""
+    law = servo_hints(env).law
     if law == "push":
         from simshear_gym.control.push_servo import PushServoController
 

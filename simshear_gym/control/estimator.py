@@ -40,7 +40,7 @@ class EstimatorConfig:
         posenet: a GDNN weights file (``best.pt`` of ``simshear train posenet``); None: the shipped ``surface`` one.
         process_std_mm: per-step std of the contact's unknown motion, for depth and shear x, y (mm); None:
             :data:`DEFAULT_PROCESS_STD_MM` (``ServoController.for_env`` takes the env's
-            ``estimator_process_std_mm`` where it has one).
+            ``servo_hints.process_std_mm`` where it gives one).
         process_std_deg: the same for shear Rz (deg).
         filtered: fuse over time with the Bayesian filter; False: the raw GDNN reading each step.
         threads: torch threads for the GDNN (None: leave torch's setting).

@@ -42,15 +42,14 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy
+from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy, servo_hints
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.policy import as_action_scale
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 
 PUSH_PROCESS_STD_MM = 0.5
 """The push filter's process noise on depth and shear per step (the object's unknown turn and slip; the
-``estimator_process_std_mm`` of ``SimShearPush-v0``)."""
-LABEL_FACE_DEPTH_MM = 2.2
-"""The labels' depth of the face itself (``sim.replay.SURFACE_DEPTH_MM``): depth minus this is the indentation."""
+``servo_hints.process_std_mm`` of ``SimShearPush-v0``)."""
 
 
 @dataclass(frozen=True)
@@ -143,7 +142,7 @@ class PushLaw:
         g = self.gains
         centre_x = 0.0
         if self.use_shear:  # the centre of pressure's side, from the tangential over the normal force
-            indentation = max(depth - LABEL_FACE_DEPTH_MM, g.min_indentation_mm)
+            indentation = max(depth - SURFACE_DEPTH_MM, g.min_indentation_mm)
             centre_x = min(max(g.k_shear * shear_x / indentation, -g.max_centre_offset_mm), g.max_centre_offset_mm)
         bearing, side_mm = aim_bearing_deg(goal, g.half_width_mm, g.lookahead_mm, centre_x)
         if g.ki_side > 0:
@@ -322,14 +321,16 @@ class PushServoController:
     @classmethod
     def for_env(cls, env, gains: PushGains = PushGains(), use_shear: bool = True,
                 estimator: EstimatorConfig = EstimatorConfig()) -> PushServoController:
-        """A controller matched to a pushing env's action scale, speed and GDNN."""
+        """A controller matched to a pushing env's action scale, speed, GDNN and process noise (its
+        :class:`~simshear_gym.contract.ServoHints`)."""
         from dataclasses import replace
 
         base = env.unwrapped
-        if estimator.posenet is None and base.estimator_posenet.endswith(".pt"):  # a sensor's own GDNN
-            estimator = replace(estimator, posenet=base.estimator_posenet)
+        hints = servo_hints(env)
+        if estimator.posenet is None and hints.posenet.endswith(".pt"):  # a sensor's own GDNN
+            estimator = replace(estimator, posenet=hints.posenet)
         if estimator.process_std_mm is None:
-            estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
+            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
         return cls(base.action_scale, base.speed_mm_s * base.dt_s, gains, use_shear, estimator)
 
     def reset(self) -> None:

@@ -13,18 +13,18 @@ variable whose gains are 0 is not controlled (shear Rz, which our networks canno
 Holding a load (``hold_load``, heavy co-lift): a heavy object's weight deflects the skin from the first image on,
 and that shear is what carries the object. The law then holds the shear it reads at the episode's first image
 (the grasp) instead of zero: it keeps its place relative to the grasp, where moving to zero shear would walk the
-skin down and let the object slide. An env asks for it with ``servo_hold_load = True`` (``SimShearCoLift-v0``
-with ``payload="heavy"``), and may ask for a margin (``servo_load_margin_mm``: shear added to the grasp's, mm,
-sensor frame: along the weight, the follower carries more than it felt at the grasp) and shear gains of its own
-(``servo_shear_gains``: (kp, ki) on shear x and y); :meth:`ServoController.for_env` reads them
-(:func:`servo_law_for_env`).
+skin down and let the object slide. An env asks for it in its ``servo_hints``
+(:class:`~simshear_gym.contract.ServoHints`: ``hold_load``; ``SimShearCoLift-v0`` with ``payload="heavy"``), and
+may ask for a margin (``load_margin_mm``: shear added to the grasp's, mm, sensor frame: along the weight, the
+follower carries more than it felt at the grasp) and shear gains of its own (``shear_gains``: (kp, ki) on shear x
+and y); :meth:`ServoController.for_env` reads them (:func:`servo_law_for_env`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from simshear_gym.contract import ActionScale
+from simshear_gym.contract import ActionScale, servo_hints
 from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.policy import as_action_scale
@@ -42,20 +42,20 @@ def with_shear_gains(gains: PIGains, kp: float, ki: float) -> PIGains:
 
 def servo_law_for_env(env, gains: PIGains | None = None, hold_load: bool | None = None
                       ) -> tuple[PIGains, bool, np.ndarray]:
-    """(gains, hold_load, load margin (x, y) mm) of the servo law for an env (wrappers looked through): the env's
-    ``servo_hold_load`` where ``hold_load`` is None; while holding a load, its ``servo_load_margin_mm`` and, where
-    ``gains`` is None, :data:`SERVO_GAINS` with its ``servo_shear_gains`` (kp, ki) on shear x and y."""
-    base = env.unwrapped
+    """(gains, hold_load, load margin (x, y) mm) of the servo law for an env (wrappers looked through), from its
+    :class:`~simshear_gym.contract.ServoHints`: its ``hold_load`` where ``hold_load`` is None; while holding a load,
+    its ``load_margin_mm`` and, where ``gains`` is None, :data:`SERVO_GAINS` with its ``shear_gains`` (kp, ki) on
+    shear x and y."""
+    hints = servo_hints(env)
     explicit = gains is not None
     gains = gains if explicit else SERVO_GAINS
     if hold_load is None:
-        hold_load = bool(getattr(base, "servo_hold_load", False))
+        hold_load = hints.hold_load
     margin = np.zeros(2)
     if hold_load:
-        margin = np.asarray(getattr(base, "servo_load_margin_mm", (0.0, 0.0)), dtype=np.float64).reshape(2)
-        shear_gains = getattr(base, "servo_shear_gains", None)
-        if shear_gains is not None and not explicit:
-            gains = with_shear_gains(gains, *shear_gains)
+        margin = np.asarray(hints.load_margin_mm, dtype=np.float64).reshape(2)
+        if hints.shear_gains is not None and not explicit:
+            gains = with_shear_gains(gains, *hints.shear_gains)
     return gains, bool(hold_load), margin
 
 
@@ -104,22 +104,23 @@ class ServoController:
                 load_margin_mm: tuple[float, float] | None = None) -> ServoController:
         """A controller matched to an env's reference depth and action scale (wrappers are looked through).
 
-        Without ``estimator.posenet`` the estimator reads the env's images with the shipped GDNN the env names
-        (its ``estimator_posenet``, e.g. ``surface``; ``surface`` for an env that names none); without
-        ``estimator.process_std_mm`` it takes the env's ``estimator_process_std_mm`` (how far its contact moves
-        in a step unknown to the follower), if it has one; the law's gains (None: the defaults, or the env's),
-        load hold and margin (None: the env's) as :func:`servo_law_for_env` gives them."""
+        The env's :class:`~simshear_gym.contract.ServoHints` fill in what is not given: without
+        ``estimator.posenet`` the estimator reads the env's images with the GDNN the env names (``posenet``, e.g.
+        ``surface``); without ``estimator.process_std_mm`` it takes the env's ``process_std_mm`` (how far its
+        contact moves in a step unknown to the follower; None: the estimator's default); the law's gains (None: the
+        defaults, or the env's), load hold and margin (None: the env's) as :func:`servo_law_for_env` gives them."""
         from dataclasses import replace
 
         from simshear_gym.models.zoo import posenet_weights
 
         base = env.unwrapped
+        hints = servo_hints(env)
         if estimator.posenet is None:
-            name = getattr(base, "estimator_posenet", "surface")  # a shipped GDNN's name, or a sensor's weights
+            name = hints.posenet  # a shipped GDNN's name, or a sensor's weights
             posenet = name if name.endswith(".pt") else str(posenet_weights(name))
             estimator = replace(estimator, posenet=posenet)
-        if estimator.process_std_mm is None and hasattr(base, "estimator_process_std_mm"):
-            estimator = replace(estimator, process_std_mm=base.estimator_process_std_mm)
+        if estimator.process_std_mm is None and hints.process_std_mm is not None:
+            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
         gains, hold_load, margin = servo_law_for_env(env, gains, hold_load)
         if load_margin_mm is not None:
             margin = np.asarray(load_margin_mm, dtype=np.float64).reshape(2)

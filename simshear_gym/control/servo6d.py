@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.contract import TILT_STEP_DEG, ActionScale
+from simshear_gym.contract import TILT_STEP_DEG, ActionScale, servo_hints
 from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.policy import as_action_scale
@@ -137,7 +137,7 @@ class Servo6DController:
             raise ValueError(f"Servo6DController needs a 6-D action space (a 6-DoF follower), the env has "
                              f"{base.action_space.shape}: use ServoController for a 4-DoF one")
         if estimator.posenet is None:
-            name = getattr(base, "estimator_posenet", "surface")
+            name = servo_hints(env).posenet
             estimator = replace(estimator, posenet=name if name.endswith(".pt") else str(posenet_weights(name)))
         return cls(base.reference_depth_mm, base.action_scale, base.tilt_step_deg, gains, estimator)
 

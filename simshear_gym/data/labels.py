@@ -36,6 +36,10 @@ POSE_NAMES: tuple[str, ...] = ("x_mm", "y_mm", "z_mm", "rx_deg", "ry_deg", "rz_d
 
 CONTACT_TYPES: tuple[str, ...] = ("surface", "edge")
 
+SURFACE_DEPTH_MM = 2.2
+"""Work-frame z of the stimulus's face in the labels (the touch: a pose's z past it is the indentation), as
+calibrated against the published sim images of the same rows (``sim.replay.ReplayGeometry``'s default)."""
+
 LENGTH_LIMIT_MM = 1000.0
 """The declared range of every length label (poses, moves, shear; mm): |value| <= 1 m. A tactile contact lies
 within an arm's reach of the work origin (an MG400 reaches 440 mm); a larger value is a unit or parsing error."""

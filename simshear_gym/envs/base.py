@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import gymnasium as gym
@@ -48,11 +48,13 @@ from simshear_gym.contract import (
     ESTIMATE_OBSERVATIONS,
     OBS_MODES,
     ORACLE_MODES,
+    RAW_SHEAR_KEY,
     RENDER_SIZE_PX,
     TRANSLATED_MODES,
     TRUE_POSE_SHEAR_LIMIT,
     ActionScale,
     HorizontalTacTipMount,
+    ServoHints,
     TacTipMount,
     action_space,
     action_to_move,
@@ -172,10 +174,11 @@ class SimShearEnv(gym.Env, EzPickle):
         sensor: a sensor's own models instead of the shipped ones (its ``configs/<name>.toml``, the folder of its
             ``simshear pipeline run`` or that run's ``sensor.json``; :func:`~simshear_gym.models.zoo.load_sensor`):
             the TacTip renders with its dome and camera settings, its translator makes the images, and an
-            image-based controller reads them with its GDNN (``estimator_posenet``).
+            image-based controller reads them with its GDNN (``servo_hints.posenet``).
         raw_tactile: return the raw 128 px sim image and leave finishing it (:func:`finish_tactile`) to the
             caller (the batched vector env); the observation space's image is then 1x128x128 (``observation``
-            ``"tactile"`` with ``history`` 1 only).
+            ``"tactile"`` with ``history`` 1 only), and the observation carries the shear to finish it with
+            (:data:`~simshear_gym.contract.RAW_SHEAR_KEY`, float32 (6,)).
         observation: what the policy sees (:func:`~simshear_gym.contract.observation_space`, the same in
             ``RealTactileEnv``): ``"tactile"`` (the image of ``obs_mode`` and ``tcp_pose``: the default, as
             before), ``"estimate"`` (the estimator's GDNN reading and Bayesian filter state of that image,
@@ -185,7 +188,7 @@ class SimShearEnv(gym.Env, EzPickle):
             (16 k,)), oldest first; at reset all k are the first frame.
         estimator: for the estimate observations: the servo controller's estimator, or a callable that builds
             it from this env (``simshear_gym.control.env_estimator.env_estimator``: the GDNN the env names in
-            ``estimator_posenet`` and its process noise, as ``ServoController.for_env``). Envs do not import the
+            ``servo_hints`` and its process noise, as ``ServoController.for_env``). Envs do not import the
             controllers (same floor), so it is passed in; it is called once, at construction.
         device: where the translator runs (``"cpu"``, ``"cuda"``, ``"auto"``; default ``$SIMSHEAR_TRANSLATOR_DEVICE``
             or ``"cpu"``: :func:`~simshear_gym.models.translator_runtime.choose_translator_device`); the physics
@@ -198,8 +201,7 @@ class SimShearEnv(gym.Env, EzPickle):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
     translator_contact = "surface"
-    estimator_posenet = "surface"  # the shipped GDNN an image-based controller reads this env's images with
-    controller_law = "servo"  # the controller whose estimator the estimate observation runs: servo, edge or push
+    servo_hints = ServoHints()  # what a controller made for this env takes from it (the shipped surface GDNN)
 
     def __init__(self, *, obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
                  render_mode: str | None = None, reference_depth_mm: float = 4.0,
@@ -255,7 +257,7 @@ class SimShearEnv(gym.Env, EzPickle):
             models = load_sensor(sensor)
             tactip_config = TacTipConfig(**{**models.tactip, "image_size_px": RENDER_SIZE_PX})
             self.translator_weights = models.translator(self.translator_contact)
-            self.estimator_posenet = models.posenet(self.translator_contact)
+            self.servo_hints = replace(self.servo_hints, posenet=models.posenet(self.translator_contact))
         self.tactip = TacTip(self.world, tactip_config)
         self.shear_tracker = ShearTracker(shear_config)
         self.T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -273,6 +275,9 @@ class SimShearEnv(gym.Env, EzPickle):
         self.observation_space = observation_space(RENDER_SIZE_PX if raw_tactile else image_size_px,
                                                    oracle=obs_mode in ORACLE_MODES, observation=observation,
                                                    history=history)
+        if raw_tactile:
+            self.observation_space = gym.spaces.Dict({**self.observation_space.spaces, RAW_SHEAR_KEY: gym.spaces.Box(
+                -np.inf, np.inf, (6,), dtype=np.float32)})
         self.action_space = action_space()
         if observation in ESTIMATE_OBSERVATIONS:
             if estimator is None:
@@ -487,6 +492,8 @@ class SimShearEnv(gym.Env, EzPickle):
             obs = self._policy_observation.step(image, tcp, move)
         if self.obs_mode in ORACLE_MODES:
             obs["true_pose_shear"] = self._oracle_variables(state)
+        if self.raw_tactile:
+            obs[RAW_SHEAR_KEY] = state.shear_sensor.astype(np.float32)
         return obs
 
     def _info(self, state: ContactState, termination: str) -> dict[str, Any]:

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount, ServoHints
 from simshear_gym.envs.base import (
     ContactState,
     SimShearEnv,
@@ -178,9 +178,10 @@ class SimShearCoLiftEnv(SimShearEnv):
             on (0.6-2.1 mm), while the plate's moves drag the object and show on the skin as for a light one; a
             follower that keeps the load's shear, holding its place, carries the object; one that servoes it to
             zero walks the skin down and the object slides (``ServoController``'s ``hold_load``). The env asks the
-            servo for 0.4 mm more shear along the weight than the grasp's (``servo_load_margin_mm``) and deadbeat
-            shear gains (``servo_shear_gains`` kp 1, ki 0.5): a follower that carries only what it felt at the
-            grasp, and answers the plate's turns over several steps, lets the duck and the soft ball slide.
+            servo for 0.4 mm more shear along the weight than the grasp's (``servo_hints.load_margin_mm``) and
+            deadbeat shear gains (``servo_hints.shear_gains`` kp 1, ki 0.5): a follower that carries only what it
+            felt at the grasp, and answers the plate's turns over several steps, lets the duck and the soft ball
+            slide.
         obs_mode, image_size_px, control_rate_hz, render_mode, observation, history, estimator: see
             :class:`~simshear_gym.envs.base.SimShearEnv` (defaults ``"real"``, 128, 10 Hz, None, ``"tactile"``, 1).
         reference_depth_mm: the depth to keep (label convention); None: the payload's squeeze, 5.2 mm = a 3 mm
@@ -204,12 +205,11 @@ class SimShearCoLiftEnv(SimShearEnv):
     ``observation`` / ``history`` arguments and the reward of ``SimShearTracking-v0``'s version history).
     """
 
-    # the shipped GDNN trained on this env's own images (simshear collect-env); "colift_heavy" for payload="heavy"
-    estimator_posenet = "colift"
-    # The servo estimator's process noise (mm per step): the plate moves up to 6.5 mm/s (randomised speed) and
+    # The shipped GDNN trained on this env's own images (simshear collect-env; "colift_heavy" for payload="heavy")
+    # and the servo estimator's process noise (mm per step): the plate moves up to 6.5 mm/s (randomised speed) and
     # the star reverses at its corners, so the filter must let a reading move the state by more than the
     # tracking default of 0.4 mm (with 0.4 the state lagged a star corner until the skin slipped).
-    estimator_process_std_mm = 1.5
+    servo_hints = ServoHints(posenet="colift", process_std_mm=1.5)
 
     def __init__(self, trajectory: str = "circular_wave", object_name: str = "prism", mass_kg: float | None = None,
                  obs_mode: str = "real", image_size_px: int = 128, control_rate_hz: float = 10.0,
@@ -242,14 +242,14 @@ class SimShearCoLiftEnv(SimShearEnv):
         self.object_name = object_name
         self.mass_kg = mass_kg
         self.payload = payload
-        self.servo_hold_load = payload == "heavy"  # the servo keeps the grasp's shear (ServoController.for_env)
-        # ... plus 0.4 mm along the weight (sensor +y is down: the load's shear is -y), with deadbeat shear gains:
-        # carrying a little more than the grasp felt, and at once, keeps the duck and the soft ball from sliding on
-        # the plate where the star's path turns (docs/experiments.md, servo_colift_heavy_margin)
-        self.servo_load_margin_mm = (0.0, -0.4) if payload == "heavy" else (0.0, 0.0)
-        self.servo_shear_gains = (1.0, 0.5) if payload == "heavy" else None
-        if payload == "heavy":  # the heavy grip's images: a GDNN of its own (a sensor's models override it)
-            self.estimator_posenet = "colift_heavy"
+        if payload == "heavy":
+            # The servo keeps the grasp's shear (ServoController.for_env) plus 0.4 mm along the weight (sensor +y
+            # is down: the load's shear is -y), with deadbeat shear gains: carrying a little more than the grasp
+            # felt, and at once, keeps the duck and the soft ball from sliding on the plate where the star's path
+            # turns (docs/experiments.md, servo_colift_heavy_margin). The heavy grip's images have a GDNN of their
+            # own (a sensor's models override it).
+            self.servo_hints = replace(self.servo_hints, posenet="colift_heavy", hold_load=True,
+                                       load_margin_mm=(0.0, -0.4), shear_gains=(1.0, 0.5))
         self.speed_mm_s = float(speed_mm_s)
         self.rotation_deg = float(rotation_deg)
         self.randomise = bool(randomise)

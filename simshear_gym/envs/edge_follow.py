@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from gymnasium.utils import EzPickle
 
-from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, ServoHints
 from simshear_gym.data.labels import wrap_deg
 from simshear_gym.envs.base import ContactState, SimShearEnv
 from simshear_gym.envs.tracking import FOLLOWER_T_WORLD_BASE
@@ -77,8 +78,7 @@ class SimShearEdgeFollowEnv(SimShearEnv):
     """
 
     translator_contact = "edge"
-    estimator_posenet = "edge"
-    controller_law = "edge"
+    servo_hints = ServoHints(law="edge", posenet="edge")
 
     def __init__(self, outline: str = "disk", obs_mode: str = "real", image_size_px: int = 128,
                  control_rate_hz: float = 10.0, render_mode: str | None = None, reference_depth_mm: float = 4.0,
@@ -109,7 +109,10 @@ class SimShearEdgeFollowEnv(SimShearEnv):
         super().__init__(obs_mode=obs_mode, image_size_px=image_size_px, control_rate_hz=control_rate_hz,
                          render_mode=render_mode, reference_depth_mm=reference_depth_mm, shear_config=shear_config,
                          **base_kwargs)
-        self.estimator_process_std_mm = 0.3  # the edge frame's unknown drift per step (curvature), mm
+        # The edge frame's unknown drift per step (curvature), mm, for the controllers made for this env. Set after
+        # the base's constructor, which builds the estimate observation's estimator: that one keeps the
+        # estimator's default process noise (what the shipped edge policy was trained on).
+        self.servo_hints = replace(self.servo_hints, process_std_mm=0.3)
 
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:

@@ -8,7 +8,7 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount, goal_space, push_goal
+from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, HorizontalTacTipMount, ServoHints, goal_space, push_goal
 from simshear_gym.envs.base import ContactState, SimShearEnv, TerminationConfig, pybullet_pose_fast
 from simshear_gym.sim.pushing import (
     HEIGHT_MM,
@@ -86,8 +86,7 @@ class SimShearPushEnv(SimShearEnv):
         options of ``reset``: ``{"path_angle_deg": a, "path_length_mm": l, "contact_offset_mm": x}``.
     """
 
-    controller_law = "push"
-    estimator_process_std_mm = 0.5  # the object's unknown turn and slip per step
+    servo_hints = ServoHints(law="push", process_std_mm=0.5)  # 0.5 mm: the object's unknown turn and slip per step
 
     def __init__(self, shape: str = "cube", obs_mode: str = "real", image_size_px: int = 128,
                  control_rate_hz: float = 10.0, render_mode: str | None = None, reference_depth_mm: float = 2.6,

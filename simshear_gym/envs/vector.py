@@ -2,7 +2,8 @@
 
 ``gymnasium.make_vec("SimShearTracking-v0", num_envs=N)`` (no ``vectorization_mode``, or
 ``"vector_entry_point"``) builds a :class:`SimShearVectorEnv`. Its sub-envs run with ``raw_tactile=True`` (raw
-128 px sim image plus the shear in ``info``) in ``workers`` processes, each holding a contiguous group of them;
+128 px sim image plus its shear in the observation, :data:`~simshear_gym.contract.RAW_SHEAR_KEY`, which the
+finishing takes out) in ``workers`` processes, each holding a contiguous group of them;
 the translator then runs once per group and step on the whole group's images (``translate_in="workers"``, the
 default), or once per step on all N images in the main process (``translate_in="main"``). With ``workers=0``
 everything runs in this process (one group, one batched translation per step).
@@ -35,7 +36,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from simshear_gym.contract import TRANSLATED_MODES, finish_tactile
+from simshear_gym.contract import RAW_SHEAR_KEY, TRANSLATED_MODES, finish_tactile
 
 TRANSLATE_IN: tuple[str, ...] = ("workers", "main")
 AUTORESET_MODES: tuple[AutoresetMode, ...] = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
@@ -65,19 +66,21 @@ def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
 def _finish_images(observations: dict[str, np.ndarray], infos: list[dict], obs_mode: str, image_size_px: int,
                    contact: str, translator_weights: str | None, device: str = "cpu") -> dict[str, np.ndarray]:
     """Finish (translate, resize) a batch's raw images and the raw last images of the episodes that ended in it
-    (``info["final_obs"]``, SAME_STEP autoreset) in one call; the shear of each image is its info's."""
+    (``info["final_obs"]``, SAME_STEP autoreset) in one call, each with the shear its observation carries (taken
+    out: the finished observations are the single envs')."""
     ended = [index for index, info in enumerate(infos) if "final_obs" in info]
+    observations = dict(observations)
     raw = observations["tactile"][:, 0]
-    shear = np.stack([info["shear_sensor_mm_deg"] for info in infos])
+    shear = observations.pop(RAW_SHEAR_KEY)
     if ended:  # no copies on the common step where no episode ended
-        raw = np.concatenate([raw] + [infos[index]["final_obs"]["tactile"] for index in ended])
-        shear = np.concatenate([shear, np.stack([infos[index]["final_info"]["shear_sensor_mm_deg"]
-                                                 for index in ended])])
+        finals = [dict(infos[index]["final_obs"]) for index in ended]
+        raw = np.concatenate([raw] + [final["tactile"] for final in finals])
+        shear = np.concatenate([shear, np.stack([final.pop(RAW_SHEAR_KEY) for final in finals])])
     finished = finish_tactile(raw, shear, obs_mode, image_size_px, contact, translator_weights,
                               translator_device=device)[:, None]
     count = len(infos)
     for place, index in enumerate(ended):
-        infos[index]["final_obs"] = {**infos[index]["final_obs"], "tactile": finished[count + place]}
+        infos[index]["final_obs"] = {**finals[place], "tactile": finished[count + place]}
     return {**observations, "tactile": finished[:count]}
 
 

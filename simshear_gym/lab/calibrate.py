@@ -41,9 +41,10 @@ from typing import Any
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.io import write_json
 from simshear_gym.lab.endpoints import ArmEndpoint
-from simshear_gym.lab.frames import FACE_DEPTH_MM, ArmsCalibration, BaseToBase, PlateMount
+from simshear_gym.lab.frames import ArmsCalibration, BaseToBase, PlateMount
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
 logger = logging.getLogger(__name__)
@@ -148,7 +149,7 @@ def fit_base_to_base(samples: list[TouchSample], plate: PlateMount, guess: BaseT
         T = BaseToBase(theta[0], theta[1], theta[2], math.degrees(theta[3])).T_follower_leader()
         out = []
         for T_face, point, depth in zip(faces, points, depths):
-            q = np.array([theta[4], theta[5], -(depth - FACE_DEPTH_MM), 1.0])
+            q = np.array([theta[4], theta[5], -(depth - SURFACE_DEPTH_MM), 1.0])
             out.append((T @ T_face @ q)[:3] - point)
         return np.concatenate(out)
 

@@ -54,6 +54,7 @@ import numpy as np
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.contract import HorizontalTacTipMount
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES
 from simshear_gym.lab.colift_layout import (
     COLIFT_LEADER_IN_FOLLOWER_MM_DEG,
@@ -81,7 +82,7 @@ from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
 logger = logging.getLogger(__name__)
 
-SQUEEZE_MM = 3.0  # the co-lift env's light payload: the reference depth 2.2 + 3 mm
+SQUEEZE_MM = 3.0  # the co-lift env's light payload: the reference depth 2.2 (the labels' face) + 3 mm
 COLIFT_STOPS: tuple[str, ...] = (*STOPS, "dropped")
 """Every value a co-lift run's ``stop`` takes besides ``""`` (finished)."""
 
@@ -109,7 +110,7 @@ class CoLiftConfig(ExperimentConfig):
     object_name: str = "prism"
     speed_mm_s: float = 5.0
     rotation_deg: float = 0.0
-    reference_depth_mm: float = 2.2 + SQUEEZE_MM
+    reference_depth_mm: float = SURFACE_DEPTH_MM + SQUEEZE_MM
     touch_depth_mm: float = 2.9
     min_depth_mm: float | None = 3.0
     max_approach_mm: float = 6.0
@@ -117,7 +118,7 @@ class CoLiftConfig(ExperimentConfig):
     lift_mm: float = 10.0
     settle_s: float = 2.0
     release_s: float = 1.0
-    estimator_process_std_mm: float | None = 1.5  # SimShearCoLiftEnv.estimator_process_std_mm
+    estimator_process_std_mm: float | None = 1.5  # SimShearCoLiftEnv.servo_hints.process_std_mm
     mount: HorizontalTacTipMount = HorizontalTacTipMount()
     plate: Any = None
     leader_start_pose_mm_deg: tuple[float, float, float, float] = COLIFT_LEADER_START_POSE_MM_DEG

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from simshear_gym.contract import TacTipMount
-from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS
+from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS, SURFACE_DEPTH_MM
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose
 from simshear_gym.robots.mg400.kinematics import KinematicsError, check_pose_reachable
 from simshear_gym.transforms import invert, pose_to_matrix
@@ -78,7 +78,7 @@ class CollectProtocol:
     settle_s: float = 0.1
     frames_per_capture: int = 1
     frame_period_s: float = 1.0 / 30.0
-    surface_depth_mm: float = 2.2
+    surface_depth_mm: float = SURFACE_DEPTH_MM
     mount: TacTipMount = TacTipMount()
 
     def __post_init__(self) -> None:

@@ -63,12 +63,11 @@ import numpy as np
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.contract import ActionScale, TacTipMount
-from simshear_gym.data.labels import wrap_deg
+from simshear_gym.data.labels import SURFACE_DEPTH_MM, wrap_deg
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.io import atomic_write, write_json
 from simshear_gym.lab.endpoints import ArmEndpoint
 from simshear_gym.lab.frames import (
-    FACE_DEPTH_MM,
     LEADER_START_POSE,
     ArmsCalibration,
     BaseToBase,
@@ -182,8 +181,8 @@ class ExperimentConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"ExperimentConfig.{name} must be finite and >= 0 s, got {value!r}")
-        if not FACE_DEPTH_MM < self.touch_depth_mm < self.reference_depth_mm:
-            raise ValueError(f"ExperimentConfig.touch_depth_mm must lie between the face ({FACE_DEPTH_MM} mm) and "
+        if not SURFACE_DEPTH_MM < self.touch_depth_mm < self.reference_depth_mm:
+            raise ValueError(f"ExperimentConfig.touch_depth_mm must lie between the face ({SURFACE_DEPTH_MM} mm) and "
                              f"the reference depth ({self.reference_depth_mm} mm), got {self.touch_depth_mm!r}")
         if self.min_depth_mm is not None and not self.min_depth_mm < self.reference_depth_mm:
             raise ValueError(f"ExperimentConfig.min_depth_mm must be below the reference depth, got "
@@ -306,7 +305,7 @@ def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np
     """The follower flange pose with its sensor ``hover_mm`` above the plate's ``start_offset_mm`` (leader at its
     start pose), through the calibration."""
     T_face = config.plate.T_follower_face(config.leader_start_pose_mm_deg, calibration.T_follower_leader())
-    T_sensor = sensor_on_face(T_face, *config.start_offset_mm, FACE_DEPTH_MM - config.hover_mm)
+    T_sensor = sensor_on_face(T_face, *config.start_offset_mm, SURFACE_DEPTH_MM - config.hover_mm)
     return flange_pose_for_sensor(T_sensor, config.mount.T_flange_sensor())
 
 

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.io import write_json
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 from simshear_gym.transforms import invert, pose_to_matrix
@@ -34,9 +35,6 @@ SCENE_LEADER_IN_FOLLOWER_MM_DEG = (690.0, 0.0, 0.0, 180.0)
 SCENE_LEADER_START_POSE_MM_DEG = (310.0, 0.0, -40.0, 0.0)
 SCENE_T_FLANGE_FACE_POSE = (70.0, 0.0, -20.0, 0.0, 0.0, 180.0)
 SCENE_PLATE_SIZE_MM = (120.0, 120.0, 10.0)
-FACE_DEPTH_MM = 2.2
-"""Where a face lies in the labels' work frame (``sim.replay.SURFACE_DEPTH_MM``): a depth reading of 2.2 mm is
-the touch."""
 
 
 @dataclass(frozen=True)
@@ -192,9 +190,9 @@ LEADER_START_POSE: tuple[float, float, float, float] = SCENE_LEADER_START_POSE_M
 
 def T_face_work() -> np.ndarray:
     """The labels' work frame in a face frame: x along the face's x, z into the face, origin
-    ``FACE_DEPTH_MM`` above it (so a sensor's work z is the depth a GDNN reads)."""
+    ``SURFACE_DEPTH_MM`` (the labels' face) above it (so a sensor's work z is the depth a GDNN reads)."""
     T_work_face = np.diag([1.0, -1.0, -1.0, 1.0])
-    T_work_face[2, 3] = FACE_DEPTH_MM
+    T_work_face[2, 3] = SURFACE_DEPTH_MM
     return invert(T_work_face)
 
 

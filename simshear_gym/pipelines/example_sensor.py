@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import decode_image, read_set
 
-TOUCH_DEPTH_MM = 2.2  # the tactip331 labels' z at first touch (the surface's depth in their work frame)
 CANVAS_PX = (300, 280)  # (width, height)
 IMAGE_PX = 256
 OFFSET_PX = (22, 12)  # (x, y) of the image in the canvas
@@ -57,7 +57,7 @@ def make_example(root: Path, out: Path, rows_per_split: int | None = None, seed:
             records.append({
                 "file": name,
                 "subset": value,
-                "sensor_y_m": (pose[2] - TOUCH_DEPTH_MM) / 1000.0,  # lab y = sim z, relative to the touch
+                "sensor_y_m": (pose[2] - SURFACE_DEPTH_MM) / 1000.0,  # lab y = sim z, relative to the touch
                 "roll_rad": math.radians(pose[3]),  # lab Rx = sim Rx
                 "yaw_rad": math.radians(-pose[4]),  # lab Rz = -sim Ry (sim y = -lab z)
                 "trial": len(records),

@@ -72,6 +72,7 @@ SHEAR_SPECS = (("move_x", "shear_x_mm", "shear_sensor_x_mm"), ("move_y", "shear_
                ("move_rz", "shear_rz_deg", "shear_sensor_rz_deg"))
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
+    from simshear_gym.models.gdnn import VariableSet
     from simshear_gym.pipelines.config import ExperimentConfig
 
 #: profiles that check the plumbing, not the models: a few dozen rows and an epoch or two, so their models sit near
@@ -167,8 +168,11 @@ def contacts_of(config: ExperimentConfig) -> dict[str, list[str]]:
 def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, root: Path) -> str:
     """The inline GDNN variable set of a contact type's datasets: every pose variable that varies in them (an
     angle spanning more than 300 deg as a periodic one), and the sensor-frame shear x, y, Rz where a shear dataset
-    moves that way; ranges from the data."""
-    tables = [read_set(root / adapted[name][split]).targets for name in names for split in ("train", "val")]
+    moves that way; ranges from the data (written by :func:`~simshear_gym.models.gdnn.variable_spec`)."""
+    from simshear_gym.models.gdnn import OutputSpec, VariableSet  # torch: only when a run needs it
+
+    train = {name: read_set(root / adapted[name]["train"]).targets for name in names}
+    tables = [table for name in names for table in (train[name], read_set(root / adapted[name]["val"]).targets)]
     targets = pd.concat(tables, ignore_index=True)
     specs = []
     for variable, label in POSE_NAMES.items():
@@ -176,34 +180,36 @@ def variables_for(config: ExperimentConfig, names: list[str], adapted: dict, roo
         low, high = float(targets[column].min()), float(targets[column].max())
         if high - low <= 1e-6:
             continue
-        if label.endswith("_deg") and high - low > 300.0:
-            specs.append(f"{label}:{column}:-180:180:periodic")
+        unit = label.rpartition("_")[2]
+        if unit == "deg" and high - low > 300.0:
+            specs.append(OutputSpec(label, unit, -180.0, 180.0, periodic=True, column=column))
         else:
-            specs.append(f"{label}:{column}:{low:.6g}:{high:.6g}")
+            specs.append(OutputSpec(label, unit, low, high, column=column))
     shear_sets = [name for name in names if config.datasets[name].kind == "shear"]
     if shear_sets:
-        moves = pd.concat([read_set(root / adapted[name]["train"]).targets for name in shear_sets])
+        moves = pd.concat([train[name] for name in shear_sets])
         for move, label, column in SHEAR_SPECS:
             extent = float(moves[CANONICAL_COLUMNS[move]].abs().max())
             if extent > 1e-6:
-                reach = extent * (1.5 if label.endswith("_mm") else 1.0)  # x, y rotate into the sensor frame
-                specs.append(f"{label}:{column}:{-reach:.6g}:{reach:.6g}")
-    return named_set(config.datasets[names[0]].contact, ",".join(specs))
+                unit = label.rpartition("_")[2]
+                reach = extent * (1.5 if unit == "mm" else 1.0)  # x, y rotate into the sensor frame
+                specs.append(OutputSpec(label, unit, -reach, reach, column=column))
+    return named_set(config.datasets[names[0]].contact, VariableSet("inline", tuple(specs)))
 
 
-def named_set(contact: str, spec: str) -> str:
+def named_set(contact: str, variables: VariableSet) -> str:
     """The package's named variable set of the contact type (``surface``, ``edge``:
-    :data:`~simshear_gym.models.gdnn.VARIABLE_SETS`, the shipped GDNNs' outputs) where the data's variables are
-    its variables (an edge's Rz as ``edge_angle_deg``), else the inline ``spec``."""
-    from simshear_gym.models.gdnn import VARIABLE_SETS
+    :data:`~simshear_gym.models.gdnn.VARIABLE_SETS`, the shipped GDNNs' outputs) where the data's ``variables`` (a
+    :class:`~simshear_gym.models.gdnn.VariableSet`) are its variables (an edge's Rz as ``edge_angle_deg``), else
+    their inline form."""
+    from simshear_gym.models.gdnn import VARIABLE_SETS, variable_spec
 
     named = VARIABLE_SETS.get(contact)
-    if named is None:
-        return spec
-    found = [(item.split(":")[0], item.split(":")[1]) for item in spec.split(",")]
-    if contact == "edge":
-        found = [("edge_angle_deg" if name == "rz_deg" else name, column) for name, column in found]
-    return contact if found == [(v.name, v.column) for v in named.variables] else spec
+    found = [("edge_angle_deg" if contact == "edge" and v.name == "rz_deg" else v.name, v.column)
+             for v in variables.variables]
+    if named is not None and found == [(v.name, v.column) for v in named.variables]:
+        return contact
+    return variable_spec(variables)
 
 
 # rough relative durations of the training steps, for the schedule's priorities (measured on the 2-core CPU: a
@@ -375,12 +381,13 @@ def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted
 def label_ranges(config: ExperimentConfig, names: list[str], adapted: dict, root: Path) -> dict:
     """{label column: [low, high]} over a contact type's training rows: the pose columns of every dataset, the
     move columns of its shear datasets; constant columns left out."""
+    train = {name: read_set(root / adapted[name]["train"]).targets for name in names}
     ranges = {}
     for variable, column in CANONICAL_COLUMNS.items():
         sets = [name for name in names if variable.startswith("pose") or config.datasets[name].kind == "shear"]
         if not sets:
             continue
-        values = pd.concat([read_set(root / adapted[name]["train"]).targets[column] for name in sets])
+        values = pd.concat([train[name][column] for name in sets])
         low, high = float(values.min()), float(values.max())
         if high - low > 1e-6:
             ranges[column] = [low, high]

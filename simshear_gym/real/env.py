@@ -67,6 +67,7 @@ from simshear_gym.contract import (
     TCP_POSE_LOW,
     ActionScale,
     HorizontalTacTipMount,
+    ServoHints,
     TacTipMount,
     action_to_move,
     check_observation,
@@ -357,7 +358,7 @@ class RealTactileEnv(gym.Env):
                                                                   config.history)
         self.action_scale = config.action_scale
         self.reference_depth_mm = config.reference_depth_mm
-        self.estimator_posenet = config.posenet or "surface"  # what ServoController.for_env reads
+        self.servo_hints = ServoHints(posenet=config.posenet or "surface")  # what ServoController.for_env reads
         if config.observation in ESTIMATE_OBSERVATIONS and estimator is None:
             from simshear_gym.control.env_estimator import env_estimator
 

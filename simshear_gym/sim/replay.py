@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.sim.parallel import map_chunks
 from simshear_gym.sim.stimuli import make_stimulus, spawn
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
@@ -31,7 +32,7 @@ class ReplayGeometry:
         edge_material_side: +1 if the prism's material lies at work y > ``edge_y_mm``, -1 if at y < it.
     """
 
-    surface_depth_mm: float = 2.2
+    surface_depth_mm: float = SURFACE_DEPTH_MM
     edge_y_mm: float = -0.25
     edge_material_side: int = 1
 
@@ -48,9 +49,6 @@ class ReplayGeometry:
             transform[:3, :3] = np.diag([-1.0, 1.0, -1.0])
         transform[:3, 3] = [0.0, self.edge_y_mm, self.surface_depth_mm]
         return transform
-
-
-SURFACE_DEPTH_MM = ReplayGeometry().surface_depth_mm  # work-frame z of the face (label convention)
 
 
 class ReplayScene:

@@ -31,7 +31,7 @@ import time
 
 import numpy as np
 
-from simshear_gym.contract import ESTIMATE_SIZE, filter_mean_from_estimate
+from simshear_gym.contract import ESTIMATE_SIZE, filter_mean_from_estimate, servo_hints
 from simshear_gym.control.pi_law import PILaw
 from simshear_gym.control.servo import servo_law_for_env
 
@@ -121,8 +121,9 @@ TEACHERS = {"servo": ServoTeacher, "edge": EdgeTeacher, "push": PushTeacher}
 
 
 def teacher_for(env) -> ServoTeacher | EdgeTeacher | PushTeacher:
-    """The env's teacher, by its ``controller_law``: the servo law, the edge law or the push law."""
-    return TEACHERS[getattr(env.unwrapped, "controller_law", "servo")](env)
+    """The env's teacher, by its :class:`~simshear_gym.contract.ServoHints` law: the servo law, the edge law or the
+    push law."""
+    return TEACHERS[servo_hints(env).law](env)
 
 
 def collect(envs: list, steps: int, noise: float, seed: int, actor=None) -> dict:
