@@ -89,33 +89,32 @@ def test_push_rollout_refuses_what_it_cannot_do(tmp_path, capsys):
     assert not (tmp_path / "rollout.json").exists()  # refused before anything connected or moved
 
 
-def test_a_pushing_policy_runs_on_the_emulator_with_the_goal_and_the_push_estimator(tmp_path):
+def test_the_shipped_push_policy_pushes_on_the_emulator_with_the_goal_and_the_push_estimator(tmp_path):
     """``simshear rollout --task push --policy``: the policy gets SimShearPush-v0's observation on the real path:
     the push law's estimator (four slots) and the goal from the measured pose and the target."""
     from simshear_gym.control.env_estimator import reading_estimator
     from simshear_gym.control.push_servo import PUSH_PROCESS_STD_MM, PushServoController
-    from simshear_gym.envs.push import SimShearPushEnv
-    from simshear_gym.train.rl import RLTrainConfig, train
+    from simshear_gym.models.zoo import policy_folder
 
-    assert SimShearPushEnv.servo_hints.process_std_mm == PUSH_PROCESS_STD_MM
     estimator = reading_estimator("push", PushServoController())
     assert type(estimator).__name__ == "PushReadingEstimator"
     assert estimator.config.process_std_mm == PUSH_PROCESS_STD_MM
-    train(RLTrainConfig(task="push", observation="estimate", history=2, image_size_px=64, timesteps=16, n_steps=16,
-                        batch_size=16, n_epochs=1, checkpoint_steps=16), tmp_path / "run", progress=False)
     emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
                                             initial_joints_deg=tuple(inverse(*START)))).start()
     out = tmp_path / "rollout"
-    steps = 10
     try:
         code = cli.main(["rollout", "--robot", "127.0.0.1", "--camera", "sim-push", "--task", "push", "--policy",
-                         str(tmp_path / "run" / "model.zip"), "--steps", str(steps), "--period-s", str(PERIOD_S),
-                         "--out", str(out), "--dashboard-port", str(emulator.dashboard_port), "--motion-port",
-                         str(emulator.motion_port), "--feedback-port", str(emulator.feedback_port)])
+                         str(policy_folder("push_ppo") / "model.pt"), "--steps", str(STEPS), "--period-s",
+                         str(PERIOD_S), "--out", str(out), "--dashboard-port", str(emulator.dashboard_port),
+                         "--motion-port", str(emulator.motion_port), "--feedback-port", str(emulator.feedback_port)])
         sent = emulator.received_commands("motion")
     finally:
         emulator.stop()
     summary = json.loads((out / "rollout.json").read_text())
     assert code == 0 and summary["termination"] == "" and summary["safety_events"] == []
-    assert summary["steps_run"] == steps and summary["config"]["reference_depth_mm"] == 2.6
-    check_servo_commands_within_limits(sent, START, steps, PERIOD_S)
+    assert summary["steps_run"] == STEPS and summary["config"]["reference_depth_mm"] == 2.6
+    assert summary["controller"].startswith("ppo")
+    # pushed towards the target (150 mm ahead at the start) and kept on the path, as the servo above
+    assert summary["truth_target_distance_mm"] < 150.0 - 0.6 * STEPS * 0.5
+    assert summary["truth_contact_error_mm"]["max"] < 3.0
+    check_servo_commands_within_limits(sent, START, STEPS, PERIOD_S)

@@ -335,13 +335,18 @@ def policy_card(config: dict, provenance: dict, to: Path, model: str, evaluation
     chosen = next((entry for entry in reversed(evaluations) if entry.get("best")), None) if model == "best" else (
         evaluations[-1] if evaluations else None)
     arch = config.get("net_arch") or "the algorithm's default"
+    task = config["task"]
+    controller = {"edge": "edge controller", "push": "push controller"}.get(task, "servo controller")
     observation = {"tactile": "the translated tactile image and the TCP pose (CNN)",
-                   "estimate": f"the servo controller's estimate: the shipped `{posenet}` GDNN's mean and std and the "
+                   "estimate": f"the {controller}'s estimate: the shipped `{posenet}` GDNN's mean and std and the "
                                "Bayesian filter's state, normalised (MLP)",
                    "tactile+estimate": "the translated image and the estimate",
-                   "estimate+action": f"the servo controller's estimate (the shipped `{posenet}` GDNN's mean and std "
+                   "estimate+action": f"the {controller}'s estimate (the shipped `{posenet}` GDNN's mean and std "
                                       "and the Bayesian filter's state, normalised) and the last action (MLP)",
                    }[config["observation"]]
+    if task == "push":
+        observation += ", and the goal (the target and the path's direction in the sensor frame)"
+    error = {"edge": "offset from the edge", "push": "path deviation"}.get(task, "contact error")
     lines = [
         f"# {config['algo'].upper()} policy, {config['task']}",
         "",
@@ -374,7 +379,7 @@ def policy_card(config: dict, provenance: dict, to: Path, model: str, evaluation
     if chosen is not None:
         lines += ["", f"## Training evaluation ({model} model)", "",
                   f"At {chosen['timesteps']} env steps ({chosen['wall_s'] / 60:.1f} min), the deterministic policy on "
-                  f"the nominal episodes: mean contact error {chosen['contact_error_mean_mm']:.3f} mm, "
+                  f"the nominal episodes: mean {error} {chosen['contact_error_mean_mm']:.3f} mm, "
                   f"{ended_early(chosen['episodes'])} ended early; "
                   + ", ".join(f"{name} {run['contact_error_mean_mm']:.3f} mm ({run['steps']} steps)"
                               for name, run in chosen["episodes"].items()) + "."]
@@ -406,10 +411,14 @@ def policy_card(config: dict, provenance: dict, to: Path, model: str, evaluation
 
 
 def _imitation_line(imitation: dict, config: dict) -> str:
-    """The card's line on the servo law's clone (``--bc-steps``) the policy started from."""
+    """The card's line on the law's clone (``--bc-steps``) the policy started from (the task's teacher:
+    :func:`~simshear_gym.train.rl_imitation.teacher_for`)."""
     rounds = imitation.get("rounds", [])
-    teacher = ("the servo law in velocity form (the last action plus the change between the newest two frames)"
-               if config["observation"] == "estimate+action" else "the servo law on the filter estimate")
+    teacher = {"edge": "the edge law (proportional only) on the filter estimate",
+               "push": "the push law without its path-side integral on the filter estimate and the goal"}.get(
+        config["task"], "the servo law in velocity form (the last action plus the change between the newest two "
+                        "frames)" if config["observation"] == "estimate+action" else "the servo law on the filter "
+                                                                                     "estimate")
     after = imitation.get("after", {}).get("actor_mse")
     return (f"- Start: a DAgger clone of {teacher}: {len(rounds)} round(s) of {config['bc_steps']} steps with "
             f"action noise {imitation.get('noise')}, {imitation.get('epochs')} epochs each"
