@@ -45,8 +45,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
     (("train", "posenet"), "simshear_gym.train.posenet",
      "train the pose-and-shear GDNN on real, sim or translated images of paired sets"),
     (("train", "rl"), "simshear_gym.train.rl",
-     "train a PPO, SAC or TQC agent on SimShearTracking-v0 or SimShearCoLift-v0 (--preset tracking-first: a "
-     "first tracking policy on a 2-core CPU)"),
+     "train a PPO, SAC or TQC agent on the tracking, co-lift, edge following or pushing env (--preset "
+     "tracking-first: a first tracking policy on a 2-core CPU)"),
     (("evaluate", "posenet"), "simshear_gym.evaluate.posenet",
      "pose-and-shear GDNN errors on the real validation images, against chance"),
     (("evaluate", "filter"), "simshear_gym.evaluate.posenet_filter",

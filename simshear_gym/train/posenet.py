@@ -40,12 +40,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.posenet_config import CONTACTS, SOURCES, PosenetTrainConfig
 from simshear_gym.train.runs import LR_SCHEDULES
+from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
 FLAG_HELP = {
     "source": "training images: real (the real images the paired sets replay), sim (the sets' own sim renders), "
@@ -93,6 +95,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                  required=("source", "contact", "paired_dirs"), metavars={"paired_dirs": "DIR",
                                                                           "translators": "WEIGHTS"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    parser.add_argument("--wandb", default=None, metavar="PROJECT", help=WANDB_HELP)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -102,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
 
     from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
+    from simshear_gym.train.wandb_sync import wandb_run
 
     config = config_from_args(PosenetTrainConfig, args)
     if (args.out / "checkpoint.pt").exists() and not args.resume:
@@ -114,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         resumed = args.resume and trainer.resume()
         if resumed and trainer.is_main:
             print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-        summary = trainer.fit(progress=trainer.is_main)
+        with wandb_run(args.wandb if trainer.is_main else None, args.out, asdict(config)):
+            summary = trainer.fit(progress=trainer.is_main)
     if trainer.is_main:
         print(json.dumps(summary))
     return 0

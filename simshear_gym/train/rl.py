@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 from simshear_gym.contract import OBSERVATIONS
@@ -67,6 +68,7 @@ from simshear_gym.train.rl_config import (
     RLTrainConfig,
     latest_checkpoint,
 )
+from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
 __all__ = ["RLTrainConfig", "add_arguments", "config_of", "latest_checkpoint", "run", "train"]
 
@@ -134,7 +136,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", choices=sorted(PRESETS), default=None,
                         help="start from named settings (every flag given beside it wins): tracking-first, a "
                              "tracking policy on a 2-core CPU (the servo law's DAgger clone on estimate+action, then "
-                             "a short PPO phase; its budget and error: docs/first_policy.md)")
+                             "a short PPO phase; its budget and error: docs/first_policy.md); edge-first and "
+                             "push-first, the same on the edge following and pushing envs")
     config_flags(parser, RLTrainConfig, FLAG_HELP,
                  choices={"algo": ALGORITHMS, "task": TASKS, "observation": OBSERVATIONS, "obs_mode": OBS_MODES,
                           "vec": VEC_ENVS, "device": DEVICES})
@@ -143,6 +146,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.set_defaults(**{name: None for name in FLAG_HELP})
     parser.add_argument("--resume", action="store_true", help="continue from the run's newest checkpoint")
     parser.add_argument("--quiet", action="store_true", help="no SB3 training log on stdout")
+    parser.add_argument("--wandb", default=None, metavar="PROJECT", help=WANDB_HELP)
 
 
 def config_of(args: argparse.Namespace) -> RLTrainConfig:
@@ -154,7 +158,10 @@ def config_of(args: argparse.Namespace) -> RLTrainConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from simshear_gym.train.wandb_sync import wandb_run
+
     config = config_of(args)
-    summary = train(config, args.out, resume=args.resume, progress=not args.quiet)
+    with wandb_run(args.wandb, args.out, asdict(config)):
+        summary = train(config, args.out, resume=args.resume, progress=not args.quiet)
     print(json.dumps(summary))
     return 0

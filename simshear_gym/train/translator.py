@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.runs import LR_SCHEDULES
 from simshear_gym.train.translator_config import ARCHS, DENSITY_POOL_PX, TranslatorTrainConfig
+from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
 FLAG_HELP = {
     "arch": "generator: shpix2pix (the shear vector at the U-Net bottleneck) or the pix2pix baseline (no shear)",
@@ -83,6 +85,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                  metavars={"paired_dirs": "DIR", "pose_variables": "NAME"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
+    parser.add_argument("--wandb", default=None, metavar="PROJECT", help=WANDB_HELP)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,6 +94,7 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.pose_consistency import PoseConsistency
     from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
+    from simshear_gym.train.wandb_sync import wandb_run
 
     config = config_from_args(TranslatorTrainConfig, args)
     if (args.out / "checkpoint.pt").exists() and not args.resume:
@@ -102,7 +106,8 @@ def run(args: argparse.Namespace) -> int:
         resumed = args.resume and trainer.resume()
         if resumed and trainer.is_main:
             print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-        summary = trainer.fit(progress=trainer.is_main)
+        with wandb_run(args.wandb if trainer.is_main else None, args.out, asdict(config)):
+            summary = trainer.fit(progress=trainer.is_main)
     if not trainer.is_main:
         return 0
     print(json.dumps(summary))
