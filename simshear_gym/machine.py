@@ -28,6 +28,22 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
+VECTOR_FLAGS = ("avx2", "fma", "avx_vnni", "avx512f", "avx512bw", "avx512_vnni", "avx512_bf16", "amx_tile")
+"""The CPU flags that decide which kernels ONNX Runtime and torch pick (AVX2 laptops against AVX-512 servers)."""
+
+
+def cpu_vector_extensions() -> list[str]:
+    """Which of :data:`VECTOR_FLAGS` the CPU has (``/proc/cpuinfo``'s flags on Linux; empty where unknown)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+                return [name for name in VECTOR_FLAGS if name in flags]
+    except OSError:
+        pass
+    return []
+
+
 def package_versions() -> dict[str, str | None]:
     """``python`` and each of :data:`RECORDED_PACKAGES`' installed version (None: not installed)."""
     versions: dict[str, str | None] = {"python": platform.python_version()}
@@ -40,10 +56,12 @@ def package_versions() -> dict[str, str | None]:
 
 
 def machine_info() -> dict:
-    """``cpus``, ``processor`` (:func:`cpu_model`), ``torch`` (its version), ``torch_cpu_capability`` (the
+    """``cpus``, ``processor`` (:func:`cpu_model`), ``cpu_vector_extensions`` (:func:`cpu_vector_extensions`),
+    ``torch`` (its version), ``torch_cpu_capability`` (the
     instruction set of torch's CPU kernels: ``AVX2``, ``AVX512``, ``DEFAULT``, ...) and ``packages``
     (:func:`package_versions`)."""
     import torch
 
-    return {"cpus": os.cpu_count(), "processor": cpu_model(), "torch": torch.__version__,
-            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(), "packages": package_versions()}
+    return {"cpus": os.cpu_count(), "processor": cpu_model(), "cpu_vector_extensions": cpu_vector_extensions(),
+            "torch": torch.__version__, "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "packages": package_versions()}
