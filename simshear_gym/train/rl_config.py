@@ -20,35 +20,25 @@ VEC_ENVS = ("dummy", "subproc", "batched")
 RESUME_FREE = ("timesteps", "minutes", "threads", "vec", "eval_steps", "eval_max_steps", "checkpoint_steps",
                "device")
 
+FIRST_RECIPE: dict = {
+    "algo": "ppo", "history": 2, "obs_mode": "real", "image_size_px": 64, "n_envs": 4, "vec": "subproc",
+    "n_steps": 512, "batch_size": 256, "n_epochs": 10, "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128),
+    "bc_steps": 6000, "bc_rounds": 6, "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000,
+    "checkpoint_steps": 25_000, "seed": 0, "threads": 1,
+}
+"""The first-policy recipe on a 2-core CPU: the task's law cloned by DAgger (6 x 6000 steps), then 100,000 PPO
+steps from the clone; each ``*-first`` preset is it plus its task's settings."""
+
 #: ``simshear train rl --preset NAME``: named settings a run starts from (any flag given beside it wins). The
 #: recipe, its budget and what it gives are in docs/first_policy.md and results/first_policy.json.
 PRESETS: dict[str, dict] = {
-    # a first tracking policy on a 2-core CPU: the servo law's DAgger clone on the estimate and the last action
-    # (the law in velocity form: a function of what the policy sees), then a short PPO phase from the clone
-    "tracking-first": {
-        "algo": "ppo", "task": "tracking", "observation": "estimate+action", "history": 2, "obs_mode": "real",
-        "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
-        "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
-        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000, "seed": 0,
-        "threads": 1,
-    },
-    # a first edge-following policy: the edge law's DAgger clone on the edge estimate (two frames), then PPO
-    "edge-first": {
-        "algo": "ppo", "task": "edge", "observation": "estimate", "history": 2, "obs_mode": "real",
-        "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
-        "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
-        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000,
-        "eval_max_steps": 1000, "seed": 0, "threads": 1,
-    },
-    # a first pushing policy: the push law's DAgger clone (without its path-side integral) on the estimate and
-    # the goal, then PPO
-    "push-first": {
-        "algo": "ppo", "task": "push", "observation": "estimate", "history": 2, "obs_mode": "real",
-        "image_size_px": 64, "n_envs": 4, "vec": "subproc", "n_steps": 512, "batch_size": 256, "n_epochs": 10,
-        "gamma": 0.98, "learning_rate": 1e-4, "net_arch": (128, 128), "bc_steps": 6000, "bc_rounds": 6,
-        "bc_epochs": 30, "timesteps": 100_000, "eval_steps": 25_000, "checkpoint_steps": 25_000,
-        "eval_max_steps": 800, "seed": 0, "threads": 1,
-    },
+    # a first tracking policy: the servo law's clone on the estimate and the last action (the law in velocity form:
+    # a function of what the policy sees)
+    "tracking-first": {**FIRST_RECIPE, "task": "tracking", "observation": "estimate+action"},
+    # a first edge-following policy: the edge law's clone on the edge estimate (two frames)
+    "edge-first": {**FIRST_RECIPE, "task": "edge", "observation": "estimate", "eval_max_steps": 1000},
+    # a first pushing policy: the push law's clone (without its path-side integral) on the estimate and the goal
+    "push-first": {**FIRST_RECIPE, "task": "push", "observation": "estimate", "eval_max_steps": 800},
 }
 
 
