@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.contract import ActionScale, servo_hints
-from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
+from simshear_gym.control.estimator import EstimatorConfig, SlotEstimates, TactileEstimator
 from simshear_gym.control.policy import as_action_scale
 
 EDGE_STATE: tuple[str, ...] = ("y_mm", "z_mm", "edge_angle_deg")
@@ -159,21 +159,11 @@ def edge_state_from_slots(slots: np.ndarray) -> np.ndarray:
     return np.array([offset, depth, math.degrees(math.atan2(sin, cos))])
 
 
-class EdgeReadingEstimator(EdgeEstimator):
+class EdgeReadingEstimator(SlotEstimates, EdgeEstimator):
     """The edge estimator of ``SimShearEdgeFollow-v0``'s ``estimate`` observations: its filter state and the GDNN's
-    reading of the last image (``last_reading``), both in the observation's four slots
-    (:func:`edge_estimate_slots`), at one GDNN pass per image."""
+    reading of the last image, both in the observation's four slots (:func:`edge_estimate_slots`)."""
 
-    last_reading: tuple[np.ndarray, np.ndarray] | None = None
-
-    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        reading = super().read(tactile)
-        self.last_reading = edge_estimate_slots(*reading)
-        return reading
-
-    def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
-                 ) -> tuple[np.ndarray, np.ndarray]:
-        return edge_estimate_slots(*super().__call__(tactile, commanded_move))
+    slots = staticmethod(edge_estimate_slots)
 
 
 class EdgeServoController:

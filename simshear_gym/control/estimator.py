@@ -154,3 +154,25 @@ class TactileEstimator:
             return self._filter.mean, self._filter.std
         delta = None if commanded_move is None else self._state_delta(commanded_move)
         return self._filter.step(delta, reading_mean, reading_std)
+
+
+class SlotEstimates:
+    """Mixin before a :class:`TactileEstimator` subclass (``class E(SlotEstimates, SomeEstimator)``): its filter
+    state and the GDNN's reading of the last image (``last_reading``) in the four slots of the policies' ``estimate``
+    observation (:func:`~simshear_gym.contract.estimate_features`), through ``slots(mean, std)``, at one GDNN pass
+    per image. The edge and push estimators' (their states are not the tracking's four variables)."""
+
+    last_reading: tuple[np.ndarray, np.ndarray] | None = None
+
+    @staticmethod
+    def slots(mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        raise NotImplementedError
+
+    def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        reading = super().read(tactile)
+        self.last_reading = self.slots(*reading)
+        return reading
+
+    def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        return self.slots(*super().__call__(tactile, commanded_move))

@@ -160,6 +160,7 @@ def _push_estimator(config: EstimatorConfig, reading_slots: bool = False):
     much, its friction decides), so depth and shear are left to the readings (a random walk). ``reading_slots``:
     the estimator of ``SimShearPush-v0``'s ``estimate`` observations, its state and the GDNN's last reading
     (``last_reading``) in the observation's four slots (:func:`push_estimate_slots`), at one GDNN pass per image."""
+    from simshear_gym.control.estimator import SlotEstimates
     from simshear_gym.control.servo6d import TiltEstimator
 
     class PushEstimator(TiltEstimator):
@@ -167,17 +168,8 @@ def _push_estimator(config: EstimatorConfig, reading_slots: bool = False):
         def _state_delta(commanded_move: np.ndarray) -> np.ndarray:
             return np.array([0.0, 0.0, 0.0, 0.0, 0.0, -float(commanded_move[3])])
 
-    class PushReadingEstimator(PushEstimator):
-        last_reading: tuple[np.ndarray, np.ndarray] | None = None
-
-        def read(self, tactile: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            reading = super().read(tactile)
-            self.last_reading = push_estimate_slots(*reading)
-            return reading
-
-        def __call__(self, tactile: np.ndarray, commanded_move: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:
-            return push_estimate_slots(*super().__call__(tactile, commanded_move))
+    class PushReadingEstimator(SlotEstimates, PushEstimator):
+        slots = staticmethod(push_estimate_slots)
 
     return PushReadingEstimator(config) if reading_slots else PushEstimator(config)
 
