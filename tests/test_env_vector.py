@@ -182,3 +182,37 @@ def test_evaluate_env_speed_measures_several_envs_into_one_record(tmp_path):
     for section in result["envs"].values():
         assert section["goals"]["single_steps_per_s"] == 300.0
         assert section["single_process"]["sim"]["steps"] == 5 and section["vectorised"]
+
+
+def test_evaluate_env_speed_measures_a_sensors_models_beside_the_shipped_ones(tmp_path):
+    import json
+
+    import torch
+
+    from simshear_gym import cli
+    from simshear_gym.models.translator import save_generator
+    from simshear_gym.models.unet import UNetConfig, UNetGenerator
+    from simshear_gym.models.zoo import write_sensor
+
+    torch.manual_seed(0)  # a lab's translator as a pipeline run writes it (a small one), no ONNX export beside it
+    generator = UNetGenerator(UNetConfig(image_size_px=128, base_channels=4, max_channels=16, shear_dim=6))
+    save_generator(tmp_path / "run" / "shpix2pix_surface.pt", generator.eval())
+    write_sensor(tmp_path / "run", "lab", "configs/lab.toml", "smoke", {"dome_radius_mm": 22.0},
+                 translators={"surface": "shpix2pix_surface.pt"}, posenets={"surface": "posenet.pt"}, variables={})
+    threads = torch.get_num_threads()
+    try:
+        assert cli.main(["evaluate", "env-speed", "--steps", "5", "--vector-steps", "2", "--num-envs", "2",
+                         "--workers", "1", "--threads", "1", "--runtimes", "torch", "--sensor",
+                         str(tmp_path / "run"), "--out", str(tmp_path)]) == 0
+    finally:
+        torch.set_num_threads(threads)
+    result = json.loads((tmp_path / "env_speed.json").read_text())
+    assert f"--sensor {tmp_path / 'run'}" in result["command"]
+    assert result["sensor"]["name"] == "lab" and result["sensor"]["auto_runtime"] == {"SimShearTracking-v0": "torch"}
+    assert result["sensor"]["translators"]["SimShearTracking-v0"] == str(tmp_path / "run" / "shpix2pix_surface.pt")
+    rows = result["single_process"]["real"]
+    assert [(row["models"], row["translator"]) for row in rows] == [("shipped", "full"), ("sensor", "sensor")]
+    assert result["single_process"]["sensor_sim"]["steps"] == 5
+    goal = result["goals"]["sensor"]
+    assert goal["shipped_over_sensor_rate"] == pytest.approx(rows[0]["steps_per_s"] / rows[1]["steps_per_s"], rel=1e-2)
+    assert goal["goal_shipped_over_sensor_rate"] == 1.2 and isinstance(goal["met"], bool)

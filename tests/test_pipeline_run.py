@@ -14,6 +14,14 @@ import simshear_gym.envs  # noqa: F401  (registers the envs)
 from simshear_gym.control.pi_law import PIGains
 from simshear_gym.control.servo import ServoController
 from simshear_gym.data.tactile_set import read_set
+from simshear_gym.models.onnx_export import missing_export_packages
+from simshear_gym.models.translator_runtime import (
+    OnnxTranslator,
+    load_translator,
+    onnx_path_for,
+    runtime_of,
+    translator_from,
+)
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.example_sensor import make_example
 from simshear_gym.pipelines.run import STAGES, contacts_of, only_contacts, run_pipeline
@@ -70,11 +78,25 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
     again = run_pipeline(config, out, data, "smoke", stages, workers=1)
     assert not any(result["ran"] for result in again["results"])
 
+    # the sensor's translator is exported to ONNX beside its weights, where the envs' "auto" runtime takes it
+    weights = out / manifest["models"]["translators"]["surface"]["shpix2pix"]
+    exported = not missing_export_packages()
+    sensor = json.loads((out / "sensor.json").read_text())
+    assert sensor["onnx"] == ({"surface": str(onnx_path_for(weights).relative_to(out))} if exported else {})
+    assert [r["stage"] for r in manifest["results"] if r["stage"].startswith("onnx/")] == (
+        ["onnx/surface_shpix2pix"] if exported else [])
+    if exported:
+        check = next(r for r in manifest["results"] if r["stage"] == "onnx/surface_shpix2pix")["metrics"]
+        assert check["sets"]["tap_val"]["max_abs_difference_grey"] <= 2
+        assert isinstance(load_translator(weights, "auto"), OnnxTranslator)
+
     # the envs and the servo controller take the sensor's own models from the run folder
     env = gym.make("SimShearTracking-v0", sensor=str(out), obs_mode="real")
     base = env.unwrapped
     assert base.tactip.config.dome_radius_mm == config.sensor.dome_radius_mm
-    assert base.translator_weights == str(out / manifest["models"]["translators"]["surface"]["shpix2pix"])
+    assert base.translator_weights == str(weights)
+    if exported:  # the env runs it on ONNX Runtime, as it does the shipped translators
+        assert runtime_of(translator_from(base.translator_weights)) == "onnx"
     with pytest.raises(ValueError, match=r"does not read \['shear_x_mm', 'shear_y_mm'\], which the servo law "
                                          r"steers on"):
         ServoController.for_env(env)  # a tap-only sensor: no shear to servo on
@@ -90,6 +112,19 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
         if terminated or truncated:
             break
     env.close()
+
+
+def test_without_the_export_extra_the_run_says_so_and_keeps_the_torch_translators(tmp_path, monkeypatch):
+    from simshear_gym.models import onnx_export
+    from simshear_gym.pipelines.onnx_stage import stage_onnx
+    from simshear_gym.pipelines.stages import StageRunner
+
+    monkeypatch.setattr(onnx_export, "missing_export_packages", lambda: ["onnxscript"])
+    lines = []
+    runner = StageRunner(tmp_path, log=lines.append)
+    assert stage_onnx(runner, {"surface": "translator/x/shpix2pix_surface.pt"}, {"tap": {"val": "v"}},
+                      {"surface": ["tap"]}) == {}
+    assert len(lines) == 1 and "onnxscript" in lines[0] and "torch" in lines[0] and not runner.results
 
 
 def test_a_stage_stopped_by_its_cap_stops_the_run_and_the_reruns_train_the_recipes_model(tmp_path, monkeypatch):
@@ -122,9 +157,8 @@ def test_a_stage_stopped_by_its_cap_stops_the_run_and_the_reruns_train_the_recip
         except StageStopped as stopped:
             assert "[translator/surface_shpix2pix] stopped by its wall-clock safety cap" in str(stopped)
             stops += 1
-    assert stops == 1 and manifest["results"][-1]["metrics"]["epochs"] == 6  # 3 steps an epoch: 3 epochs a run
-    record = manifest["results"][-1]
-    assert record["stage"] == "translator/surface_shpix2pix" and record["ran"]
+    record = next(r for r in manifest["results"] if r["stage"] == "translator/surface_shpix2pix")
+    assert stops == 1 and record["metrics"]["epochs"] == 6 and record["ran"]  # 3 steps an epoch: 3 epochs a run
     weights = [load_generator(out / m["models"]["translators"]["surface"]["shpix2pix"])[0].state_dict()
                for out, m in ((tmp_path / "straight", straight), (tmp_path / "capped", manifest))]
     assert all(torch.equal(weights[0][key], weights[1][key]) for key in weights[0])

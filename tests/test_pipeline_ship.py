@@ -8,12 +8,12 @@ from pathlib import Path
 
 import pytest
 
+from simshear_gym.models.onnx_export import missing_export_packages
 from simshear_gym.models.posenet_io import load_posenet
 from simshear_gym.models.translator import Translator
 from simshear_gym.models.translator_runtime import load_translator, runtime_of
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.run import STAGES, run_pipeline
-from simshear_gym.ship import onnx as ship_onnx
 from simshear_gym.ship import posenet as ship_posenet
 from simshear_gym.ship import translator as ship_translator
 from simshear_gym.ship.run import read_run, ship
@@ -38,7 +38,7 @@ def test_ship_writes_the_runs_models_with_cards_and_check_figures(data_root, tmp
     manifest = run_pipeline(config, run, data_root, "smoke", STAGES, rows_per_split=24, workers=1)
     to = tmp_path / "weights"
     written = ship(run, to, str(data_root), date="2026-01-01")
-    exported = not ship_onnx.missing_export_packages()
+    exported = not missing_export_packages()
     assert sorted(p.relative_to(to).as_posix() for p in written) == sorted(
         [f"{stem}.{ext}" for stem in ("shpix2pix_surface", "pix2pix_surface", "posenet/surface", "shpix2pix_edge",
                                       "pix2pix_edge", "posenet/edge") for ext in ("pt", "md")]

@@ -228,14 +228,14 @@ def test_env_with_the_onnx_runtime_gives_the_torch_env_observation(monkeypatch, 
 
 def test_export_command_names_the_missing_packages(monkeypatch, capsys, tmp_path):
     from simshear_gym import cli
-    from simshear_gym.ship import onnx as ship_onnx
+    from simshear_gym.models import onnx_export
 
-    monkeypatch.setattr(ship_onnx, "missing_export_packages", lambda: ["onnxscript"])
+    monkeypatch.setattr(onnx_export, "missing_export_packages", lambda: ["onnxscript"])
     code = cli.main(["ship", "onnx", "--weights", str(SHIPPED["surface"]), "--to", str(tmp_path / "x.onnx")])
     assert code == 2 and "onnxscript" in capsys.readouterr().err
     assert not (tmp_path / "x.onnx").exists()
     with pytest.raises(ImportError, match="onnxscript"):
-        ship_onnx.export_model(SHIPPED["surface"])
+        onnx_export.export_model(SHIPPED["surface"])
 
 
 @pytest.mark.slow
@@ -245,9 +245,9 @@ def test_export_command_names_the_missing_packages(monkeypatch, capsys, tmp_path
 def test_export_of_a_small_generator_agrees_with_torch(tmp_path, shear_dim, precision):
     import torch
 
+    from simshear_gym.models.onnx_export import export_model
     from simshear_gym.models.translator import save_generator
     from simshear_gym.models.unet import UNetConfig, UNetGenerator
-    from simshear_gym.ship.onnx import export_model
 
     torch.manual_seed(0)
     generator = UNetGenerator(UNetConfig(image_size_px=32, depth=4, base_channels=4, max_channels=8,

@@ -17,6 +17,13 @@ of the edge following and pushing envs):
   ``--vector-runtimes`` (default the envs' own, ``auto``), translating in the workers (one thread each) and, for
   comparison, in the main process (torch on ``--threads`` threads, ONNX Runtime on one).
 
+``--sensor RUN`` (a ``simshear pipeline run`` folder, its ``sensor.json`` or ``configs/<name>.toml``) measures the
+single-process runs again with that sensor's models (``gym.make(..., sensor=RUN)``: its TacTip, its translator and,
+where the run exported it, the ``.onnx`` beside it): rows with ``"models": "sensor"`` beside the shipped models'
+(``"models": "shipped"``), a ``sensor`` entry in the record naming the run and its translator, and under ``goals``
+the shipped models' rate over the sensor's (issue 44: at most :data:`GOAL_SENSOR_SLOWDOWN`). The vectorised runs use
+the shipped models.
+
 The runtime is chosen for the env (and its workers) by ``$SIMSHEAR_TRANSLATOR_RUNTIME``
 (:func:`simshear_gym.models.translator_runtime.choose_translator_runtime`). Goals: >= 100 steps/s in one process
 (>= 300 for the edge following and pushing envs, issue 43), >= 600 steps/s vectorised over both cores, and (issue
@@ -44,6 +51,7 @@ GOAL_SINGLE_STEPS_PER_S = 100.0
 GOAL_TASK_SINGLE_STEPS_PER_S = 300.0  # issue 43: the edge following and pushing envs, one process
 GOAL_VECTOR_STEPS_PER_S = 600.0  # issue 22 (the earlier goal was 200)
 GOAL_TRANSLATED_SHARE_OF_SIM_RATE = 0.5
+GOAL_SENSOR_SLOWDOWN = 1.2  # issue 44: a sensor's own models step at least 1 / 1.2 of the shipped models' rate
 
 
 def _load() -> float:
@@ -81,14 +89,16 @@ def oracle_from_info(env_id: str, env):
     return OracleController.for_env(env), lambda info: {"true_pose_shear": true_pose_shear_from_info(info)}
 
 
-def single_process(obs_mode: str, steps: int, warmup: int = 20, env_id: str = "SimShearTracking-v0") -> dict:
-    """Steps per second of one env driven by the oracle from ``info`` (episodes reset as they end)."""
+def single_process(obs_mode: str, steps: int, warmup: int = 20, env_id: str = "SimShearTracking-v0",
+                   sensor: str | None = None) -> dict:
+    """Steps per second of one env driven by the oracle from ``info`` (episodes reset as they end), with the shipped
+    models or a ``sensor``'s (:func:`~simshear_gym.models.zoo.load_sensor`)."""
     import gymnasium as gym
 
     import simshear_gym.envs  # noqa: F401
 
     load = _load()
-    env = gym.make(env_id, obs_mode=obs_mode)
+    env = gym.make(env_id, obs_mode=obs_mode, **({"sensor": sensor} if sensor is not None else {}))
     controller, state_of = oracle_from_info(env_id, env)
     _, info = env.reset(seed=0)
     done_steps, start = 0, None
@@ -176,14 +186,24 @@ def surface_translator(runtime: str, translator: str = "full", threads: int = 1,
     return shipped_translator(contact, runtime=runtime, threads=threads)
 
 
+def sensor_translator(sensor: str, runtime: str, threads: int = 1, contact: str = "surface"):
+    """A sensor's own translator of a contact type (:func:`~simshear_gym.models.zoo.load_sensor`) on ``runtime``
+    (ONNX Runtime on ``threads`` threads), as the envs made with ``sensor=`` load it."""
+    from simshear_gym.models.translator_runtime import translator_from
+    from simshear_gym.models.zoo import load_sensor
+
+    return translator_from(load_sensor(sensor).translator(contact), runtime, threads=threads)
+
+
 def translator_batch1_ms(runtime: str = "torch", repeats: int = 200, translator: str = "full",
-                         threads: int = 1, contact: str = "surface") -> float:
-    """Median batch-1 latency (ms) of a shipped translator (surface by default, or its student) on ``runtime`` (ONNX
-    Runtime on ``threads`` threads)."""
+                         threads: int = 1, contact: str = "surface", sensor: str | None = None) -> float:
+    """Median batch-1 latency (ms) of a shipped translator (surface by default, or its student), or of a
+    ``sensor``'s own, on ``runtime`` (ONNX Runtime on ``threads`` threads)."""
     from simshear_gym.evaluate.translator_speed import latency_ms
 
-    return round(latency_ms(surface_translator(runtime, translator, threads, contact), 1, repeats,
-                            np.random.default_rng(0)), 3)
+    model = (sensor_translator(sensor, runtime, threads, contact) if sensor is not None
+             else surface_translator(runtime, translator, threads, contact))
+    return round(latency_ms(model, 1, repeats, np.random.default_rng(0)), 3)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -208,6 +228,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--translators", nargs="+", choices=("full", "student"), default=["full"],
                         help="shipped translators measured: full (the shPix2pix) and/or student (its distilled "
                              "student, from the zoo's student folder; the envs' translator='student')")
+    parser.add_argument("--sensor", default=None, metavar="RUN",
+                        help="a sensor's own models (a simshear pipeline run folder, its sensor.json or "
+                             "configs/<name>.toml): the single-process runs are measured with them too, beside the "
+                             "shipped models', and the record names the sensor (default: shipped models only)")
     parser.add_argument("--out", type=Path, default=Path("results"), help="results directory")
     parser.add_argument("--name", default="env_speed", help="base name of the json written")
 
@@ -222,12 +246,28 @@ def run(args: argparse.Namespace) -> int:
         if min(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     env_ids = list(dict.fromkeys(args.env))
-    sections = {env_id: measure(args, env_id) for env_id in env_ids}
+    sensor = getattr(args, "sensor", None)
     head = {"command": recorded_command("simshear evaluate env-speed", add_arguments, args), "machine": machine_info()}
+    if sensor is not None:
+        head["sensor"] = sensor_record(sensor, env_ids)  # before measuring: a sensor without a contact type fails here
+    sections = {env_id: measure(args, env_id) for env_id in env_ids}
     payload = {**head, **sections[env_ids[0]]} if len(env_ids) == 1 else {**head, "envs": sections}
     write_json(args.out / f"{args.name}.json", payload)
     print(f"wrote {args.out / f'{args.name}.json'}")
     return 0
+
+
+def sensor_record(sensor: str, env_ids: list[str]) -> dict:
+    """What the record says of ``--sensor``: the argument, the sensor's name and per env its translator and the
+    runtime the envs' ``"auto"`` picks for it (``onnx`` where the run exported it and onnxruntime is installed)."""
+    from simshear_gym.models.translator_runtime import runtime_of
+    from simshear_gym.models.zoo import load_sensor
+
+    models = load_sensor(sensor)
+    translators = {env_id: models.translator(ENV_CONTACTS[env_id]) for env_id in env_ids}
+    return {"run": str(sensor), "name": models.name, "translators": translators,
+            "auto_runtime": {env_id: runtime_of(sensor_translator(sensor, "auto", contact=ENV_CONTACTS[env_id]))
+                             for env_id in env_ids}}
 
 
 def measure(args: argparse.Namespace, env_id: str) -> dict:
@@ -240,26 +280,36 @@ def measure(args: argparse.Namespace, env_id: str) -> dict:
     runtimes = list(dict.fromkeys(args.runtimes))
     translators = list(dict.fromkeys(args.translators))
     contact = ENV_CONTACTS[env_id]
+    sensor = getattr(args, "sensor", None)
     single = {"sim": single_process("sim", args.steps, env_id=env_id), "real": []}
     sim_row = single["sim"]
     print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")
-    # (translator, runtime, torch threads of the main process, ONNX Runtime's intra-op threads)
-    settings = [(translator, runtime, threads, 1) if runtime == "torch" else (translator, runtime, 1, threads)
+    if sensor is not None:
+        single["sensor_sim"] = single_process("sim", args.steps, env_id=env_id, sensor=sensor)
+        print(f"one process, sim 128 px, sensor's TacTip: {single['sensor_sim']['steps_per_s']:.0f} steps/s")
+    # (models, translator, runtime, torch threads of the main process, ONNX Runtime's intra-op threads); a sensor's
+    # rows right after the shipped ones of the same setting, so that both see the same load
+    settings = [(models, translator, runtime, threads, 1) if runtime == "torch"
+                else (models, translator, runtime, 1, threads)
                 for translator in translators for runtime in runtimes
-                for threads in (args.threads if runtime == "torch" else args.onnx_threads)]
-    for translator, runtime, threads, onnx_threads in settings:
+                for threads in (args.threads if runtime == "torch" else args.onnx_threads)
+                for models in ("shipped", *(("sensor",) if sensor is not None and translator == "full" else ()))]
+    for models, translator, runtime, threads, onnx_threads in settings:
         torch.set_num_threads(threads)
+        from_sensor = sensor if models == "sensor" else None
         with translator_runtime(runtime, translator, onnx_threads):
-            row = {"translator": translator, "torch_threads": threads, "translator_runtime": runtime,
-                   **({"onnx_threads": onnx_threads} if runtime == "onnx" else {}),
-                   **single_process("real", args.steps, env_id=env_id),
+            row = {"models": models, "translator": "sensor" if from_sensor else translator, "torch_threads": threads,
+                   "translator_runtime": runtime, **({"onnx_threads": onnx_threads} if runtime == "onnx" else {}),
+                   **single_process("real", args.steps, env_id=env_id, sensor=from_sensor),
                    "translator_ms_batch1": translator_batch1_ms(runtime, translator=translator,
-                                                                threads=onnx_threads, contact=contact)}
+                                                                threads=onnx_threads, contact=contact,
+                                                                sensor=from_sensor)}
+        sim_base = single["sensor_sim"] if from_sensor else sim_row  # the same TacTip untranslated
         row["translator_share_of_step"] = round(row["translator_ms_batch1"] / row["ms_per_step"], 3)
-        row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_row["ms_per_step"], 3)
-        row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_row["steps_per_s"], 3)
+        row["translation_ms_in_step"] = round(row["ms_per_step"] - sim_base["ms_per_step"], 3)
+        row["steps_per_s_over_sim"] = round(row["steps_per_s"] / sim_base["steps_per_s"], 3)
         single["real"].append(row)
-        print(f"one process, real 128 px, {translator} translator, {runtime}"
+        print(f"one process, real 128 px, {row['translator']} translator, {runtime}"
               f"{f' (torch threads {threads})' if runtime == 'torch' else f' ({onnx_threads} threads)'}: "
               f"{row['steps_per_s']:.0f} steps/s ({row['ms_per_step']:.2f} ms/step, {row['cpu_ms_per_step']:.2f} "
               f"CPU ms/step, {row['steps_per_s_over_sim']:.2f} x sim's rate); translator at batch 1 "
@@ -271,12 +321,14 @@ def measure(args: argparse.Namespace, env_id: str) -> dict:
         for num_envs in args.num_envs:
             for requested, runtime in vector_runtimes.items():
                 vector += _vector_rows(args, translator, num_envs, requested, runtime, env_id)
-    best_single = max(row["steps_per_s"] for row in single["real"])
+    shipped_rows = [row for row in single["real"] if row["models"] == "shipped"]
+    best_single = max(row["steps_per_s"] for row in shipped_rows)
     best_vector = max(row["steps_per_s"] for row in vector)
     best_by_runtime = {f"{translator}/{runtime}": max(
-        row["steps_per_s"] for row in single["real"]
+        row["steps_per_s"] for row in shipped_rows
         if (row["translator"], row["translator_runtime"]) == (translator, runtime))
         for translator in translators for runtime in runtimes}
+    sensor_goals = sensor_goal(single["real"], runtimes) if sensor is not None and "full" in translators else {}
     goal_single = GOAL_SINGLE_STEPS_PER_S if env_id == "SimShearTracking-v0" else GOAL_TASK_SINGLE_STEPS_PER_S
     return {
         "env": (f"{env_id}, obs_mode='real' (the shipped shPix2pix {contact} translator, 'full', or its "
@@ -292,8 +344,23 @@ def measure(args: argparse.Namespace, env_id: str) -> dict:
                   "translated_over_sim_rate_by_runtime": {
                       runtime: round(rate / sim_row["steps_per_s"], 3) for runtime, rate in best_by_runtime.items()},
                   "translated_over_sim_met": max(best_by_runtime.values()) >= (
-                      GOAL_TRANSLATED_SHARE_OF_SIM_RATE * sim_row["steps_per_s"])},
+                      GOAL_TRANSLATED_SHARE_OF_SIM_RATE * sim_row["steps_per_s"]),
+                  **({"sensor": sensor_goals} if sensor_goals else {})},
     }
+
+
+def sensor_goal(rows: list[dict], runtimes: list[str]) -> dict:
+    """The shipped (full) translator's best single-process rate over the sensor's, per runtime and best against
+    best, against :data:`GOAL_SENSOR_SLOWDOWN`."""
+    def best(models: str, runtime: str | None = None) -> float:
+        return max(row["steps_per_s"] for row in rows if row["models"] == models
+                   and row["translator"] in ("full", "sensor") and runtime in (None, row["translator_runtime"]))
+
+    by_runtime = {runtime: round(best("shipped", runtime) / best("sensor", runtime), 3) for runtime in runtimes}
+    slowdown = round(best("shipped") / best("sensor"), 3)
+    return {"shipped_over_sensor_rate": slowdown, "shipped_over_sensor_rate_by_runtime": by_runtime,
+            "best_sensor_steps_per_s": best("sensor"), "goal_shipped_over_sensor_rate": GOAL_SENSOR_SLOWDOWN,
+            "met": slowdown <= GOAL_SENSOR_SLOWDOWN}
 
 
 def _vector_rows(args: argparse.Namespace, translator: str, num_envs: int, requested: str, runtime: str,

@@ -4,8 +4,9 @@
 ``translator(sim_uint8, shear_sensor)``: sim uint8 (B, H, W) or (B, 1, H, W), shear (B, 6) in the sensor frame
 (mm, deg; ignored by a pix2pix generator) -> uint8 (B, H, W).
 
-An ONNX translator is a shipped generator exported by ``simshear ship onnx``
-(:mod:`simshear_gym.ship.onnx`) to ``<weights>.onnx`` beside its ``<weights>.pt``. The graph holds the
+An ONNX translator is a generator exported (:mod:`simshear_gym.models.onnx_export`) to ``<weights>.onnx`` beside
+its ``<weights>.pt``: the shipped ones by ``simshear ship onnx`` (:mod:`simshear_gym.ship.onnx`), a sensor's own by
+``simshear pipeline run`` (:mod:`simshear_gym.pipelines.onnx_stage`). The graph holds the
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
 image (``floor(255 y + 0.5)`` clamped, as the torch path rounds). Its metadata records the sha256 of the torch
@@ -42,7 +43,7 @@ from simshear_gym.models.device import DEVICES, check_device_name
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
 ONNX_SUFFIX = ".onnx"
-# ONNX graph interface (written by simshear_gym.ship.onnx, read here)
+# ONNX graph interface (written by simshear_gym.models.onnx_export, read here)
 SIM_INPUT = "sim_uint8"
 SHEAR_INPUT = "shear_sensor"
 IMAGE_OUTPUT = "image_uint8"

@@ -154,11 +154,14 @@ class SensorModels:
 
 
 def write_sensor(folder: Path, sensor: str, config: str, profile: str, tactip: dict, translators: dict,
-                 posenets: dict, variables) -> Path:
-    """Write a pipeline run's ``sensor.json`` in ``folder`` (model paths relative to it); returns its path."""
+                 posenets: dict, variables, onnx: dict | None = None) -> Path:
+    """Write a pipeline run's ``sensor.json`` in ``folder`` (model paths relative to it); returns its path.
+    ``onnx``: {contact: the ONNX export beside its translator} (informative: the envs' ``"auto"`` runtime finds an
+    export beside the weights by itself, :func:`~simshear_gym.models.translator_runtime.load_translator`)."""
     path = Path(folder) / SENSOR_FILE
     write_json(path, {"sensor": sensor, "config": config, "profile": profile, "tactip": tactip,
-                      "translators": translators, "posenets": posenets, "variables": variables})
+                      "translators": translators, "onnx": dict(onnx or {}), "posenets": posenets,
+                      "variables": variables})
     return path
 
 

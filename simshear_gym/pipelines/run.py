@@ -18,6 +18,11 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
    retrieval (the real training image with the closest labels), the GDNNs' MAE per variable against chance and
    the translated-trained / real-trained ratio; written to ``evaluation.json``.
 
+Once the translators are trained, each translator of the sensor (the shPix2pix per contact type) is exported to
+ONNX beside its weights (:mod:`simshear_gym.pipelines.onnx_stage`, a cached ``onnx/<contact>_shpix2pix`` stage;
+skipped with one line where the ``export`` extra is missing), so that the envs run the sensor's translators on ONNX
+Runtime like the shipped ones.
+
 Stages 3-5 are steps of a graph (:mod:`simshear_gym.pipelines.schedule`), run ``jobs`` at a time in worker
 processes: a pose-consistency generator starts once its contact's real-image GDNN is done. The training steps
 train on the profile's ``device`` (``--device`` overrides it; ``auto``: CUDA where there is one), which is not
@@ -55,6 +60,7 @@ from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.models.zoo import DEFAULT_PIPELINE_RUNS, write_sensor
+from simshear_gym.pipelines.onnx_stage import stage_onnx
 from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import (
     StageResult,
@@ -470,6 +476,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
     paired = stage_collect(runner, config, adapted, workers) if "collect" in stages else None
     results = list(runner.results)
     translators = posenets = evaluation = None
+    onnx: dict[str, str] = {}
     if "translator" in stages:
         variables = {contact: variables_for(config, names, adapted, runner.root)
                      for contact, names in contacts_of(config).items()}
@@ -484,11 +491,15 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         if "posenet" in stages:
             posenets = {"models": posenet_weights(config, profile_settings, done), "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
+        exports_from = len(runner.results)
+        onnx = stage_onnx(runner, {contact: archs["shpix2pix"] for contact, archs in translators.items()}, paired,
+                          contacts_of(config))
+        results += runner.results[exports_from:]
     if translators and posenets:
         write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor),
                      translators={contact: archs["shpix2pix"] for contact, archs in translators.items()},
                      posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
-                     variables=posenets["variables"])
+                     variables=posenets["variables"], onnx=onnx)
     manifest = {
         "config": str(config.path), "sensor": config.name, "profile": profile,
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
@@ -498,7 +509,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         "jobs": jobs, "device": device, "contacts": sorted(contacts_of(config)),
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
                      "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in results],
-        "models": {"translators": translators, "posenets": posenets},
+        "models": {"translators": translators, "posenets": posenets, "onnx": onnx},
         "evaluation": evaluation["outputs"]["evaluation"] if evaluation else None,
     }
     write_json(out / "manifest.json", manifest)

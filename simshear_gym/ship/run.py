@@ -121,10 +121,11 @@ def _onnx_beside(weights: Path, data: str | None) -> list[Path]:
     """The envs' ONNX translator beside newly shipped shPix2pix weights: exported from them where the export extra
     is installed; else the old ``.onnx`` (and card) are removed (the envs' ``auto`` runtime would skip them anyway:
     their recorded sha256 no longer matches) and the command to export them is printed."""
+    from simshear_gym.models.onnx_export import missing_export_packages
     from simshear_gym.ship import onnx as ship_onnx
 
     onnx_path = onnx_path_for(weights)
-    if ship_onnx.missing_export_packages():
+    if missing_export_packages():
         for stale in (onnx_path, onnx_path.with_name(onnx_path.name + ".md")):
             stale.unlink(missing_ok=True)
         print(f"note: {onnx_path} not written (the export extra is not installed); the envs run the torch "
