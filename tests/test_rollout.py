@@ -156,7 +156,7 @@ def test_sb3_policy_for_other_spaces_is_refused(emulator, raw_frames, tmp_path, 
     assert cli.main(rollout_args(emulator, raw_frames, str(model), tmp_path / "run", 2)) == 2
     assert "check --image-size" in capsys.readouterr().err
     assert cli.main(rollout_args(emulator, raw_frames, str(tmp_path / "missing.zip"), tmp_path / "run", 2)) == 2
-    assert "neither 'servo' nor" in capsys.readouterr().err
+    assert "is neither one of ('servo', 'edge', 'push') nor" in capsys.readouterr().err
     assert emulator.received_commands("motion") == []
 
 
