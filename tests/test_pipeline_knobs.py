@@ -139,6 +139,16 @@ def test_the_trainers_default_models_are_the_models_defaults():
     assert conflicts == []
 
 
+def test_the_real_env_holds_a_client_config_not_copies_of_its_fields():
+    from simshear_gym.real.env import ENV_CLIENT, RealEnvConfig
+    from simshear_gym.real.mg400_client import MG400ClientConfig
+
+    assert sorted(set(_defaults(RealEnvConfig)) & set(_defaults(MG400ClientConfig))) == []
+    assert RealEnvConfig().client == ENV_CLIENT
+    named = {name: value for name, value in vars(ENV_CLIENT).items() if value != _defaults(MG400ClientConfig)[name]}
+    assert named == {"reply_timeout_s": 1.0, "sync_timeout_s": 30.0}  # the control loop's, named in ENV_CLIENT
+
+
 def test_an_unknown_or_pipeline_owned_knob_is_one_error_naming_file_table_key_and_the_valid_keys(tmp_path):
     from simshear_gym.tables import ConfigError
 
