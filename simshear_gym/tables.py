@@ -58,6 +58,13 @@ def from_table(cls: type[T], table: Any, source: str, key: str = "") -> T:
         raise ConfigError(f"{where} {error}") from None
 
 
+def field_values(cls: type, table: dict, source: str, key: str = "") -> dict[str, Any]:
+    """A TOML table's values checked and converted against the annotations of dataclass ``cls``'s fields of the
+    same names (every key must name one), without building ``cls``: the override tables of a config."""
+    hints = get_type_hints(cls)
+    return {name: _convert(hints[name], value, source, _join(key, name)) for name, value in table.items()}
+
+
 def _join(key: str, name: str) -> str:
     return f"{key}.{name}" if key else name
 

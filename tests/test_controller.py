@@ -22,7 +22,7 @@ from simshear_gym.control.policy import Controller, EstimatingController, SB3Con
 from simshear_gym.control.servo import ServoController
 from simshear_gym.models.gdnn import GDNN, GDNNConfig
 from simshear_gym.models.posenet_io import save_posenet
-from simshear_gym.real.env import STOP_TERMINATIONS, TERMINATIONS, RealEnvConfig, RealTactileEnv
+from simshear_gym.real.env import STOP_TERMINATIONS, TERMINATIONS, RealEnvConfig, RealTactileEnv, env_client
 from simshear_gym.real.safety import SafetyConfig, SafetyLayer, StatusSnapshot, StopReason
 
 torch.set_num_threads(1)
@@ -148,8 +148,8 @@ def real_env(emu) -> RealTactileEnv:
     from simshear_gym.real.camera import VirtualCamera
 
     rng = np.random.default_rng(0)
-    config = RealEnvConfig(robot_ip="127.0.0.1", dashboard_port=emu.dashboard_port, motion_port=emu.motion_port,
-                           feedback_port=emu.feedback_port, control_period_s=0.02, preprocess=None,
+    config = RealEnvConfig(client=env_client("127.0.0.1", emu.dashboard_port, emu.motion_port, emu.feedback_port),
+                           control_period_s=0.02, preprocess=None,
                            image_size_px=64, dry_run=True)
     return RealTactileEnv(config, camera=VirtualCamera(lambda: rng.integers(0, 256, (128, 128), dtype=np.uint8)))
 

@@ -183,13 +183,13 @@ def test_the_evaluators_take_device(command):
 
 def test_the_pipeline_takes_device_from_the_profile_or_the_flag(tmp_path):
     from simshear_gym.pipelines import run as pipeline_run
-    from simshear_gym.pipelines.config import DEFAULT_PROFILES, load_config
+    from simshear_gym.pipelines.config import default_profiles, load_config
 
     parser = argparse.ArgumentParser()
     pipeline_run.add_arguments(parser)
     assert parser.parse_args(["c.toml"]).device is None
     assert parser.parse_args(["c.toml", "--device", "cpu"]).device == "cpu"
-    assert all(profile.device == "auto" for profile in DEFAULT_PROFILES.values())
+    assert all(profile.device == "auto" for profile in default_profiles().values())
     path = tmp_path / "sensor.toml"
     path.write_text(open("configs/tactip331.toml").read() + '\n[profiles.cpu_only]\ndevice = "cpu"\n')
     config = load_config(path)

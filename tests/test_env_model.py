@@ -13,7 +13,8 @@ from simshear_gym.pipelines.env_model import run_recipe
 from simshear_gym.tables import ConfigError
 
 TINY = EnvModelRecipe(task="colift", payload="heavy", rows=12, episode_steps=4, oracle_seeds=(1, 2),
-                      first_round_seeds=(1,), dagger_seeds=(3,), first_epochs=1, epochs=1, batch_size=4, threads=1)
+                      first_round_seeds=(1,), dagger_seeds=(3,), first_epochs=1,
+                      overrides={"epochs": 1, "batch_size": 4, "threads": 1})
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def test_a_rerun_finds_every_stage_cached_and_a_changed_setting_reruns_only_what
     shutil.copytree(out, copy)
     from dataclasses import replace
 
-    changed = run_recipe(replace(TINY, epochs=2), "colift_heavy", copy)
+    changed = run_recipe(replace(TINY, overrides={**TINY.overrides, "epochs": 2}), "colift_heavy", copy)
     ran = {result["stage"]: result["ran"] for result in changed["results"]}
     assert ran == {"envset/1": False, "envset/2": False, "envposenet/first": False, "envset/3": False,
                    "envposenet/final": True}

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from simshear_gym.real.camera import default_config
-from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, tcp_pose_from_flange
+from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, env_client, tcp_pose_from_flange
 from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera, embed_in_frame
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 from simshear_gym.real.safety import SafetyConfig
@@ -62,8 +62,8 @@ def test_servo_controller_follows_a_moving_surface_through_the_emulator(tmp_path
     camera = SimSurfaceCamera(lambda: emulator.pose, START,
                               MovingSurfaceConfig(velocity_mm_s=VELOCITY_MM_S, max_travel_mm=TRAVEL_MM),
                               raw_frame_layout=preprocess_config)
-    config = RealEnvConfig(robot_ip="127.0.0.1", dashboard_port=emulator.dashboard_port,
-                           motion_port=emulator.motion_port, feedback_port=emulator.feedback_port,
+    config = RealEnvConfig(client=env_client("127.0.0.1", emulator.dashboard_port, emulator.motion_port,
+                                             emulator.feedback_port),
                            control_period_s=1.0 / RATE_HZ, preprocess=preprocess_config, image_size_px=64,
                            start_pose_mm_deg=START,
                            # the emulator, the render and the translation share this process on 2 cores: a 0.1 s

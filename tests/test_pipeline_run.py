@@ -224,34 +224,38 @@ def test_pool_generators_may_differ_in_architecture_and_keep_the_others_settings
     from simshear_gym.pipelines.run import _translator_settings
     from simshear_gym.train.translator_config import TranslatorTrainConfig
 
-    stage = TranslatorStage(epochs=14, contact_epochs={"surface": 26}, decoder_scale=0.5, threads=1)
-    plain = _translator_settings(stage, "surface", PoolGenerator("plain", seed=2, epochs=10))
+    stage = TranslatorStage(contact_epochs={"surface": 26},
+                            overrides={"epochs": 14, "decoder_scale": 0.5, "threads": 1})
+    plain = _translator_settings(stage, "surface", PoolGenerator("plain", overrides={"seed": 2, "epochs": 10}))
     assert {k: plain[k] for k in ("epochs", "decoder_scale", "seed")} == {"epochs": 10, "decoder_scale": 0.5, "seed": 2}
     assert "shear_decoder" not in plain and "flow_px" not in plain  # unchanged settings: unchanged cache keys
-    flow = _translator_settings(stage, "surface", PoolGenerator("flow", seed=3, flow_px=32, lr_schedule="constant"))
+    flow = _translator_settings(stage, "surface", PoolGenerator(
+        "flow", overrides={"seed": 3, "flow_px": 32, "lr_schedule": "constant"}))
     assert (flow["flow_px"], flow["lr_schedule"], flow["epochs"]) == (32, "constant", 26)
-    wide = _translator_settings(stage, "edge", PoolGenerator("wide", decoder_scale=1.0, shear_decoder=True))
+    wide = _translator_settings(stage, "edge", PoolGenerator(
+        "wide", overrides={"decoder_scale": 1.0, "shear_decoder": True}))
     assert (wide["decoder_scale"], wide["shear_decoder"], wide["epochs"]) == (1.0, True, 14)
     for settings in (flow, wide):  # what the step trains with is a valid trainer config
         TranslatorTrainConfig(arch="shpix2pix", paired_dirs=("set",), **settings)
     with pytest.raises(ValueError, match="flow_px must be a power of two"):
-        PoolGenerator("bad", flow_px=24)
+        PoolGenerator("bad", overrides={"flow_px": 24})
     with pytest.raises(ValueError, match="lr_schedule must be one of"):
-        PoolGenerator("bad", lr_schedule="linear")
+        PoolGenerator("bad", overrides={"lr_schedule": "linear"})
 
 
 def test_a_contact_types_gdnns_may_train_longer_at_one_budget():
     from simshear_gym.pipelines.config import PosenetStage
     from simshear_gym.train.posenet_config import PosenetTrainConfig
 
-    stage = PosenetStage(epochs=30, contact_epochs={"surface": 60}, threads=1)
+    stage = PosenetStage(contact_epochs={"surface": 60}, overrides={"epochs": 30, "threads": 1})
     surface, edge = stage.train_settings("surface"), stage.train_settings("edge")
     assert (surface["epochs"], edge["epochs"]) == (60, 30)
-    assert edge == PosenetStage(epochs=30, threads=1).train_settings("edge")  # unnamed types keep their cache keys
+    unnamed = PosenetStage(overrides={"epochs": 30, "threads": 1})
+    assert edge == unnamed.train_settings("edge")  # unnamed types keep their cache keys
     PosenetTrainConfig(source="real", contact="surface", paired_dirs=("set",), **surface)  # a valid trainer config
     with pytest.raises(ValueError, match="contact_epochs must give contact types of .* got \\{'hand': 5\\}"):
         PosenetStage(contact_epochs={"hand": 5})
-    cheaper = PosenetStage(epochs=30, contact_epochs={"surface": 60}, baseline_epochs=30, threads=1)
+    cheaper = PosenetStage(contact_epochs={"surface": 60}, baseline_epochs=30, overrides={"epochs": 30, "threads": 1})
     assert cheaper.train_settings("surface") == surface  # the reference and the shipped GDNN keep their key
     assert cheaper.train_settings("surface", baseline=True) == surface | {"epochs": 30}
     assert stage.train_settings("surface", baseline=True) == surface  # absent: the contact type's epochs
@@ -302,7 +306,7 @@ reader_seed = 1
     with pytest.raises(ValueError, match="reader_seed 1 needs pose_weight > 0"):
         PoolGenerator("plain", reader_seed=1)
     with pytest.raises(ValueError, match="reader_seed must be an integer >= 0"):
-        PoolGenerator("tilt", pose_weight=1.0, reader_seed=-1)
+        PoolGenerator("tilt", reader_seed=-1, overrides={"pose_weight": 1.0})
 
 
 def test_stages_need_the_ones_before_them(tmp_path):

@@ -21,6 +21,7 @@ from simshear_gym.real.env import (
     RealEnvConfig,
     RealEnvError,
     RealTactileEnv,
+    env_client,
     move_to_flange_target,
     tactile_from_frame,
     tcp_pose_from_flange,
@@ -60,8 +61,8 @@ def tactile_camera(size: int = 128) -> VirtualCamera:
 
 
 def make_env(emu: MG400Emulator, camera=None, **overrides) -> RealTactileEnv:
-    settings = dict(robot_ip="127.0.0.1", dashboard_port=emu.dashboard_port, motion_port=emu.motion_port,
-                    feedback_port=emu.feedback_port, control_period_s=PERIOD_S, preprocess=None,
+    settings = dict(client=env_client("127.0.0.1", emu.dashboard_port, emu.motion_port, emu.feedback_port),
+                    control_period_s=PERIOD_S, preprocess=None,
                     start_pose_mm_deg=START, image_size_px=64)
     contact_check = overrides.pop("contact_check", None)
     config = RealEnvConfig(**{**settings, **overrides})

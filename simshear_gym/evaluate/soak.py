@@ -525,7 +525,7 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.servo import ServoController
     from simshear_gym.real.camera import default_config
-    from simshear_gym.real.env import RealEnvConfig, RealTactileEnv
+    from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, env_client
     from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 
     torch.manual_seed(config.seed)
@@ -535,11 +535,11 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
                                             joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0)).start()
     camera = ReplayCamera(frames)
     env_config = RealEnvConfig(
-        robot_ip="127.0.0.1", dashboard_port=emulator.dashboard_port, motion_port=emulator.motion_port,
-        feedback_port=emulator.feedback_port, control_period_s=config.control_period_s,
+        client=env_client("127.0.0.1", emulator.dashboard_port, emulator.motion_port, emulator.feedback_port,
+                          reply_timeout_s=config.reply_timeout_s, connect_timeout_s=1.0, sync_timeout_s=5.0),
+        control_period_s=config.control_period_s,
         servo_margin_s=config.servo_margin_s, preprocess=default_config(),
-        image_size_px=config.image_size_px, start_pose_mm_deg=START_POSE_MM_DEG, safety=safety,
-        reply_timeout_s=config.reply_timeout_s, connect_timeout_s=1.0, move_timeout_s=5.0)
+        image_size_px=config.image_size_px, start_pose_mm_deg=START_POSE_MM_DEG, safety=safety)
     env = RealTactileEnv(env_config, camera=camera)
     controller = ServoController(4.0, ActionScale(), estimator=EstimatorConfig(posenet=config.posenet))
     estimator = FaultyEstimator(controller.estimator)

@@ -472,7 +472,7 @@ class ExperimentRun:
 
     def _build(self, leader) -> _Arms:
         from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
-        from simshear_gym.real.env import RealEnvConfig, RealTactileEnv
+        from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, env_client
 
         cfg = self.config
         endpoint = self.follower_endpoint
@@ -482,8 +482,8 @@ class ExperimentRun:
 
             policy = PolicySettings.of_model(self.controller_spec)  # the observation it was trained on
         env_config = RealEnvConfig(
-            robot_ip=endpoint.host, dashboard_port=endpoint.dashboard_port, motion_port=endpoint.motion_port,
-            feedback_port=endpoint.feedback_port, control_period_s=cfg.control_period_s,
+            client=env_client(endpoint.host, endpoint.dashboard_port, endpoint.motion_port, endpoint.feedback_port),
+            control_period_s=cfg.control_period_s,
             servo_margin_s=cfg.servo_margin_s, preprocess=cfg.preprocess,
             image_size_px=policy.image_size_px if policy else cfg.image_size_px,
             observation=policy.observation if policy else "tactile", history=policy.history if policy else 1,

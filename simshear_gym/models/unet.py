@@ -58,8 +58,8 @@ class UNetConfig:
 
     image_size_px: int = 128
     depth: int = 7
-    base_channels: int = 32
-    max_channels: int = 256
+    base_channels: int = 16
+    max_channels: int = 128
     shear_dim: int = 6
     dropout: float = 0.0
     dropout_levels: int = 3

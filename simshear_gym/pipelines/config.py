@@ -34,10 +34,12 @@ starting with a letter or digit, at most 64 characters): no path separator, no `
 
 from __future__ import annotations
 
+import json
 import re
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any
 
 from simshear_gym.data.adapter import CONTACTS, DatasetConfig, FrameConfig
 from simshear_gym.lab.collect_protocol import CollectProtocol
@@ -46,8 +48,9 @@ from simshear_gym.pipelines.env_collect import TASKS as ENV_TASKS
 from simshear_gym.sim.objects import PAYLOADS
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
-from simshear_gym.tables import ConfigError, from_table, read_toml
-from simshear_gym.train.runs import LR_SCHEDULES
+from simshear_gym.tables import ConfigError, field_values, from_table, read_toml
+from simshear_gym.train.posenet_config import PosenetTrainConfig
+from simshear_gym.train.translator_config import TranslatorTrainConfig
 
 NAME_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}"
 """What a name of the config may be (it names a folder of the run): letters, digits, '_' and '-', starting with a
@@ -89,50 +92,106 @@ class CheckConfig:
             raise ValueError(f"min_contact_share must be in (0, 1], got {self.min_contact_share!r}")
 
 
+TRANSLATOR_SET_BY_PIPELINE = ("arch", "paired_dirs", "image_size_px", "device", "pose_net", "teacher", "max_minutes")
+""":class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields the pipeline sets itself (the
+architecture of each step, its paired sets, the sensor's image size, the profile's device, a pool generator's pose
+reader); it distils nothing, and its budgets are epochs, not minutes."""
+POSE_KNOBS = ("pose_weight", "pose_variables")
+"""Translator knobs only a pool generator sets (its pose-consistency loss needs a reader the pipeline trains)."""
+POSENET_SET_BY_PIPELINE = ("source", "contact", "paired_dirs", "translators", "variables", "device", "max_minutes")
+""":class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields the pipeline sets itself."""
+EPOCH_BUDGET: Mapping[str, object] = {"lr_schedule": "cosine", "patience_epochs": 1000}
+"""What a pipeline profile changes in the trainers' defaults before its own overrides: a budget of epochs, the
+rate annealed over the steps (so a slower machine trains the same model) and no early stop."""
+TRANSLATOR_KEY_KNOBS = ("epochs", "batch_size", "lr", "lr_schedule", "base_channels", "max_channels",
+                        "decoder_scale", "density_weight", "holdout", "patience_epochs", "seed", "threads",
+                        "cap_minutes")
+"""The knobs a translator step's cache key always names, overridden or not (so that the keys of earlier runs
+hold); any other knob a profile overrides joins the key."""
+POSENET_KEY_KNOBS = ("epochs", "batch_size", "image_size_px", "lr", "lr_schedule", "holdout", "patience_epochs",
+                     "blur_px", "erase", "seed", "threads", "cap_minutes")
+"""The knobs a GDNN step's cache key always names (as :data:`TRANSLATOR_KEY_KNOBS`)."""
+
+
+def trainer_defaults(trainer: type) -> dict:
+    """{field: default} of a trainer config (each of its fields has a plain default)."""
+    return {item.name: item.default for item in fields(trainer)}
+
+
+def knob_names(trainer: type, set_by_pipeline: tuple[str, ...]) -> tuple[str, ...]:
+    """The fields of a trainer config a config file may override."""
+    return tuple(name for name in trainer_defaults(trainer) if name not in set_by_pipeline)
+
+
+def _check_overrides(owner, trainer: type, set_by_pipeline: tuple[str, ...]) -> None:
+    """Raise unless every key of ``owner.overrides`` is a knob of ``trainer`` the config may set; the error lists
+    the owner's own keys and the knobs."""
+    own = sorted(item.name for item in fields(owner) if item.name != "overrides")
+    knobs = knob_names(trainer, set_by_pipeline)
+    for name in owner.overrides:
+        if name in set_by_pipeline:
+            raise ValueError(f"{name!r} is set by the pipeline, not by a config ({trainer.__name__} fields it sets: "
+                             f"{list(set_by_pipeline)})")
+        if name not in knobs:
+            raise ValueError(f"unknown key {name!r}; expected one of {own} or a {trainer.__name__} knob of "
+                             f"{sorted(knobs)}")
+
+
+def _check_cap(cap_minutes) -> None:
+    if cap_minutes is not None and cap_minutes <= 0:
+        raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {cap_minutes!r}")
+
+
+def _keyed(trainer: type, base: Mapping, overrides: Mapping, key_knobs: tuple[str, ...]) -> dict:
+    """The trainer settings a step passes (and keys its cache by): ``key_knobs`` at the trainer's defaults under
+    ``base`` and ``overrides``, and every other knob ``overrides`` gives."""
+    values = {**trainer_defaults(trainer), **base, **overrides}
+    return {name: values[name] for name in key_knobs} | {k: v for k, v in overrides.items() if k not in key_knobs}
+
+
 @dataclass(frozen=True)
 class TranslatorStage:
-    """The translators' training (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields of
-    the same names): one per contact type and architecture in ``archs``. The budget is ``epochs``, or
-    ``contact_epochs[contact]`` for a contact type it names (a harder contact type's translators train longer; the
-    pool generators of that type take it too unless they give their own); a cosine schedule runs over the steps,
-    so a slower machine trains the same model."""
+    """The translators' training: one per contact type and architecture in ``archs``, each a
+    :class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` at its defaults under
+    :data:`EPOCH_BUDGET` and ``overrides`` (knob: value; any field but :data:`TRANSLATOR_SET_BY_PIPELINE` and
+    :data:`POSE_KNOBS`). ``contact_epochs[contact]`` replaces ``epochs`` for a contact type it names (a harder
+    contact type's translators train longer; the pool generators of that type take it too unless they give their
+    own); a cosine schedule runs over the steps, so a slower machine trains the same model."""
 
     archs: tuple[str, ...] = ("shpix2pix", "pix2pix")
-    epochs: int = 20
-    batch_size: int = 16
-    lr: float = 1e-3
-    lr_schedule: str = "cosine"
-    base_channels: int = 16
-    max_channels: int = 128
-    decoder_scale: float = 1.0
-    density_weight: float = 0.0
-    holdout: float = 0.05
-    patience_epochs: int = 1000
-    seed: int = 0
-    threads: int = 2
-    cap_minutes: float | None = None
     contact_epochs: Mapping[str, int] = field(default_factory=dict)
+    overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.cap_minutes is not None and self.cap_minutes <= 0:
-            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+        _check_overrides(self, TranslatorTrainConfig, TRANSLATOR_SET_BY_PIPELINE + POSE_KNOBS)
+        _check_cap(self.setting("cap_minutes"))
         _check_per_contact("contact_epochs", self.contact_epochs, lambda n: isinstance(n, int) and n >= 1,
                            "a number of epochs >= 1")
         if not self.archs or set(self.archs) - {"shpix2pix", "pix2pix"}:
             raise ValueError(f"archs must name shpix2pix and/or pix2pix, got {list(self.archs)}")
         if "shpix2pix" not in self.archs:
             raise ValueError("archs must include shpix2pix: the GDNN trains on its images")
-        if self.epochs < 1:
-            raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        if self.setting("epochs") < 1:
+            raise ValueError(f"epochs must be >= 1, got {self.setting('epochs')!r}")
+        TranslatorTrainConfig(paired_dirs=("set",), **self.settings_for(""))  # the trainer checks the values
+
+    def setting(self, name: str):
+        """A knob's value for the stage (before ``contact_epochs``)."""
+        return {**trainer_defaults(TranslatorTrainConfig), **EPOCH_BUDGET, **self.overrides}[name]
+
+    def with_epochs(self, epochs: int) -> TranslatorStage:
+        """The stage with every contact type's translators trained ``epochs`` epochs."""
+        return replace(self, overrides={**self.overrides, "epochs": epochs}, contact_epochs={})
 
     def epochs_for(self, contact: str) -> int:
         """The epochs of a contact type's translators."""
-        return self.contact_epochs.get(contact, self.epochs)
+        return self.contact_epochs.get(contact, self.setting("epochs"))
 
     def settings_for(self, contact: str) -> dict:
         """The :class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` settings of a contact type's
-        translators (every field but ``archs``, with ``contact_epochs`` resolved into ``epochs``)."""
-        settings = {name: value for name, value in asdict(self).items() if name not in ("archs", "contact_epochs")}
+        translators (:data:`TRANSLATOR_KEY_KNOBS` and the other overrides, ``contact_epochs`` resolved into
+        ``epochs``)."""
+        settings = _keyed(TranslatorTrainConfig, EPOCH_BUDGET, self.overrides, TRANSLATOR_KEY_KNOBS)
         return settings | {"epochs": self.epochs_for(contact)}
 
 
@@ -142,32 +201,22 @@ BASELINES = ("pix2pix", "sim")
 
 @dataclass(frozen=True)
 class PosenetStage:
-    """The GDNNs' training (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields of the same
-    names): per contact type one on the real images (the reference) and one on the shPix2pix translations of the
-    sim renders (the one that ships). Budget in epochs, as for :class:`TranslatorStage`: ``epochs``, or
-    ``contact_epochs[contact]`` for every GDNN of a contact type it names (the reference, the one that ships and
-    the baselines alike, so that they compare at one budget). The translated-image GDNN draws each row's generator
-    from the contact's shPix2pix (listed ``translator_draws`` times, or ``contact_translator_draws[contact]`` times
-    for a contact type it names) and the profile's pool; ``random_contacts`` ({contact: n}) adds n sim contacts
-    drawn uniformly over the contact's label ranges in the training data (no real image needed: they are
-    translated like the replays), and ``random_tap_share`` ({contact: share}) draws that share of them without
-    shear (taps: the move columns 0), so that the rows without shear keep about the share they have in the real
-    sets. ``baselines`` adds the paper's comparison GDNNs, scored beside the others on the real validation images:
-    ``pix2pix`` (on the contact's pix2pix translations, which cannot know the shear) and ``sim`` (on the raw sim
-    renders); ``baseline_epochs`` (not None) trains them that many epochs instead of their contact type's."""
+    """The GDNNs' training: per contact type one on the real images (the reference) and one on the shPix2pix
+    translations of the sim renders (the one that ships), each a
+    :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` at its defaults under :data:`EPOCH_BUDGET` and
+    ``overrides`` (any field but :data:`POSENET_SET_BY_PIPELINE`). Budget in epochs, as for
+    :class:`TranslatorStage`: ``epochs``, or ``contact_epochs[contact]`` for every GDNN of a contact type it names
+    (the reference, the one that ships and the baselines alike, so that they compare at one budget). The
+    translated-image GDNN draws each row's generator from the contact's shPix2pix (listed ``translator_draws``
+    times, or ``contact_translator_draws[contact]`` times for a contact type it names) and the profile's pool;
+    ``random_contacts`` ({contact: n}) adds n sim contacts drawn uniformly over the contact's label ranges in the
+    training data (no real image needed: they are translated like the replays), and ``random_tap_share``
+    ({contact: share}) draws that share of them without shear (taps: the move columns 0), so that the rows without
+    shear keep about the share they have in the real sets. ``baselines`` adds the paper's comparison GDNNs, scored
+    beside the others on the real validation images: ``pix2pix`` (on the contact's pix2pix translations, which
+    cannot know the shear) and ``sim`` (on the raw sim renders); ``baseline_epochs`` (not None) trains them that
+    many epochs instead of their contact type's."""
 
-    epochs: int = 30
-    batch_size: int = 64
-    image_size_px: int = 64
-    lr: float = 1e-3
-    lr_schedule: str = "cosine"
-    holdout: float = 0.1
-    patience_epochs: int = 1000
-    blur_px: float = 0.0
-    erase: float = 0.0
-    seed: int = 0
-    threads: int = 2
-    cap_minutes: float | None = None
     translator_draws: int = 1
     contact_translator_draws: Mapping[str, int] = field(default_factory=dict)
     random_contacts: Mapping[str, int] = field(default_factory=dict)
@@ -175,10 +224,12 @@ class PosenetStage:
     baselines: tuple[str, ...] = ()
     contact_epochs: Mapping[str, int] = field(default_factory=dict)
     baseline_epochs: int | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if self.epochs < 1:
-            raise ValueError(f"epochs must be >= 1, got {self.epochs!r}")
+        _check_overrides(self, PosenetTrainConfig, POSENET_SET_BY_PIPELINE)
+        if self.setting("epochs") < 1:
+            raise ValueError(f"epochs must be >= 1, got {self.setting('epochs')!r}")
         if self.baseline_epochs is not None and (not isinstance(self.baseline_epochs, int)
                                                  or self.baseline_epochs < 1):
             raise ValueError(f"baseline_epochs must be a number of epochs >= 1 or absent, got "
@@ -187,8 +238,7 @@ class PosenetStage:
                            "a number of epochs >= 1")
         if set(self.baselines) - set(BASELINES) or len(set(self.baselines)) != len(self.baselines):
             raise ValueError(f"baselines must name distinct ones of {list(BASELINES)}, got {list(self.baselines)}")
-        if self.cap_minutes is not None and self.cap_minutes <= 0:
-            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+        _check_cap(self.setting("cap_minutes"))
         if self.translator_draws < 1:
             raise ValueError(f"translator_draws must be >= 1, got {self.translator_draws!r}")
         _check_per_contact("contact_translator_draws", self.contact_translator_draws,
@@ -199,6 +249,15 @@ class PosenetStage:
         _check_per_contact("random_tap_share", self.random_tap_share,
                            lambda share: isinstance(share, (int, float)) and not isinstance(share, bool)
                            and 0.0 <= share <= 1.0, "a share in [0, 1]")
+        PosenetTrainConfig(paired_dirs=("set",), **self.train_settings("surface"))  # the trainer checks the values
+
+    def setting(self, name: str):
+        """A knob's value for the stage (before ``contact_epochs`` and ``baseline_epochs``)."""
+        return {**trainer_defaults(PosenetTrainConfig), **EPOCH_BUDGET, **self.overrides}[name]
+
+    def with_epochs(self, epochs: int) -> PosenetStage:
+        """The stage with every contact type's GDNNs trained ``epochs`` epochs."""
+        return replace(self, overrides={**self.overrides, "epochs": epochs}, contact_epochs={})
 
     def translator_draws_for(self, contact: str) -> int:
         """How often a contact type's shPix2pix is listed among the generators its GDNN draws from."""
@@ -208,65 +267,61 @@ class PosenetStage:
         """The epochs of a contact type's GDNNs (``baseline``: of its baseline GDNNs)."""
         if baseline and self.baseline_epochs is not None:
             return self.baseline_epochs
-        return self.contact_epochs.get(contact, self.epochs)
+        return self.contact_epochs.get(contact, self.setting("epochs"))
 
     def train_settings(self, contact: str, baseline: bool = False) -> dict:
         """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of a contact type's GDNNs
-        (``baseline``: of its baseline GDNNs): the stage's fields but those that say which GDNNs train on what
-        (``translator_draws``, ``contact_translator_draws``, ``random_contacts``, ``random_tap_share``,
-        ``baselines``), with ``contact_epochs`` and ``baseline_epochs`` resolved into ``epochs``."""
-        settings = {name: value for name, value in asdict(self).items()
-                    if name not in ("translator_draws", "contact_translator_draws", "random_contacts",
-                                    "random_tap_share", "baselines", "contact_epochs", "baseline_epochs")}
+        (``baseline``: of its baseline GDNNs): :data:`POSENET_KEY_KNOBS` and the other overrides, with
+        ``contact_epochs`` and ``baseline_epochs`` resolved into ``epochs``."""
+        settings = _keyed(PosenetTrainConfig, EPOCH_BUDGET, self.overrides, POSENET_KEY_KNOBS)
         return settings | {"epochs": self.epochs_for(contact, baseline)}
 
 
 @dataclass(frozen=True)
 class PoolGenerator:
     """One more shPix2pix generator of a contact type (``contact``; "" for every one) for the GDNN to train on:
-    the translator stage's settings with these replaced. With ``pose_weight`` > 0 it trains with the
-    pose-consistency loss (:mod:`simshear_gym.train.pose_consistency`) read by the contact's real-image GDNN on
-    ``pose_variables`` (all of its variables when empty), so it runs after that GDNN. The GDNN on translated
-    images draws each row's generator at random, this one ``draws`` times as often as a generator listed once.
-    ``decoder_scale``, ``shear_decoder``, ``flow_px`` and ``lr_schedule`` (where given) replace the stage's
-    architecture and schedule, so that the pool's generators can differ in more than their seed. ``reader_seed``
-    > 0 reads the pose consistency with a second real-image GDNN trained with that seed (the reference's settings
-    otherwise), so that the generators do not all learn one network's quirks."""
+    the translator stage's settings with ``overrides`` (translator knobs) replaced; its ``seed`` and
+    ``density_weight`` are its own (the trainer's defaults where it gives none), not the stage's. With
+    ``pose_weight`` > 0 it trains with the pose-consistency loss (:mod:`simshear_gym.train.pose_consistency`) read
+    by the contact's real-image GDNN on ``pose_variables`` (all of its variables when empty), so it runs after that
+    GDNN. The GDNN on translated images draws each row's generator at random, this one ``draws`` times as often as
+    a generator listed once. Architecture and schedule knobs (``decoder_scale``, ``shear_decoder``, ``flow_px``,
+    ``lr_schedule``...) may differ too, so that the pool's generators differ in more than their seed.
+    ``reader_seed`` > 0 reads the pose consistency with a second real-image GDNN trained with that seed (the
+    reference's settings otherwise), so that the generators do not all learn one network's quirks."""
 
     name: str
     contact: str = ""
     draws: int = 1
-    seed: int = 0
-    epochs: int | None = None
-    density_weight: float = 0.0
-    pose_weight: float = 0.0
-    pose_variables: tuple[str, ...] = ()
-    decoder_scale: float | None = None
-    shear_decoder: bool | None = None
-    flow_px: int | None = None
-    lr_schedule: str | None = None
     reader_seed: int = 0
+    overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         check_name("pool generator name", self.name)
+        _check_overrides(self, TranslatorTrainConfig, TRANSLATOR_SET_BY_PIPELINE)
         if self.contact not in ("", *CONTACTS):
             raise ValueError(f"contact must be one of {list(CONTACTS)} or '' (every one), got {self.contact!r}")
-        if self.draws < 1 or (self.epochs is not None and self.epochs < 1):
-            raise ValueError(f"draws and epochs must be >= 1, got {self.draws!r}, {self.epochs!r}")
-        if self.pose_weight < 0 or self.density_weight < 0:
-            raise ValueError(f"pose_weight and density_weight must be >= 0, got {self.pose_weight!r}, "
-                             f"{self.density_weight!r}")
+        epochs = self.overrides.get("epochs")
+        if self.draws < 1 or (epochs is not None and epochs < 1):
+            raise ValueError(f"draws and epochs must be >= 1, got {self.draws!r}, {epochs!r}")
+        if self.pose_weight < 0:
+            raise ValueError(f"pose_weight must be >= 0, got {self.pose_weight!r}")
         if self.pose_variables and self.pose_weight == 0:
             raise ValueError(f"pose_variables {list(self.pose_variables)} need pose_weight > 0")
         if not isinstance(self.reader_seed, int) or self.reader_seed < 0:
             raise ValueError(f"reader_seed must be an integer >= 0 (0: the reference GDNN), got {self.reader_seed!r}")
         if self.reader_seed and self.pose_weight == 0:
             raise ValueError(f"reader_seed {self.reader_seed} needs pose_weight > 0 (it names the pose reader)")
-        if self.flow_px is not None and (self.flow_px < 2 or self.flow_px & (self.flow_px - 1)):
-            raise ValueError(f"flow_px must be a power of two >= 2 (a decoder level's size) or absent, "
-                             f"got {self.flow_px!r}")
-        if self.lr_schedule is not None and self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"lr_schedule must be one of {list(LR_SCHEDULES)} or absent, got {self.lr_schedule!r}")
+        TranslatorTrainConfig(paired_dirs=("set",), pose_net="reader" if self.pose_weight > 0 else "",
+                              **{**EPOCH_BUDGET, **self.overrides})  # the trainer checks the values
+
+    @property
+    def pose_weight(self) -> float:
+        return self.overrides.get("pose_weight", trainer_defaults(TranslatorTrainConfig)["pose_weight"])
+
+    @property
+    def pose_variables(self) -> tuple[str, ...]:
+        return tuple(self.overrides.get("pose_variables", ()))
 
     @property
     def reader_step(self) -> str:
@@ -274,12 +329,17 @@ class PoolGenerator:
         "real_s<seed>")."""
         return f"real_s{self.reader_seed}" if self.reader_seed else "real"
 
-    def overrides(self) -> dict:
-        """The :class:`TranslatorStage` settings this generator replaces."""
-        values = {"seed": self.seed, "density_weight": self.density_weight, "epochs": self.epochs,
-                  "decoder_scale": self.decoder_scale, "shear_decoder": self.shear_decoder, "flow_px": self.flow_px,
-                  "lr_schedule": self.lr_schedule}
-        return {name: value for name, value in values.items() if value is not None}
+    def replaced(self) -> dict:
+        """The :class:`TranslatorStage` settings this generator replaces (its pose-consistency knobs aside)."""
+        defaults = trainer_defaults(TranslatorTrainConfig)
+        own = {"seed": defaults["seed"], "density_weight": defaults["density_weight"]}
+        return own | {name: value for name, value in self.overrides.items() if name not in POSE_KNOBS}
+
+
+ENV_MODEL_SET_BY_RECIPE = ("source", "contact", "paired_dirs", "translators", "variables", "device", "max_minutes")
+""":class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields an env-model recipe sets itself."""
+ENV_MODEL_KEY_KNOBS = ("epochs", "patience_epochs", "batch_size", "lr", "seed", "threads", "cap_minutes")
+"""The knobs an env-model GDNN's cache key always names (as :data:`TRANSLATOR_KEY_KNOBS`)."""
 
 
 @dataclass(frozen=True)
@@ -294,8 +354,10 @@ class EnvModelRecipe:
        the controller itself visits);
     4. the GDNN on every set, ``epochs`` epochs: the one that ships.
 
-    Budgets are epochs; ``cap_minutes`` is only a wall-clock safety cap per training. ``task`` and ``payload`` pick
-    the env (``SimShearCoLift-v0`` light or heavy objects, or ``SimShearTracking-v0``)."""
+    Each GDNN is a :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` at its defaults under
+    ``overrides`` (any field but :data:`ENV_MODEL_SET_BY_RECIPE`; ``epochs`` is the final GDNN's). Budgets are
+    epochs; ``cap_minutes`` is only a wall-clock safety cap per training. ``task`` and ``payload`` pick the env
+    (``SimShearCoLift-v0`` light or heavy objects, or ``SimShearTracking-v0``)."""
 
     task: str = "colift"
     payload: str = "light"
@@ -305,15 +367,10 @@ class EnvModelRecipe:
     first_round_seeds: tuple[int, ...] | None = None
     dagger_seeds: tuple[int, ...] = ()
     first_epochs: int = 10
-    epochs: int = 12
-    patience_epochs: int = 5
-    batch_size: int = 64
-    lr: float = 1e-3
-    seed: int = 0
-    threads: int = 2
-    cap_minutes: float | None = None
+    overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        _check_overrides(self, PosenetTrainConfig, ENV_MODEL_SET_BY_RECIPE)
         if self.task not in ENV_TASKS:
             raise ValueError(f"task must be one of {list(ENV_TASKS)}, got {self.task!r}")
         if self.payload not in PAYLOADS or (self.payload == "heavy" and self.task != "colift"):
@@ -329,10 +386,22 @@ class EnvModelRecipe:
                                                    or set(self.first_round_seeds) - set(self.oracle_seeds)):
             raise ValueError(f"first_round_seeds must be some of oracle_seeds {list(self.oracle_seeds)}, got "
                              f"{list(self.first_round_seeds)}")
-        if min(self.first_epochs, self.epochs, self.patience_epochs, self.batch_size, self.threads) < 1:
+        settings = self.train_settings()
+        if min(self.first_epochs, *(settings[k] for k in ("epochs", "patience_epochs", "batch_size", "threads"))) < 1:
             raise ValueError("first_epochs, epochs, patience_epochs, batch_size and threads must be >= 1")
-        if self.cap_minutes is not None and self.cap_minutes <= 0:
-            raise ValueError(f"cap_minutes must be > 0 (a wall-clock safety cap) or absent, got {self.cap_minutes!r}")
+        _check_cap(settings["cap_minutes"])
+        PosenetTrainConfig(source="env", contact="env", paired_dirs=("set",), **settings)  # the trainer checks them
+
+    def train_settings(self, epochs: int | None = None) -> dict:
+        """The :class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` settings of the recipe's GDNNs
+        (:data:`ENV_MODEL_KEY_KNOBS` and the other overrides), trained ``epochs`` epochs (None: the final's)."""
+        settings = _keyed(PosenetTrainConfig, {}, self.overrides, ENV_MODEL_KEY_KNOBS)
+        return settings | ({"epochs": epochs} if epochs is not None else {})
+
+    def record(self) -> dict:
+        """The recipe as its card and manifest record it: its own fields and its GDNNs' settings, flat."""
+        own = {item.name: getattr(self, item.name) for item in fields(self) if item.name != "overrides"}
+        return json.loads(json.dumps(own | self.train_settings()))  # plain JSON types (lists, not tuples)
 
     @property
     def first_round(self) -> tuple[int, ...]:
@@ -372,14 +441,56 @@ class Profile:
         return tuple(generator for generator in self.pool if generator.contact in ("", contact))
 
 
-DEFAULT_PROFILES: dict[str, Profile] = {
-    "smoke": Profile(rows_per_split=48, eval_rows=24,
-                     translator=TranslatorStage(epochs=1, batch_size=8, base_channels=4, max_channels=16),
-                     posenet=PosenetStage(epochs=1, batch_size=16, image_size_px=32)),
-    "quick": Profile(translator=TranslatorStage(epochs=14), posenet=PosenetStage(epochs=20)),
-    "full": Profile(translator=TranslatorStage(epochs=30), posenet=PosenetStage(epochs=40)),
+DEFAULT_PROFILES: Mapping[str, Mapping[str, Any]] = {
+    "smoke": {"rows_per_split": 48, "eval_rows": 24,
+              "translator": {"epochs": 1, "batch_size": 8, "base_channels": 4, "max_channels": 16},
+              "posenet": {"epochs": 1, "batch_size": 16, "image_size_px": 32}},
+    "quick": {"translator": {"epochs": 14}, "posenet": {"epochs": 20}},
+    "full": {"translator": {"epochs": 30}, "posenet": {"epochs": 40}},
 }
-"""Built-in profiles; a config's ``[profiles.<name>]`` table overrides them key by key."""
+"""Built-in profiles as ``[profiles.<name>]`` tables (trainer knobs over the trainers' defaults and
+:data:`EPOCH_BUDGET`); a config's table overrides them key by key."""
+
+
+def with_overrides(cls: type, trainer: type, table: Any, source: str, key: str):
+    """A stage, pool generator or env-model recipe (``cls``) from its flat TOML table: its own fields, and the
+    knobs of ``trainer`` (checked and converted against the trainer config's fields) as its ``overrides``."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{key}] must be a table of {cls.__name__} settings, got {table!r}")
+    own = {item.name for item in fields(cls)} - {"overrides"}
+    knobs = set(trainer_defaults(trainer))
+    given = {name: value for name, value in table.items() if name in knobs and name not in own}
+    other = {name: value for name, value in table.items() if name not in knobs and name not in own}
+    overrides = field_values(trainer, given, source, key) | other  # `other`: __post_init__ names the valid keys
+    return from_table(cls, {**{name: table[name] for name in own if name in table}, "overrides": overrides},
+                      source, key)
+
+
+def profile_from_table(table: Any, source: str, key: str) -> Profile:
+    """A :class:`Profile` from its ``[profiles.<name>]`` table (stage tables and pool entries flat, as
+    :func:`with_overrides` reads them)."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{key}] must be a table, got {table!r}")
+    pool = table.get("pool", [])
+    if not isinstance(pool, list):
+        raise ConfigError(f"{source}: {key}.pool must be [[{key}.pool]] tables, got {pool!r}")
+    parts = {"translator": with_overrides(TranslatorStage, TranslatorTrainConfig, table.get("translator", {}),
+                                          source, f"{key}.translator"),
+             "posenet": with_overrides(PosenetStage, PosenetTrainConfig, table.get("posenet", {}), source,
+                                       f"{key}.posenet"),
+             "pool": tuple(with_overrides(PoolGenerator, TranslatorTrainConfig, entry, source, f"{key}.pool[{i}]")
+                           for i, entry in enumerate(pool))}
+    profile = from_table(Profile, {k: v for k, v in table.items() if k not in parts}, source, key)
+    try:
+        return replace(profile, **parts)
+    except ValueError as error:
+        raise ConfigError(f"{source}: [{key}] {error}") from None
+
+
+def default_profiles() -> dict[str, Profile]:
+    """The built-in profiles (:data:`DEFAULT_PROFILES`)."""
+    return {name: profile_from_table(dict(table), "built-in profiles", f"profiles.{name}")
+            for name, table in DEFAULT_PROFILES.items()}
 
 
 @dataclass(frozen=True)
@@ -393,7 +504,7 @@ class ExperimentConfig:
     replay: ReplayGeometry = ReplayGeometry()
     frame: FrameConfig = FrameConfig()
     check: CheckConfig = CheckConfig()
-    profiles: Mapping[str, Profile] = field(default_factory=lambda: dict(DEFAULT_PROFILES))
+    profiles: Mapping[str, Profile] = field(default_factory=default_profiles)
     env_models: Mapping[str, EnvModelRecipe] = field(default_factory=dict)
     dataset_frames: Mapping[str, FrameConfig] = field(default_factory=dict)
     collect: CollectProtocol | None = None
@@ -472,13 +583,19 @@ def load_config(path: str | Path) -> ExperimentConfig:
     parts = {key: from_table(cls, table.get(key, {}), source, key)
              for key, cls in (("sensor", TacTipConfig), ("replay", ReplayGeometry), ("frame", FrameConfig),
                               ("check", CheckConfig))}
-    profiles = dict(DEFAULT_PROFILES)
+    tables = {name: dict(profile) for name, profile in DEFAULT_PROFILES.items()}
     for name, overrides in (table.get("profiles") or {}).items():
-        profiles[name] = _override(profiles.get(name, Profile()), overrides, source, f"profiles.{name}")
+        if not isinstance(overrides, dict):
+            raise ConfigError(f"{source}: [profiles.{name}] must be a table, got {overrides!r}")
+        merged = tables.setdefault(name, {})
+        for key, value in overrides.items():  # the stage tables key by key
+            stage = merged.get(key)
+            merged[key] = {**stage, **value} if isinstance(stage, dict) and isinstance(value, dict) else value
+    profiles = {name: profile_from_table(profile, source, f"profiles.{name}") for name, profile in tables.items()}
     env_table = table.get("env_models") or {}
     if not isinstance(env_table, dict):
         raise ConfigError(f"{source}: env_models must be tables [env_models.<name>], got {env_table!r}")
-    env_models = {name: from_table(EnvModelRecipe, value, source, f"env_models.{name}")
+    env_models = {name: with_overrides(EnvModelRecipe, PosenetTrainConfig, value, source, f"env_models.{name}")
                   for name, value in env_table.items()}
     collect = None
     if "collect" in table:
@@ -498,16 +615,3 @@ def load_config(path: str | Path) -> ExperimentConfig:
                                 dataset_frames=dataset_frames, collect=collect, path=path, **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None
-
-
-def _override(base: Profile, overrides: dict, source: str, key: str) -> Profile:
-    """``base`` with a TOML table's keys replaced (its stage tables key by key)."""
-    if not isinstance(overrides, dict):
-        raise ConfigError(f"{source}: [{key}] must be a table, got {overrides!r}")
-    table = {name: value for name, value in asdict(base).items()}
-    for name, value in overrides.items():
-        if name in ("translator", "posenet") and isinstance(value, dict):
-            table[name] = {**table[name], **value}
-        else:
-            table[name] = value
-    return from_table(Profile, table, source, key)

@@ -18,7 +18,6 @@ DIR/envposenet/final/<hash>/run --contact NAME`` ships with its card.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -91,8 +90,7 @@ def train_step(runner: StageRunner, recipe: EnvModelRecipe, name: str, sets: lis
     from simshear_gym.train.posenet_config import PosenetTrainConfig
 
     set_dirs = tuple(result.outputs["set"] for result in sets)
-    settings = {"epochs": epochs, "patience_epochs": recipe.patience_epochs, "batch_size": recipe.batch_size,
-                "lr": recipe.lr, "seed": recipe.seed, "threads": recipe.threads, "cap_minutes": recipe.cap_minutes}
+    settings = recipe.train_settings(epochs)
     key = {"sets": [result.record["hash"] for result in sets], "settings": settings}
 
     def work(folder: Path) -> dict:
@@ -130,10 +128,10 @@ def run_recipe(recipe: EnvModelRecipe, name: str, out: Path, sensor: str | None 
                            recipe.first_epochs, device)
         sets += [collect_step(runner, recipe, seed, sensor, translator_sha, first.outputs["weights"])
                  for seed in recipe.dagger_seeds]
-    final = train_step(runner, recipe, "final", sets, recipe.epochs, device)
+    final = train_step(runner, recipe, "final", sets, recipe.train_settings()["epochs"], device)
     model, card = load_posenet(out / final.outputs["weights"])
     weights = out / f"{name}.pt"
-    recipe_record = json.loads(json.dumps(asdict(recipe)))  # plain JSON types (lists, not tuples) in the card
+    recipe_record = recipe.record()
     save_posenet(weights, model, card={**card, "env_model": name, "recipe": recipe_record})
     manifest = {
         "command": command, "model": name, "recipe": recipe_record, "sensor": sensor or "shipped",

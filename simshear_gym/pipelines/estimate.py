@@ -170,7 +170,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     train_rows = {name: split_sizes(dataset, root, name, settings.rows_per_split)["train"]
                   for name, dataset in config.datasets.items()}
     steps = planned_steps(config, profile)
-    translator_px, gdnn_px = config.sensor.image_size_px, settings.posenet.image_size_px
+    translator_px, gdnn_px = config.sensor.image_size_px, settings.posenet.setting("image_size_px")
     key_of, probes = {}, {}
     load = machine_load(jobs)  # before the probes add their own
     started = time.perf_counter()

@@ -227,7 +227,7 @@ POSE_CONSISTENCY_COST = 1.2
 
 
 def _translator_settings(stage, contact: str, generator=None) -> dict:
-    return {**stage.settings_for(contact), **(generator.overrides() if generator else {})}
+    return {**stage.settings_for(contact), **(generator.replaced() if generator else {})}
 
 
 def _translator_work(settings: dict, contact: str, names: list[str], arch: str = "shpix2pix") -> dict:
@@ -312,7 +312,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
                                           translators=used, variables=variables, device=device, **settings)
         torch.set_num_threads(train_config.threads)
         data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
-                           stage.image_size_px, translators=[str(runner.root / t) for t in used],
+                           train_config.image_size_px, translators=[str(runner.root / t) for t in used],
                            variables=variables)
         trainer = PosenetTrainer(train_config, folder / "run", data)
         trainer.resume()
@@ -371,13 +371,14 @@ def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted
             continue
         ranges = label_ranges(config, names, adapted, runner.root)
         tap_share = float(profile.posenet.random_tap_share.get(contact, 0.0))
-        key = {"contact": contact, "n": n, "seed": profile.posenet.seed, "ranges": ranges, "tactip": config.sensor,
+        seed = profile.posenet.setting("seed")
+        key = {"contact": contact, "n": n, "seed": seed, "ranges": ranges, "tactip": config.sensor,
                "geometry": config.replay, "shear": collect_config.shear}
         if tap_share:  # a set without taps keeps the key it had before there could be any
             key["tap_share"] = tap_share
 
         def work(folder: Path, contact=contact, n=n, ranges=ranges, tap_share=tap_share) -> dict:
-            rows = random_set(contact, n, profile.posenet.seed, folder / "set", collect_config, ranges, tap_share)
+            rows = random_set(contact, n, seed, folder / "set", collect_config, ranges, tap_share)
             return {"outputs": {"set": runner.relative(folder / "set")}, "metrics": {"rows": rows}}
 
         out[contact] = runner.run(f"collect/random_{contact}", key, work).outputs["set"]
@@ -505,7 +506,8 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
         "package_version": _version(), "git_commit": commit, "machine": machine_info(),
         "wall_s": round(time.perf_counter() - start, 2),
-        "seeds": {"translator": profile_settings.translator.seed, "posenet": profile_settings.posenet.seed},
+        "seeds": {"translator": profile_settings.translator.setting("seed"),
+                  "posenet": profile_settings.posenet.setting("seed")},
         "jobs": jobs, "device": device, "contacts": sorted(contacts_of(config)),
         "results": [{"stage": r.name, "folder": runner.relative(r.folder), "ran": r.ran,
                      "wall_s": r.record["wall_s"], "metrics": r.record["metrics"]} for r in results],

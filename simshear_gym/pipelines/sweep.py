@@ -157,13 +157,13 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         used = sum(min(budget.rows or train_rows[name], train_rows[name]) for name in names)
         factor = epoch_scale(budget, used, sum(train_rows[name] for name in names), cap)
         translator = profile.translator
-        translator = replace(translator, epochs=scaled(translator.epochs_for(contact), factor), contact_epochs={})
+        translator = translator.with_epochs(scaled(translator.epochs_for(contact), factor))
         reader = profile.posenet
-        real_rows = replace(reader, epochs=scaled(reader.epochs_for(contact), factor), contact_epochs={})
+        real_rows = reader.with_epochs(scaled(reader.epochs_for(contact), factor))
         translator_name = f"translator/{contact}_shpix2pix"
         steps.append(Step(translator_name, partial(translator_step, config, translator, contact, "shpix2pix",
                                                    budget_sets, None, device=device),
-                          cost=TRANSLATOR_EPOCH_COST * translator.epochs,
+                          cost=TRANSLATOR_EPOCH_COST * translator.epochs_for(contact),
                           work=_translator_work(translator.settings_for(contact), contact, names)))
         drawn = ((translator_name, reader.translator_draws_for(contact)),)
         chain_sets = all_sets + ([random_sets[contact]] if contact in random_sets else [])
@@ -174,13 +174,15 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         if budget.rows is not None:  # at 'all' the GDNN on the N real images is the reference
             steps.append(Step(f"posenet/{contact}_real_rows", partial(
                 posenet_step, config, real_rows, contact, "real", budget_sets, variables[contact], (),
-                device=device), cost=POSENET_EPOCH_COST * real_rows.epochs, work=_gdnn_work(real_rows, contact, names)))
+                device=device), cost=POSENET_EPOCH_COST * real_rows.epochs_for(contact),
+                work=_gdnn_work(real_rows, contact, names)))
         steps.append(Step(f"posenet/{contact}_real", partial(
             posenet_step, config, reader, contact, "real", all_sets, variables[contact], (), device=device),
             cost=POSENET_EPOCH_COST * reader.epochs_for(contact), work=_gdnn_work(reader, contact, names)))
-        epochs[contact] = {"factor": factor, "translator": translator.epochs, "chain": reader.epochs_for(contact),
-                           "real_rows": real_rows.epochs if budget.rows is not None else reader.epochs_for(contact),
-                           "reference": reader.epochs_for(contact)}
+        chain = reader.epochs_for(contact)
+        epochs[contact] = {"factor": factor, "translator": translator.epochs_for(contact), "chain": chain,
+                           "real_rows": real_rows.epochs_for(contact) if budget.rows is not None else chain,
+                           "reference": chain}
     return steps, epochs
 
 

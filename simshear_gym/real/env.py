@@ -109,9 +109,6 @@ from simshear_gym.robots.mg400.frames import (
     pose_to_T_base_flange,
 )
 from simshear_gym.robots.mg400.protocol import (
-    DASHBOARD_PORT,
-    FEEDBACK_PORT,
-    MOTION_PORT,
     ProtocolError,
     RobotMode,
 )
@@ -185,13 +182,27 @@ def move_to_flange_target(flange_pose_mm_deg, move_sensor, mount: TacTipMount) -
 # Configuration
 
 
+ENV_CLIENT = MG400ClientConfig(reply_timeout_s=1.0, sync_timeout_s=30.0)
+"""The client a control loop talks through: the client's defaults, but a reply waits at most 1 s (a loop that
+commands every 0.1 s and waits longer has lost the arm; the client's 2 s is for one-off commands) and ``reset``'s
+move to the start pose at most 30 s."""
+
+
+def env_client(host: str, dashboard_port: int, motion_port: int, feedback_port: int,
+               **settings) -> MG400ClientConfig:
+    """:data:`ENV_CLIENT` at another address (``settings``: other client fields replaced too)."""
+    return replace(ENV_CLIENT, host=host, dashboard_port=dashboard_port, motion_port=motion_port,
+                   feedback_port=feedback_port, **settings)
+
+
 @dataclass(frozen=True)
 class RealEnvConfig:
     """Settings of :class:`RealTactileEnv`.
 
     Attributes:
-        robot_ip: the MG400 controller's address.
-        dashboard_port, motion_port, feedback_port: its TCP ports.
+        client: where the MG400 controller is and how long to wait for it (:data:`ENV_CLIENT`; its
+            ``sync_timeout_s`` bounds ``reset``'s move to the start pose, its ``connect_timeout_s`` the first
+            feedback; the safety layer's ``max_feedback_age_s`` replaces its ``feedback_max_age_s``).
         control_period_s: time between servo commands (and observations), s.
         servo_margin_s: added to the period for each ServoP's ``t`` so the arm never idles between targets, s:
             generous, because a cycle that runs late must not let the arm reach its target and stop (the next
@@ -217,14 +228,9 @@ class RealEnvConfig:
             ``dry_run`` here).
         dry_run: check and log motion commands instead of sending them (see the module docstring).
         enable_robot: send EnableRobot on reset when the robot is disabled.
-        connect_timeout_s, reply_timeout_s: network timeouts, s.
-        move_timeout_s: how long reset waits for the move to the start pose, s.
     """
 
-    robot_ip: str = "192.168.1.6"
-    dashboard_port: int = DASHBOARD_PORT
-    motion_port: int = MOTION_PORT
-    feedback_port: int = FEEDBACK_PORT
+    client: MG400ClientConfig = ENV_CLIENT
     control_period_s: float = 0.1
     servo_margin_s: float = 0.08
     camera_source: str = "0"
@@ -242,13 +248,8 @@ class RealEnvConfig:
     safety: SafetyConfig = SafetyConfig()
     dry_run: bool = False
     enable_robot: bool = True
-    connect_timeout_s: float = 2.0
-    reply_timeout_s: float = 1.0
-    move_timeout_s: float = 30.0
 
     def __post_init__(self) -> None:
-        if not self.robot_ip:
-            raise ValueError("RealEnvConfig.robot_ip must be a host name or IP address, got ''")
         if self.image_size_px not in IMAGE_SIZES_PX:
             raise ValueError(f"RealEnvConfig.image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px!r}")
         check_observation(self.observation, self.history, "RealEnvConfig")
@@ -261,10 +262,9 @@ class RealEnvConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 1.0):
                 raise ValueError(f"RealEnvConfig.{name} must be in [0, 1] s, got {value!r}")
-        for name in ("camera_stall_timeout_s", "connect_timeout_s", "reply_timeout_s", "move_timeout_s"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"RealEnvConfig.{name} must be finite and > 0 s, got {value!r}")
+        if not (math.isfinite(self.camera_stall_timeout_s) and self.camera_stall_timeout_s > 0.0):
+            raise ValueError(f"RealEnvConfig.camera_stall_timeout_s must be finite and > 0 s, got "
+                             f"{self.camera_stall_timeout_s!r}")
         if self.safety.dry_run:
             raise ValueError("set dry_run on RealEnvConfig, not on its SafetyConfig (one place decides)")
         limit = self.frozen_frame_limit
@@ -299,15 +299,14 @@ class RealEnvConfig:
         return self.control_period_s + self.servo_margin_s
 
     def client_config(self) -> MG400ClientConfig:
-        return MG400ClientConfig(host=self.robot_ip, dashboard_port=self.dashboard_port, motion_port=self.motion_port,
-                                 feedback_port=self.feedback_port, connect_timeout_s=self.connect_timeout_s,
-                                 reply_timeout_s=self.reply_timeout_s, sync_timeout_s=self.move_timeout_s,
-                                 feedback_max_age_s=self.safety.max_feedback_age_s)
+        """The client's config: :attr:`client` with the safety layer's feedback age (one place decides it)."""
+        return replace(self.client, feedback_max_age_s=self.safety.max_feedback_age_s)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-ready summary (for run logs)."""
         return {
-            "robot_ip": self.robot_ip, "ports": [self.dashboard_port, self.motion_port, self.feedback_port],
+            "robot_ip": self.client.host,
+            "ports": [self.client.dashboard_port, self.client.motion_port, self.client.feedback_port],
             "control_period_s": self.control_period_s, "servo_time_s": self.servo_time_s,
             "camera_source": self.camera_source, "frozen_frame_limit": self.frozen_frame_limit,
             "preprocess": None if self.preprocess is None else self.preprocess.to_dict(),
@@ -403,15 +402,16 @@ class RealTactileEnv(gym.Env):
         self.client.close()
         self.client.connect()
         self._connected = True
-        deadline = time.monotonic() + self.config.connect_timeout_s
+        deadline = time.monotonic() + self.config.client.connect_timeout_s
         while True:  # the first feedback packet; the env reads tcp_pose from it
             try:
                 self.client.latest_feedback()
                 return
             except FeedbackStaleError as error:
                 if time.monotonic() > deadline:
-                    raise MG400ConnectionError(f"no feedback from the MG400 at {self.config.robot_ip}:"
-                                               f"{self.config.feedback_port} within {self.config.connect_timeout_s:g} s"
+                    client = self.config.client
+                    raise MG400ConnectionError(f"no feedback from the MG400 at {client.host}:"
+                                               f"{client.feedback_port} within {client.connect_timeout_s:g} s"
                                                f": {error}") from error
                 time.sleep(0.005)
 
@@ -459,7 +459,7 @@ class RealTactileEnv(gym.Env):
         if not dry_run:
             self._wait_until_at(start)
             # from rest, a servo command may ask for max_accel times the time at rest: start the stream with a t's
-            self.client.wait_until_still(self.config.servo_time_s, timeout_s=self.config.move_timeout_s)
+            self.client.wait_until_still(self.config.servo_time_s, timeout_s=self.config.client.sync_timeout_s)
         self._commanded = start.copy()
         self.commands_sent = 0
         self.safety_events = []

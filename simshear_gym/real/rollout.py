@@ -460,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
 
     from simshear_gym.control.env_estimator import reading_estimator
     from simshear_gym.control.estimator import EstimatorConfig
-    from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv
+    from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv, env_client
     from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -497,8 +497,8 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         raise ValueError(f"--max-step-mm / --max-step-deg: {error} (the flag --unsafe-limits)") from None
     config = RealEnvConfig(
-        robot_ip=args.robot, dashboard_port=args.dashboard_port, motion_port=args.motion_port,
-        feedback_port=args.feedback_port, control_period_s=args.period_s, camera_source=str(args.camera),
+        client=env_client(args.robot, args.dashboard_port, args.motion_port, args.feedback_port),
+        control_period_s=args.period_s, camera_source=str(args.camera),
         preprocess=preprocess_config, image_size_px=image_size_px, start_pose_mm_deg=tuple(
             args.start_pose if args.start_pose is not None else PUSH_START_POSE_MM_DEG if push else (300.0, 0.0, 0.0,
                                                                                                      0.0)),

@@ -63,6 +63,9 @@ class TranslatorTrainConfig:
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:
             raise ValueError("paired_dirs: give at least one paired set directory")
+        if self.flow_px and (self.flow_px < 2 or self.flow_px & (self.flow_px - 1)):
+            raise ValueError(f"flow_px must be a power of two >= 2 (a decoder level's size) or 0 (no warp), "
+                             f"got {self.flow_px!r}")
         if self.epochs < 1 or self.batch_size < 2:
             raise ValueError(f"need epochs >= 1 and batch_size >= 2, got {self.epochs}, {self.batch_size}")
         if not 0.0 < self.holdout < 0.5:
