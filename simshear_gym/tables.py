@@ -9,6 +9,7 @@ dataclass's own ``__post_init__`` validation as a :class:`ConfigError` that says
 from __future__ import annotations
 
 import collections.abc
+import copy
 import dataclasses
 import tomllib
 import types
@@ -33,6 +34,49 @@ def read_toml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: no such config file") from None
     except tomllib.TOMLDecodeError as error:
         raise ConfigError(f"{path}: not valid TOML ({error})") from None
+
+
+SET_HELP = ("override one setting of the config file, SECTION.KEY=VALUE (a TOML value), e.g. "
+            "profiles.smoke.translator.epochs=2; repeatable; the file is not changed and the run records it")
+
+
+def add_set_argument(parser) -> None:
+    """``--set SECTION.KEY=VALUE`` (repeatable, into ``args.settings``) on a command that reads a config TOML
+    (:func:`with_settings`)."""
+    parser.add_argument("--set", dest="settings", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help=SET_HELP)
+
+
+def parse_setting(text: str) -> tuple[tuple[str, ...], Any]:
+    """One ``--set section.key=value``: (the dotted key's parts, the value read as a TOML value: ``2``, ``0.5``,
+    ``true``, ``"cosine"``, ``[1, 2]``, ``{ surface = 26 }``; a bare word that is no TOML value is a string)."""
+    key, sep, raw = str(text).partition("=")
+    parts = tuple(part.strip() for part in key.split("."))
+    if not sep or not all(parts) or not raw.strip():
+        raise ConfigError(f"--set {text!r}: expected SECTION.KEY=VALUE, e.g. profiles.smoke.translator.epochs=2")
+    try:
+        value = tomllib.loads(f"value = {raw.strip()}")["value"]
+    except tomllib.TOMLDecodeError:
+        value = raw.strip()
+    return parts, value
+
+
+def with_settings(table: dict[str, Any], settings: tuple[str, ...] | list[str], source: str) -> dict[str, Any]:
+    """``table`` (a config file's, read by :func:`read_toml`) with each ``--set section.key=value`` of ``settings``
+    applied in order (tables on the way made where missing); the file itself is not touched. A key through a value
+    that is no table is one error naming the file and the key."""
+    result = copy.deepcopy(table)
+    for text in settings:
+        parts, value = parse_setting(text)
+        node = result
+        for depth, part in enumerate(parts[:-1]):
+            child = node.setdefault(part, {})
+            if not isinstance(child, dict):
+                raise ConfigError(f"{source}: --set {text!r}: {'.'.join(parts[:depth + 1])} is {child!r}, not a "
+                                  "table")
+            node = child
+        node[parts[-1]] = value
+    return result
 
 
 def from_table(cls: type[T], table: Any, source: str, key: str = "") -> T:

@@ -34,6 +34,7 @@ from simshear_gym.pipelines.frame_check import (
     check_frame,
     lab_source,
 )
+from simshear_gym.tables import add_set_argument
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
     from simshear_gym.pipelines.config import ExperimentConfig
@@ -173,6 +174,7 @@ def format_report(config: ExperimentConfig, reports: list[DatasetReport]) -> str
 # ----------------------------------------------------------------------------------------------- command line
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    add_set_argument(parser)
     parser.add_argument("--data", type=Path, default=None,
                         help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--max-rows", type=int, default=None,
@@ -184,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.config import load_config
 
     start = time.perf_counter()
-    config = load_config(args.config)
+    config = load_config(args.config, args.settings)
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     reports = check(config, root, args.max_rows)
     print(format_report(config, reports))

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 from simshear_gym.data.paths import SPLITS, TACTIP331_TASKS, data_root, real_set_dir
+from simshear_gym.tables import add_set_argument
 
 # pybullet (via simshear_gym.sim) is imported inside run, so that `simshear collect --help` stays light.
 
@@ -31,6 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     source.add_argument("--protocol", type=Path, metavar="CONFIG",
                         help="the rows of a sensor config's [collect] table, rendered with its [sensor] and [replay] "
                         "(the same rows, in the same order, as `simshear collect-real CONFIG` records)")
+    add_set_argument(parser)  # with --protocol
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--n", type=int, default=5000, help="number of random contacts (--task)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random contacts (--task)")
@@ -50,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.sim.collect import CollectConfig, random_set, replay_set
     from simshear_gym.sim.parallel import ray_session
     from simshear_gym.sim.tactip import TacTipConfig
+
+    if args.settings and args.protocol is None:
+        raise ValueError("--set overrides a config's settings: it goes with --protocol CONFIG")
 
     config = CollectConfig(tactip=TacTipConfig(image_size_px=args.image_size), workers=args.workers,
                            ray_address=args.ray)
@@ -92,7 +97,7 @@ def _run_protocol(args: argparse.Namespace, start: float) -> int:
     from simshear_gym.pipelines.config import load_config
     from simshear_gym.sim.collect import CollectConfig, labelled_set
 
-    config = load_config(args.protocol)
+    config = load_config(args.protocol, args.settings)
     if config.collect is None:
         raise ValueError(f"{args.protocol}: no [collect] table (the data-collection protocol; configs/README.md)")
     protocol = config.collect

@@ -22,10 +22,12 @@ from simshear_gym.lab.collect_real import (
     plan_text,
     rehearsal_camera,
 )
+from simshear_gym.tables import add_set_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="the sensor's config (TOML) with a [collect] table")
+    add_set_argument(parser)
     parser.add_argument("--robot", default=None, metavar="HOST[:PORTS]",
                         help="the MG400: HOST or HOST:DASHBOARD,MOTION,FEEDBACK (not with --rehearsal)")
     parser.add_argument("--camera", default=None,
@@ -48,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.real.safety import SafetyConfig
     from simshear_gym.tables import read_toml
 
-    config = load_config(args.config)
+    config = load_config(args.config, args.settings)
     if config.collect is None:
         raise ValueError(f"{args.config}: no [collect] table (the data-collection protocol; configs/README.md)")
     protocol = config.collect

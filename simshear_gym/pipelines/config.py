@@ -48,7 +48,7 @@ from simshear_gym.pipelines.env_collect import TASKS as ENV_TASKS
 from simshear_gym.sim.objects import PAYLOADS
 from simshear_gym.sim.replay import ReplayGeometry
 from simshear_gym.sim.tactip import TacTipConfig
-from simshear_gym.tables import ConfigError, field_values, from_table, read_toml
+from simshear_gym.tables import ConfigError, field_values, from_table, read_toml, with_settings
 from simshear_gym.train.posenet_config import PosenetTrainConfig
 from simshear_gym.train.translator_config import TranslatorTrainConfig
 
@@ -495,7 +495,8 @@ def default_profiles() -> dict[str, Profile]:
 
 @dataclass(frozen=True)
 class ExperimentConfig:
-    """A sensor's experiment config (see the module docstring); ``path`` is the file it was read from."""
+    """A sensor's experiment config (see the module docstring); ``path`` is the file it was read from, ``settings``
+    the ``--set`` overrides read over it."""
 
     name: str
     datasets: Mapping[str, DatasetConfig]
@@ -509,6 +510,7 @@ class ExperimentConfig:
     dataset_frames: Mapping[str, FrameConfig] = field(default_factory=dict)
     collect: CollectProtocol | None = None
     path: Path | None = field(default=None, compare=False)
+    settings: tuple[str, ...] = field(default=(), compare=False)  # the --set overrides read over the file
 
     def __post_init__(self) -> None:
         check_name("name", self.name)
@@ -557,11 +559,15 @@ _TOP_LEVEL = ("name", "description", "sensor", "replay", "frame", "datasets", "c
               "collect")
 
 
-def load_config(path: str | Path) -> ExperimentConfig:
-    """Read and validate an experiment config; raises :class:`ConfigError` on the first problem."""
+def load_config(path: str | Path, settings: tuple[str, ...] | list[str] = ()) -> ExperimentConfig:
+    """Read and validate an experiment config, with ``settings`` (``--set section.key=value``, see
+    :func:`~simshear_gym.tables.with_settings`) applied over the file; raises :class:`ConfigError` on the first
+    problem."""
     path = Path(path)
-    table = read_toml(path)
     source = str(path)
+    table = with_settings(read_toml(path), settings, source)
+    if settings:
+        source = f"{path} with --set {' '.join(settings)}"
     unknown = sorted(set(table) - set(_TOP_LEVEL))
     if unknown:
         raise ConfigError(f"{source}: unknown key {unknown[0]!r}; expected one of {list(_TOP_LEVEL)}")
@@ -612,6 +618,7 @@ def load_config(path: str | Path) -> ExperimentConfig:
     try:
         return ExperimentConfig(name=table["name"], description=table.get("description", ""),
                                 datasets=datasets, profiles=profiles, env_models=env_models,
-                                dataset_frames=dataset_frames, collect=collect, path=path, **parts)
+                                dataset_frames=dataset_frames, collect=collect, path=path,
+                                settings=tuple(settings), **parts)
     except ValueError as error:
         raise ConfigError(f"{source}: {error}") from None

@@ -27,6 +27,7 @@ from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.models.zoo import load_sensor, translator_weights
 from simshear_gym.pipelines.stages import StageResult, StageRunner
+from simshear_gym.tables import add_set_argument
 
 if TYPE_CHECKING:  # the config imports the simulation (PyBullet): not for --help
     from simshear_gym.pipelines.config import EnvModelRecipe
@@ -148,6 +149,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from simshear_gym.models.device import DEVICES
 
     parser.add_argument("config", type=Path, help="the sensor's experiment config (configs/<name>.toml)")
+    add_set_argument(parser)
     parser.add_argument("--model", required=True, help="the recipe: the config's [env_models.<MODEL>] table")
     parser.add_argument("--out", type=Path, default=None,
                         help="run folder (default runs/env_models/<config name>/<MODEL>); a rerun reuses its stages")
@@ -159,7 +161,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.config import load_config
 
-    config = load_config(args.config)
+    config = load_config(args.config, args.settings)
     recipe = config.env_model(args.model)
     out = args.out or Path("runs") / "env_models" / config.name / args.model
     command = recorded_command("simshear pipeline env-model", add_arguments, args)

@@ -42,6 +42,7 @@ from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.pipelines.schedule import Step, order_steps
+from simshear_gym.tables import add_set_argument
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
     from simshear_gym.pipelines.config import ExperimentConfig
@@ -263,6 +264,7 @@ def format_estimate(result: dict) -> str:
 # ----------------------------------------------------------------------------------------------- command line
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    add_set_argument(parser)
     parser.add_argument("--profile", default="quick", help="the profile to estimate: smoke, quick or full")
     parser.add_argument("--data", type=Path, default=None,
                         help="data root the config's paths are relative to (default $SIMSHEAR_DATA or ../shared/data)")
@@ -281,7 +283,7 @@ def run(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and value < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
-    config = load_config(args.config)
+    config = load_config(args.config, args.settings)
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     if args.compare is not None and not args.compare.is_dir():
         raise FileNotFoundError(f"--compare {args.compare}: no such run folder")

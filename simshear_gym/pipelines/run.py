@@ -70,6 +70,7 @@ from simshear_gym.pipelines.stages import (
     training_start_line,
 )
 from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
+from simshear_gym.tables import add_set_argument
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
 POSE_NAMES = {"pose_x": "x_mm", "pose_y": "y_mm", "pose_z": "z_mm", "pose_rx": "rx_deg", "pose_ry": "ry_deg",
@@ -502,7 +503,7 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
                      posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
                      variables=posenets["variables"], onnx=onnx)
     manifest = {
-        "config": str(config.path), "sensor": config.name, "profile": profile,
+        "config": str(config.path), "settings": list(config.settings), "sensor": config.name, "profile": profile,
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
         "package_version": _version(), "git_commit": commit, "machine": machine_info(),
         "wall_s": round(time.perf_counter() - start, 2),
@@ -530,6 +531,7 @@ def _version() -> str:
 # ----------------------------------------------------------------------------------------------- command line
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    add_set_argument(parser)
     parser.add_argument("--profile", default="quick", help="stage settings: smoke (seconds), quick (a laptop, under "
                         "30 min) or full (the shipped recipe)")
     parser.add_argument("--stages", nargs="+", choices=STAGES, default=list(STAGES),
@@ -551,7 +553,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.config import load_config
 
-    config = only_contacts(load_config(args.config), args.contacts)
+    config = only_contacts(load_config(args.config, args.settings), args.contacts)
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     out = args.out or Path(DEFAULT_PIPELINE_RUNS) / config.name
     try:

@@ -38,6 +38,7 @@ import pandas as pd
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
 from simshear_gym.pipelines.stages import StageRunner
+from simshear_gym.tables import add_set_argument
 
 ALL = "all"
 PAPER_ROWS_PER_TASK = 5000
@@ -376,6 +377,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     from simshear_gym.models.device import DEVICES
 
     parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
+    add_set_argument(parser)
     parser.add_argument("--real-rows", nargs="+", required=True, metavar="N",
                         help="budgets: real training rows per dataset (integers >= 1), 'all' for every row")
     parser.add_argument("--profile", default="quick", help="stage settings (default quick)")
@@ -411,7 +413,7 @@ def run(args: argparse.Namespace) -> int:
     from simshear_gym.pipelines.run import PLUMBING_PROFILES, contacts_of, only_contacts
 
     budgets = parse_budgets(args.real_rows)
-    config = only_contacts(load_config(args.config), args.contacts)
+    config = only_contacts(load_config(args.config, args.settings), args.contacts)
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     out = args.out or Path("runs") / "pipeline" / config.name
     prefix = args.record or Path("results") / "ablations" / f"pipeline_sweep_{config.name}_{args.profile}"
