@@ -37,15 +37,20 @@ def env_estimator(env) -> ReadingEstimator:
     :class:`~simshear_gym.contract.ServoHints` law: the GDNN the env names, its process noise), keeping its
     readings (:func:`reading_estimator`)."""
     law = servo_hints(env).law
+    return reading_estimator(law, _controller_class(law).for_env(env))
+
+
+def _controller_class(law: str) -> type:
+    """The controller of ``law`` (``servo``, ``edge`` or ``push``)."""
     if law == "push":
         from simshear_gym.control.push_servo import PushServoController
 
-        return reading_estimator(law, PushServoController.for_env(env))
+        return PushServoController
     if law == "edge":
         from simshear_gym.control.edge_servo import EdgeServoController
 
-        return reading_estimator(law, EdgeServoController.for_env(env))
-    return reading_estimator(law, ServoController.for_env(env))
+        return EdgeServoController
+    return ServoController
 
 
 def reading_estimator(law: str, controller) -> ReadingEstimator:
@@ -76,4 +81,11 @@ def env_kwargs(settings: PolicySettings) -> dict[str, Any]:
     return kwargs
 
 
-__all__ = ["ReadingEstimator", "env_estimator", "env_kwargs", "reading_estimator"]
+def policy_env_kwargs(model: str) -> dict[str, Any]:
+    """``gym.make`` keyword arguments of a sim env that gives the SB3 model at ``model`` the observation it was
+    trained on (:func:`env_kwargs` of its run's settings; a bare ``.zip`` without them: translated images)."""
+    settings = PolicySettings.of_model(model)
+    return env_kwargs(settings) if settings is not None else {"obs_mode": "real"}
+
+
+__all__ = ["ReadingEstimator", "env_estimator", "env_kwargs", "policy_env_kwargs", "reading_estimator"]

@@ -53,11 +53,9 @@ def make_controller(variant: str, env, posenet: str | None, policy: str | None):
 
 def env_kwargs_of(variant: str, policy: str | None) -> dict:
     if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import env_kwargs
-        from simshear_gym.control.policy import PolicySettings
+        from simshear_gym.control.env_estimator import policy_env_kwargs
 
-        settings = PolicySettings.of_model(policy)
-        return env_kwargs(settings) if settings is not None else {"obs_mode": "real"}
+        return policy_env_kwargs(policy)
     return {"obs_mode": "oracle" if variant == "oracle" else "real"}
 
 

@@ -36,7 +36,7 @@ import numpy as np
 from simshear_gym.command_line import recorded_command
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
-from simshear_gym.control.policy import Controller, PolicySettings, SB3Controller, sb3_algorithm
+from simshear_gym.control.policy import Controller, SB3Controller, sb3_algorithm
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
 from simshear_gym.evaluate.figures import save_figure
@@ -69,10 +69,9 @@ def env_kwargs_of(variant: str, policy: str | None) -> dict:
     """Observation settings of a variant: a policy runs in the settings of its run's ``config.json`` (a bare zip:
     translated images at 128 px and the TCP pose)."""
     if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import env_kwargs
+        from simshear_gym.control.env_estimator import policy_env_kwargs
 
-        settings = PolicySettings.of_model(policy)
-        return env_kwargs(settings) if settings is not None else {"obs_mode": "real"}
+        return policy_env_kwargs(policy)
     return {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
 
 
