@@ -114,3 +114,33 @@ def test_example_lab_smoke_sweep_writes_a_record_and_figure_per_contact_and_reru
     assert not [line for line in logged if "running" in line], logged  # every step cached
     assert again["stages"]["ran"] == 0 and again["stages"]["cached"] > 0 and record["stages"]["ran"] > 0
     assert again["budgets"]["surface"] == record["budgets"]
+
+
+def test_a_budget_trains_the_profiles_pool_on_its_rows_read_by_its_own_real_gdnn():
+    """A pool generator with the pose-consistency loss is trained on the budget's N pairs and read by the GDNN on
+    the same N real images (at 'all': the reference), its epochs scaled as the shPix2pix's; the chain draws it."""
+    from dataclasses import replace
+
+    from simshear_gym.pipelines.config import PoolGenerator, load_config
+    from simshear_gym.pipelines.sweep import budget_steps, sweep_profile
+
+    config = load_config(ROOT / "configs" / "example_lab.toml")
+    profile = sweep_profile(config, "smoke")
+    pool = (PoolGenerator("tilt", "surface", draws=2, overrides={"pose_weight": 20.0, "epochs": 3}),
+            PoolGenerator("plain", "surface"))
+    profile = replace(profile, pool=pool)
+    paired = {"surface_tap": {"train": "collect/train", "val": "collect/val"}}
+    for budget, reader, epochs in ((Budget(16), "posenet/surface_real_rows", 6), (Budget(None), "posenet/surface_real", 3)):
+        subsets = {"surface_tap": "rows/set" if budget.rows else "collect/train"}
+        steps, _ = budget_steps(config, profile, budget, paired, subsets, {}, {"surface": "surface"}, "cpu", 2.0,
+                                {"surface_tap": 48})
+        by_name = {step.name: step for step in steps}
+        tilt, plain = by_name["translator/surface_tilt"], by_name["translator/surface_plain"]
+        assert tilt.needs == (reader,) and plain.needs == ()
+        assert tilt.action.keywords["reader"] == reader and plain.action.keywords["reader"] is None
+        assert tilt.action.args[4] == [subsets["surface_tap"]]  # trained on the budget's pairs
+        assert tilt.action.args[5].overrides["epochs"] == epochs  # its own epochs, scaled by all/N (cap 2)
+        chain = by_name["posenet/surface_shpix2pix"]
+        assert chain.needs == ("translator/surface_shpix2pix", "translator/surface_tilt", "translator/surface_plain")
+        assert chain.action.args[6] == (("translator/surface_shpix2pix", 1), ("translator/surface_tilt", 2),
+                                        ("translator/surface_plain", 1))

@@ -246,14 +246,15 @@ def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_
 
 
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
-                    generator, runner: StageRunner, done: dict, *, device: str = "auto") -> StageResult:
+                    generator, runner: StageRunner, done: dict, *, device: str = "auto",
+                    reader: str | None = None) -> StageResult:
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
-    (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``), trained
-    on ``device``."""
+    (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``: the step
+    ``reader``, by default the generator's own), trained on ``device``."""
     settings = _translator_settings(stage, contact, generator)
     pose_net = ""
     if generator is not None and generator.pose_weight > 0:
-        pose_net = done[f"posenet/{contact}_{generator.reader_step}"].outputs["weights"]
+        pose_net = done[reader or f"posenet/{contact}_{generator.reader_step}"].outputs["weights"]
         settings |= {"pose_weight": generator.pose_weight, "pose_net": pose_net,
                      "pose_variables": tuple(generator.pose_variables)}
     key = {"paired": train_sets, "arch": arch, "settings": settings}

@@ -5,17 +5,18 @@ For each budget N (real training rows per dataset; ``all``: every training row o
 
 - ``rows/<dataset>``: the first N rows of each paired training set (a set of its own, cached by its content; its
   images link to the full set's);
-- the chain: a shPix2pix trained on those N pairs, and a GDNN on its translations of the sim renders of *every*
-  training row (sim contacts cost no robot time; plus the profile's random sim contacts);
+- the chain: a shPix2pix and the profile's pool generators trained on those N pairs (a pool generator with the
+  pose-consistency loss read by the GDNN on the N real images: a lab with N rows has no other reader), and a GDNN
+  on their translations of the sim renders of *every* training row (sim contacts cost no robot time; plus the
+  profile's random sim contacts);
 - beside it a GDNN trained on the same N real images, and the reference: a GDNN on all real training rows;
 - the evaluation on every dataset's complete real validation rows (the same for every budget): MAE per read
   variable for the three GDNNs, translation MAPE against nearest-label retrieval from the same N rows.
 
 Every step is a cached stage of the run folder (:mod:`simshear_gym.pipelines.stages`): the budget ``all`` and the
-reference share their stages with ``simshear pipeline run`` in the same folder. The sweep trains one shPix2pix per
-contact type: the profile's pool generators and baseline GDNNs are left out. Budgets are the profile's epochs
-(fewer rows: fewer optimiser steps, recorded); ``--scale-epochs CAP`` multiplies the epochs of the models trained
-on N rows by all/N, at most CAP.
+reference share their stages with ``simshear pipeline run`` in the same folder. The sweep leaves out the profile's
+pix2pix and baseline GDNNs. Budgets are the profile's epochs (fewer rows: fewer optimiser steps, recorded);
+``--scale-epochs CAP`` multiplies the epochs of the models trained on N rows by all/N, at most CAP.
 
 Writes, per contact type, a record (``<record-prefix>_<contact>.json``: the command, what produced it, per budget
 rows, robot minutes at the collection rate, MAE per variable, MAPE, epochs and optimiser steps) and its figure
@@ -144,6 +145,7 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         POSENET_EPOCH_COST,
         TRANSLATOR_EPOCH_COST,
         _gdnn_work,
+        _translator_settings,
         _translator_work,
         contacts_of,
         posenet_step,
@@ -166,11 +168,30 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
                                                    budget_sets, None, device=device),
                           cost=TRANSLATOR_EPOCH_COST * translator.epochs_for(contact),
                           work=_translator_work(translator.settings_for(contact), contact, names)))
-        drawn = ((translator_name, reader.translator_draws_for(contact)),)
+        real_rows_name = f"posenet/{contact}_real_rows" if budget.rows is not None else f"posenet/{contact}_real"
+        pool = []
+        for generator in profile.pool_for(contact):
+            if generator.reader_seed:
+                raise ValueError(f"pool generator {generator.name!r}: reader_seed {generator.reader_seed} is not "
+                                 "swept (a budget's generators read with the GDNN on its N real images); expected "
+                                 "reader_seed 0")
+            own = generator.overrides.get("epochs")
+            if own is not None:
+                generator = replace(generator, overrides={**generator.overrides, "epochs": scaled(own, factor)})
+            name = f"translator/{contact}_{generator.name}"
+            needs = (real_rows_name,) if generator.pose_weight > 0 else ()
+            settings = _translator_settings(translator, contact, generator)
+            steps.append(Step(name, partial(translator_step, config, translator, contact, "shpix2pix", budget_sets,
+                                            generator, device=device, reader=needs[0] if needs else None),
+                              needs=needs, cost=TRANSLATOR_EPOCH_COST * settings["epochs"],
+                              work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact,
+                                                    names)))
+            pool.append((name, generator.draws))
+        drawn = ((translator_name, reader.translator_draws_for(contact)), *pool)
         chain_sets = all_sets + ([random_sets[contact]] if contact in random_sets else [])
         steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
             posenet_step, config, reader, contact, "shpix2pix", chain_sets, variables[contact], drawn, device=device),
-            needs=(translator_name,), cost=POSENET_EPOCH_COST * reader.epochs_for(contact),
+            needs=tuple(name for name, _ in drawn), cost=POSENET_EPOCH_COST * reader.epochs_for(contact),
             work=_gdnn_work(reader, contact, names, drawn, reader.random_contacts.get(contact, 0))))
         if budget.rows is not None:  # at 'all' the GDNN on the N real images is the reference
             steps.append(Step(f"posenet/{contact}_real_rows", partial(
@@ -188,9 +209,10 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
 
 
 def sweep_profile(config, profile_name: str):
-    """The profile as the sweep trains it: one shPix2pix per contact type (no pix2pix, pool or baseline GDNNs)."""
+    """The profile as the sweep trains it: its shPix2pix and pool generators per contact type (no pix2pix or
+    baseline GDNNs)."""
     profile = config.profile(profile_name)
-    return replace(profile, pool=(), translator=replace(profile.translator, archs=("shpix2pix",)),
+    return replace(profile, translator=replace(profile.translator, archs=("shpix2pix",)),
                    posenet=replace(profile.posenet, baselines=()))
 
 
@@ -436,9 +458,10 @@ def run(args: argparse.Namespace) -> int:
             "collection_rate_s_per_row": ROBOT_S_PER_ROW,
             "epochs": ("scaled: the models on N rows train all/N times the profile's epochs, at most "
                        f"{args.scale_epochs}" if args.scale_epochs else "the profile's (fewer rows, fewer steps)"),
-            "chain": "a shPix2pix on the N real pairs; a GDNN on its translations of the sim renders of every "
-                     "training row (and the profile's random sim contacts); the profile's pool and baselines left "
-                     "out",
+            "chain": "a shPix2pix and the profile's pool generators on the N real pairs (a pose-consistency "
+                     "generator read by the GDNN on the N real images); a GDNN on their translations of the sim "
+                     "renders of every training row (and the profile's random sim contacts); the profile's "
+                     "baselines left out",
             "train_rows": {name: body["train_rows"][name] for name in names},
             "val_rows": {name: body["val_rows"][name] for name in names},
             "variables": body["variables"][contact], "budgets": body["budgets"][contact],
