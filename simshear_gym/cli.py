@@ -89,7 +89,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "estimate"), "simshear_gym.pipelines.estimate",
      "how long a profile's training takes on this machine, from short probes of its trainers"),
-    (("pipeline", "compare"), "simshear_gym.pipelines.compare",
+    (("pipeline", "compare"), "simshear_gym.pipelines.evaluation",
      "a finished pipeline run's models against another run's, figure by figure (MAPE, GDNN MAE, ratios)"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
