@@ -235,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     module = importlib.import_module(args._module)
-    from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
+    from simshear_gym.pipelines.stages import RunStopped, end_children, stop_on_signals
 
     try:
         # SIGTERM (a scheduler, kill) and SIGINT become RunStopped: every command's finally blocks run (an arm's

@@ -23,7 +23,7 @@ ONNX beside its weights (:mod:`simshear_gym.pipelines.onnx_stage`, a cached ``on
 skipped with one line where the ``export`` extra is missing), so that the envs run the sensor's translators on ONNX
 Runtime like the shipped ones.
 
-Stages 3-5 are steps of a graph (:mod:`simshear_gym.pipelines.schedule`), run ``jobs`` at a time in worker
+Stages 3-5 are steps of a graph (:func:`simshear_gym.pipelines.stages.run_steps`), run ``jobs`` at a time in worker
 processes: a pose-consistency generator starts once its contact's real-image GDNN is done. The training steps
 train on the profile's ``device`` (``--device`` overrides it; ``auto``: CUDA where there is one), which is not
 part of their cache keys.
@@ -31,8 +31,8 @@ part of their cache keys.
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.models.zoo.load_sensor`).
 
-SIGTERM or SIGINT stops the run and all its processes (:mod:`simshear_gym.pipelines.stopping`): exit status 128 +
-the signal, one ``simshear: error:`` line; the rerun resumes.
+SIGTERM or SIGINT stops the run and all its processes (:func:`simshear_gym.pipelines.stages.stop_on_signals`): exit
+status 128 + the signal, one ``simshear: error:`` line; the rerun resumes.
 
 The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, the machine
 (:func:`simshear_gym.machine.machine_info`: wall times are that machine's), per stage its folder, whether it ran or
@@ -61,15 +61,18 @@ from simshear_gym.machine import machine_info
 from simshear_gym.models.device import DEVICES, check_device_name
 from simshear_gym.models.zoo import DEFAULT_PIPELINE_RUNS, write_sensor
 from simshear_gym.pipelines.onnx_stage import stage_onnx
-from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import (
+    RunStopped,
     StageResult,
     StageRunner,
+    Step,
+    end_children,
     file_fingerprint,
     report_epochs,
+    run_steps,
+    stop_on_signals,
     training_start_line,
 )
-from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
 from simshear_gym.tables import add_set_argument
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
@@ -232,14 +235,14 @@ def _translator_settings(stage, contact: str, generator=None) -> dict:
 
 
 def _translator_work(settings: dict, contact: str, names: list[str], arch: str = "shpix2pix") -> dict:
-    """A translator step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    """A translator step's ``work`` (:class:`~simshear_gym.pipelines.stages.Step`)."""
     return {"trainer": "translator", "contact": contact, "datasets": tuple(names),
             "settings": settings | {"arch": arch}}
 
 
 def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_rows: int = 0,
                baseline: bool = False, seed: int | None = None) -> dict:
-    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.stages.Step`)."""
     settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
     return {"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
             "settings": settings, "translators": tuple(dict.fromkeys(name for name, _ in drawn))}
@@ -404,7 +407,7 @@ def label_ranges(config: ExperimentConfig, names: list[str], adapted: dict, root
 
 def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dict, random_sets: dict,
                    variables: dict, stages: tuple[str, ...], device: str | None = None) -> list[Step]:
-    """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`); the
+    """The translator, GDNN and evaluation steps of the run, with what each needs (:func:`.stages.run_steps`); the
     training steps train on ``device`` (None: the profile's)."""
     device = device or profile.device
     steps = []
@@ -458,7 +461,7 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
 def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, stages: tuple[str, ...],
                  rows_per_split: int | None = None, workers: int = 2, jobs: int | None = None,
                  device: str | None = None) -> dict:
-    """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :mod:`.schedule`) and
+    """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :func:`.stages.run_steps`) and
     write ``out/manifest.json``; returns the manifest.
 
     ``rows_per_split``, ``jobs`` and ``device`` override the profile's (None: the profile's)."""
