@@ -213,6 +213,7 @@ def _leaves(value: Any) -> list:
         return [leaf for item in value for leaf in _leaves(item)]
     return [value]
 
+
 # --------------------------------------------------------------------------------------------- the step graph
 @dataclass(frozen=True)
 class Step:
@@ -304,6 +305,7 @@ def _run_step(action: Callable, root: Path, needs: dict[str, StageResult]) -> St
 
 def _flushed_print(text: str) -> None:
     print(text, flush=True)
+
 
 # --------------------------------------------------------------------------------------------------- stopping
 SIGNALS = (signal.SIGTERM, signal.SIGINT)
