@@ -89,7 +89,7 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "validate a sensor's experiment config and its data before anything trains"),
     (("pipeline", "estimate"), "simshear_gym.pipelines.estimate",
      "how long a profile's training takes on this machine, from short probes of its trainers"),
-    (("pipeline", "compare"), "simshear_gym.pipelines.compare",
+    (("pipeline", "compare"), "simshear_gym.pipelines.evaluation",
      "a finished pipeline run's models against another run's, figure by figure (MAPE, GDNN MAE, ratios)"),
     (("pipeline", "run"), "simshear_gym.pipelines.run",
      "from a sensor's data set to its models: adapt, replay, translators, GDNNs, evaluation (cached stages)"),
@@ -235,7 +235,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
     module = importlib.import_module(args._module)
-    from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
+    from simshear_gym.pipelines.stages import RunStopped, end_children, stop_on_signals
 
     try:
         # SIGTERM (a scheduler, kill) and SIGINT become RunStopped: every command's finally blocks run (an arm's

@@ -1,4 +1,4 @@
-"""The frame check of ``simshear pipeline check`` (pipelines/frame_check.py): real images that change with each
+"""The frame check of ``simshear pipeline check`` (pipelines/check.py): real images that change with each
 label the way the replayed renders do pass; a label the wrong way round, a wrong mount angle or a set recorded with
 another mount under one ``[frame]`` fails, naming the config key.
 
@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 
 from simshear_gym.data.tactile_set import TactileDataError
-from simshear_gym.pipelines.check import check
+from simshear_gym.pipelines.check import MIN_T, check, check_frame, flipped, turned
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.example_sensor import make_example
-from simshear_gym.pipelines.frame_check import MIN_T, check_frame, flipped, turned
 from simshear_gym.sim.replay import ReplayScene
 
 ROOT = Path(__file__).resolve().parents[1]

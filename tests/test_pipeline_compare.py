@@ -7,7 +7,7 @@ import json
 import pytest
 
 from simshear_gym.cli import main
-from simshear_gym.pipelines.compare import compare, load_evaluation
+from simshear_gym.pipelines.evaluation import compare, load_evaluation
 
 
 def _evaluation(mape: float, z_mae: float, real_z_mae: float) -> dict:

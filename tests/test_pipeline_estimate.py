@@ -12,7 +12,7 @@ from simshear_gym.data.adapter import adapt_dataset, split_sizes
 from simshear_gym.pipelines.config import load_config
 from simshear_gym.pipelines.estimate import estimate, format_estimate, lanes, planned_steps
 from simshear_gym.pipelines.run import run_pipeline
-from simshear_gym.pipelines.schedule import Step, order_steps
+from simshear_gym.pipelines.stages import Step, order_steps
 from simshear_gym.train.step_timing import posenet_step_time, translation_s_per_row, translator_step_time
 from tests.test_pipeline_check import write_lab
 from tests.test_pipeline_run import POOLED

@@ -116,7 +116,7 @@ def test_smoke_profile_runs_every_stage_and_reruns_from_cache(tmp_path):
 
 def test_without_the_export_extra_the_run_says_so_and_keeps_the_torch_translators(tmp_path, monkeypatch):
     from simshear_gym.models import onnx_export
-    from simshear_gym.pipelines.onnx_stage import stage_onnx
+    from simshear_gym.pipelines.run import stage_onnx
     from simshear_gym.pipelines.stages import StageRunner
 
     monkeypatch.setattr(onnx_export, "missing_export_packages", lambda: ["onnxscript"])

@@ -1,4 +1,4 @@
-"""The pipeline's step graph (:mod:`simshear_gym.pipelines.schedule`): priority by the longest chain, every step
+"""The pipeline's step graph (:mod:`simshear_gym.pipelines.stages`): priority by the longest chain, every step
 after the ones it needs, in this process or in worker processes; a failing step stops the run with its name, and so
 does a training stopped by its wall-clock cap, unrecorded, so that the rerun continues it."""
 
@@ -12,8 +12,16 @@ from pathlib import Path
 import pytest
 
 from simshear_gym.cli import is_input_error
-from simshear_gym.pipelines.schedule import Step, order_steps, run_steps
-from simshear_gym.pipelines.stages import RECORD, StageResult, StageRunner, StageStopped, file_fingerprint
+from simshear_gym.pipelines.stages import (
+    RECORD,
+    StageResult,
+    StageRunner,
+    StageStopped,
+    Step,
+    file_fingerprint,
+    order_steps,
+    run_steps,
+)
 from simshear_gym.train.runs import CAP_STOP
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
+from simshear_gym.pipelines.stages import RunStopped, end_children, stop_on_signals
 from tests.test_pipeline_check import write_lab
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -95,7 +95,7 @@ def _signal_handlers(_chunk) -> tuple[bool, bool]:
 
 def test_pool_workers_do_not_inherit_a_commands_stop_handlers():
     """A forked worker with the command's SIGTERM handler printed a RunStopped traceback when its pool ended it."""
-    from simshear_gym.pipelines.stopping import stop_on_signals
+    from simshear_gym.pipelines.stages import stop_on_signals
 
     with stop_on_signals():
         assert map_chunks(_signal_handlers, [0, 1], workers=2) == [(True, True), (True, True)]

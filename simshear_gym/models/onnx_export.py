@@ -9,7 +9,7 @@ the sha256 of the weights it came from (the envs' ``"auto"`` runtime runs only a
 lies beside it (``<file>.onnx.sha256``).
 
 Two callers, one graph: ``simshear ship onnx`` (:mod:`simshear_gym.ship.onnx`, the shipped translators, checked on
-the tactip331 real validation sets) and ``simshear pipeline run`` (:mod:`simshear_gym.pipelines.onnx_stage`, a
+the tactip331 real validation sets) and ``simshear pipeline run`` (:func:`simshear_gym.pipelines.run.stage_onnx`, a
 sensor's own translators, checked on its paired validation sets).
 
 Building needs the ``export`` extra (``pip install -e ".[export]"``: onnx, onnxscript); comparing and running need

@@ -6,7 +6,7 @@
 
 An ONNX translator is a generator exported (:mod:`simshear_gym.models.onnx_export`) to ``<weights>.onnx`` beside
 its ``<weights>.pt``: the shipped ones by ``simshear ship onnx`` (:mod:`simshear_gym.ship.onnx`), a sensor's own by
-``simshear pipeline run`` (:mod:`simshear_gym.pipelines.onnx_stage`). The graph holds the
+``simshear pipeline run`` (:func:`simshear_gym.pipelines.run.stage_onnx`). The graph holds the
 whole contract of :class:`~simshear_gym.models.translator.Translator`: it takes the uint8 sim image and the raw
 sensor-frame shear, applies ``/ SIM_SCALE`` and ``normalise_shear`` (mask and scale) itself and returns the uint8
 image (``floor(255 y + 0.5)`` clamped, as the torch path rounds). Its metadata records the sha256 of the torch

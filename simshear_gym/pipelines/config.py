@@ -77,7 +77,7 @@ class CheckConfig:
     """``simshear pipeline check``'s replay tests: ``replay_rows`` rows per dataset (spread over its train split)
     are rendered in simulation; fewer than ``min_contact_share`` of them with any contact means the frame or
     depth mapping is wrong (blank renders). Then ``frame_rows`` rows (0: none) check that the real images change
-    with each label as the renders do (:mod:`simshear_gym.pipelines.frame_check`: signs, axes, mount angle)."""
+    with each label as the renders do (:mod:`simshear_gym.pipelines.check`'s frame check: signs, axes, mount angle)."""
 
     replay_rows: int = 64
     min_contact_share: float = 0.5
@@ -86,7 +86,7 @@ class CheckConfig:
     def __post_init__(self) -> None:
         if self.replay_rows < 1:
             raise ValueError(f"replay_rows must be >= 1, got {self.replay_rows!r}")
-        if self.frame_rows < 0 or 0 < self.frame_rows < 128:  # frame_check.MIN_FRAME_ROWS
+        if self.frame_rows < 0 or 0 < self.frame_rows < 128:  # check.MIN_FRAME_ROWS
             raise ValueError(f"frame_rows must be 0 (no frame check) or >= 128, got {self.frame_rows!r}")
         if not 0.0 < self.min_contact_share <= 1.0:
             raise ValueError(f"min_contact_share must be in (0, 1], got {self.min_contact_share!r}")

@@ -8,7 +8,7 @@ for a GDNN on translations, its rows translated once per generator. What one of 
 (:mod:`simshear_gym.train.step_timing`: the package's trainers with the step's settings on random rows of the
 real shapes), ``jobs`` probes side by side as the run trains them, started together; steps with the same cost
 settings share a probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
-(:func:`simshear_gym.pipelines.schedule.order_steps`), which gives the training's wall time.
+(:func:`simshear_gym.pipelines.stages.order_steps`), which gives the training's wall time.
 
 The machine's load is measured before the probes (:func:`machine_load`: the 1-minute load average against the
 CPU count, ``os.getloadavg``): probes beside other work run slower than the run would on an idle machine, about
@@ -41,7 +41,7 @@ from simshear_gym.data.adapter import config_files, split_sizes
 from simshear_gym.data.paths import data_root
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
-from simshear_gym.pipelines.schedule import Step, order_steps
+from simshear_gym.pipelines.stages import Step, order_steps
 from simshear_gym.tables import add_set_argument
 
 if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so that --help stays light
@@ -142,7 +142,7 @@ def _side_by_side(pool, barrier, probe, jobs: int) -> tuple:
 
 def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, tuple[float, float]]:
     """{step: (start_s, end_s)}: the steps on ``jobs`` lanes, each started as soon as a lane is free and its needs
-    are done, the ready ones in :func:`~simshear_gym.pipelines.schedule.order_steps`' order (as the run does)."""
+    are done, the ready ones in :func:`~simshear_gym.pipelines.stages.order_steps`' order (as the run does)."""
     priority = order_steps(steps)
     by_name = {step.name: step for step in steps}
     times: dict[str, tuple[float, float]] = {}

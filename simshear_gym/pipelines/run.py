@@ -18,12 +18,19 @@ Stages, each cached under a content hash of its inputs and settings (:mod:`simsh
    retrieval (the real training image with the closest labels), the GDNNs' MAE per variable against chance and
    the translated-trained / real-trained ratio; written to ``evaluation.json``.
 
-Once the translators are trained, each translator of the sensor (the shPix2pix per contact type) is exported to
-ONNX beside its weights (:mod:`simshear_gym.pipelines.onnx_stage`, a cached ``onnx/<contact>_shpix2pix`` stage;
-skipped with one line where the ``export`` extra is missing), so that the envs run the sensor's translators on ONNX
-Runtime like the shipped ones.
+Once the translators are trained, the ``onnx`` stage (:func:`stage_onnx`) exports each translator of the sensor
+(the shPix2pix per contact type that ``sensor.json`` names) to ``<weights>.onnx`` beside its ``<weights>.pt``, as
+``simshear ship onnx`` exports the shipped ones (:mod:`simshear_gym.models.onnx_export`: the same graph, fp16
+storage, the sha256 of the weights in its metadata), so that an env made with ``sensor=`` runs it on ONNX Runtime
+(the envs' ``"auto"`` runtime, :mod:`simshear_gym.models.translator_runtime`) like the shipped translators. The
+export is checked on the first :data:`ONNX_CHECK_ROWS` validation rows of each of the contact type's data sets (its sim
+renders and shear, as the evaluation feeds them): torch and ONNX Runtime side by side, their MAPE against the real
+images, how many pixels differ and by how much, and their batch-1 latency on one thread; the figures are the
+stage's metrics and lie in the ONNX file's metadata. Each export is a cached ``onnx/<contact>_shpix2pix`` stage
+keyed by the weights' sha256 and the export's settings. Where the ``export`` extra (onnx, onnxscript) is missing,
+the stage logs one line saying so and the envs run the sensor's translators on torch.
 
-Stages 3-5 are steps of a graph (:mod:`simshear_gym.pipelines.schedule`), run ``jobs`` at a time in worker
+Stages 3-5 are steps of a graph (:func:`simshear_gym.pipelines.stages.run_steps`), run ``jobs`` at a time in worker
 processes: a pose-consistency generator starts once its contact's real-image GDNN is done. The training steps
 train on the profile's ``device`` (``--device`` overrides it; ``auto``: CUDA where there is one), which is not
 part of their cache keys.
@@ -31,8 +38,8 @@ part of their cache keys.
 The run folder's ``sensor.json`` names the sensor's TacTip settings, translators and GDNNs: the envs take it
 (``gym.make("SimShearTracking-v0", sensor="configs/<name>.toml")``, :func:`simshear_gym.models.zoo.load_sensor`).
 
-SIGTERM or SIGINT stops the run and all its processes (:mod:`simshear_gym.pipelines.stopping`): exit status 128 +
-the signal, one ``simshear: error:`` line; the rerun resumes.
+SIGTERM or SIGINT stops the run and all its processes (:func:`simshear_gym.pipelines.stages.stop_on_signals`): exit
+status 128 + the signal, one ``simshear: error:`` line; the rerun resumes.
 
 The run's manifest (``manifest.json`` in ``--out``): config, profile, package version, git commit, the machine
 (:func:`simshear_gym.machine.machine_info`: wall times are that machine's), per stage its folder, whether it ran or
@@ -46,11 +53,13 @@ import json
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pandas as pd
 
 from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, config_files, resolve, write_canonical
@@ -58,18 +67,22 @@ from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
+from simshear_gym.models import onnx_export
 from simshear_gym.models.device import DEVICES, check_device_name
+from simshear_gym.models.translator_runtime import file_sha256, onnx_path_for
 from simshear_gym.models.zoo import DEFAULT_PIPELINE_RUNS, write_sensor
-from simshear_gym.pipelines.onnx_stage import stage_onnx
-from simshear_gym.pipelines.schedule import Step, run_steps
 from simshear_gym.pipelines.stages import (
+    RunStopped,
     StageResult,
     StageRunner,
+    Step,
+    end_children,
     file_fingerprint,
     report_epochs,
+    run_steps,
+    stop_on_signals,
     training_start_line,
 )
-from simshear_gym.pipelines.stopping import RunStopped, end_children, stop_on_signals
 from simshear_gym.tables import add_set_argument
 
 STAGES: tuple[str, ...] = ("adapt", "collect", "translator", "posenet", "evaluate")
@@ -232,14 +245,14 @@ def _translator_settings(stage, contact: str, generator=None) -> dict:
 
 
 def _translator_work(settings: dict, contact: str, names: list[str], arch: str = "shpix2pix") -> dict:
-    """A translator step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    """A translator step's ``work`` (:class:`~simshear_gym.pipelines.stages.Step`)."""
     return {"trainer": "translator", "contact": contact, "datasets": tuple(names),
             "settings": settings | {"arch": arch}}
 
 
 def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_rows: int = 0,
                baseline: bool = False, seed: int | None = None) -> dict:
-    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.schedule.Step`)."""
+    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.stages.Step`)."""
     settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
     return {"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
             "settings": settings, "translators": tuple(dict.fromkeys(name for name, _ in drawn))}
@@ -405,7 +418,7 @@ def label_ranges(config: ExperimentConfig, names: list[str], adapted: dict, root
 
 def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dict, random_sets: dict,
                    variables: dict, stages: tuple[str, ...], device: str | None = None) -> list[Step]:
-    """The translator, GDNN and evaluation steps of the run, with what each needs (:mod:`.schedule`); the
+    """The translator, GDNN and evaluation steps of the run, with what each needs (:func:`.stages.run_steps`); the
     training steps train on ``device`` (None: the profile's)."""
     device = device or profile.device
     steps = []
@@ -456,10 +469,72 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
     return steps
 
 
+ONNX_PRECISION = "fp16"  # as the shipped exports (simshear ship onnx's default)
+ONNX_CHECK_ROWS = 64  # validation rows per data set in the check
+ONNX_LATENCY_REPEATS = 100
+
+
+def stage_onnx(runner: StageRunner, translators: dict[str, str], paired: dict, datasets: dict[str, list[str]],
+               log: Callable[[str], None] | None = None) -> dict[str, str]:
+    """{contact: path of its translator's ONNX export, relative to the run folder} for ``translators`` ({contact:
+    weights relative to the run folder}); ``paired``: {dataset: {split: paired set}}, ``datasets``: {contact: its
+    datasets}. Empty where the export extra is missing (one line to ``log``, the runner's by default)."""
+    missing = onnx_export.missing_export_packages()
+    if missing:
+        (log or runner.log)(f"[onnx] skipped: exporting the translators to ONNX needs {', '.join(missing)} (pip "
+                            "install -e '.[export]'); an env with sensor= runs them on torch")
+        return {}
+    exported = {}
+    for contact, relative in translators.items():
+        weights = runner.root / relative
+        sets = [paired[name]["val"] for name in datasets[contact]]
+        key = {"weights": relative, "sha256": file_sha256(weights), "precision": ONNX_PRECISION,
+               "opset": onnx_export.OPSET, "check_sets": sets, "check_rows": ONNX_CHECK_ROWS}
+
+        def work(folder: Path, weights=weights, sets=sets, contact=contact) -> dict:
+            to = onnx_path_for(weights)
+            model, torch_card, config = onnx_export.export_model(weights, ONNX_PRECISION)
+            check = check_export(model.SerializeToString(), weights, [runner.root / s for s in sets], runner.root)
+            record = {"arch": "shpix2pix" if config.shear_dim else "pix2pix", "contact": contact,
+                      "source": weights.name, "precision": ONNX_PRECISION, "pipeline_stage": runner.relative(folder),
+                      "config": asdict(config), "card": {"torch_card": torch_card, "check": check}}
+            size_bytes = onnx_export.write_export(model, weights, to, record)
+            return {"outputs": {"onnx": runner.relative(to)}, "metrics": {**check, "size_bytes": size_bytes}}
+
+        exported[contact] = runner.run(f"onnx/{contact}_shpix2pix", key, work).outputs["onnx"]
+    return exported
+
+
+def check_export(model_bytes: bytes, weights: Path, val_sets: list[Path], root: Path,
+                 rows: int = ONNX_CHECK_ROWS) -> dict:
+    """Torch and ONNX Runtime side by side on the first ``rows`` rows of each paired validation set, and their
+    batch-1 latency on one thread: {"sets": {set folder name: figures}, "latency": {...}}."""
+    from simshear_gym.contract import resize_tactile
+    from simshear_gym.data.labels import SHEAR_COLUMNS
+    from simshear_gym.data.paired import load_paired
+    from simshear_gym.evaluate.metrics import mape
+
+    both = onnx_export.SideBySide(model_bytes, weights)
+    size = both.torch_translator.image_size_px
+    sets = {}
+    for folder in val_sets:
+        paired, real_set = load_paired(folder, root)
+        sim = resize_tactile(paired.load_images(use_cache=False)[:rows], size)
+        shear = paired.targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)[:rows]
+        by_torch, by_onnx = both.translate(sim, shear)
+        figures = {"rows": len(sim), **onnx_export.difference(by_torch, by_onnx)}
+        if real_set is not None:
+            real = resize_tactile(real_set.load_images(use_cache=False)[:rows], size)
+            figures |= {"mape_torch": float(mape(by_torch, real).mean()),
+                        "mape_onnx": float(mape(by_onnx, real).mean())}
+        sets[f"{Path(folder).parent.parent.name}_{Path(folder).name}"] = figures
+    return {"sets": sets, "latency": both.latency(ONNX_LATENCY_REPEATS)}
+
+
 def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, stages: tuple[str, ...],
                  rows_per_split: int | None = None, workers: int = 2, jobs: int | None = None,
                  device: str | None = None) -> dict:
-    """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :mod:`.schedule`) and
+    """Run the stages (each cached; the training steps as a graph, ``jobs`` at a time: :func:`.stages.run_steps`) and
     write ``out/manifest.json``; returns the manifest.
 
     ``rows_per_split``, ``jobs`` and ``device`` override the profile's (None: the profile's)."""

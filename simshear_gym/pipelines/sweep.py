@@ -38,7 +38,7 @@ import pandas as pd
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
-from simshear_gym.pipelines.stages import StageRunner
+from simshear_gym.pipelines.stages import StageRunner, Step, file_fingerprint, run_steps
 from simshear_gym.tables import add_set_argument
 
 ALL = "all"
@@ -116,8 +116,6 @@ def write_rows(runner: StageRunner, name: str, source: str, rows: int) -> str:
     """``rows/<name>``: the first ``rows`` rows of the paired set ``source`` (relative to the run folder) as a set
     of its own (its ``targets.csv`` cut, its ``meta.json`` as it was, ``images/`` a link to the full set's);
     cached by the source's labels and the row count. Returns its path relative to the run folder."""
-    from simshear_gym.pipelines.stages import file_fingerprint
-
     full = runner.root / source
     key = {"source": source, "rows": rows, "targets": file_fingerprint([full / "targets.csv"])}
 
@@ -138,8 +136,8 @@ def write_rows(runner: StageRunner, name: str, source: str, rows: int) -> str:
 
 def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, random_sets: dict, variables: dict,
                  device: str, cap: float | None, train_rows: dict[str, int]) -> tuple[list, dict]:
-    """The steps of one budget (:mod:`.schedule`): per contact type its shPix2pix on the N pairs, the GDNN on its
-    translations of every sim render, the GDNN on the N real images and the reference; with the epochs each
+    """The steps of one budget (:func:`.stages.run_steps`): per contact type its shPix2pix on the N pairs, the GDNN
+    on its translations of every sim render, the GDNN on the N real images and the reference; with the epochs each
     trains ({step: epochs})."""
     from simshear_gym.pipelines.run import (
         POSENET_EPOCH_COST,
@@ -151,7 +149,6 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         posenet_step,
         translator_step,
     )
-    from simshear_gym.pipelines.schedule import Step
 
     steps, epochs = [], {}
     for contact, names in contacts_of(config).items():
@@ -230,7 +227,6 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
         stage_random,
         variables_for,
     )
-    from simshear_gym.pipelines.schedule import run_steps
 
     if scale_cap is not None and not (scale_cap >= 1.0):
         raise ValueError(f"--scale-epochs: {scale_cap!r} is not a cap; expected a factor >= 1 (the epochs of a model "
