@@ -130,7 +130,8 @@ def test_a_budget_trains_the_profiles_pool_on_its_rows_read_by_its_own_real_gdnn
             PoolGenerator("plain", "surface"))
     profile = replace(profile, pool=pool)
     paired = {"surface_tap": {"train": "collect/train", "val": "collect/val"}}
-    for budget, reader, epochs in ((Budget(16), "posenet/surface_real_rows", 6), (Budget(None), "posenet/surface_real", 3)):
+    cases = ((Budget(16), "posenet/surface_real_rows", 6), (Budget(None), "posenet/surface_real", 3))
+    for budget, reader, epochs in cases:
         subsets = {"surface_tap": "rows/set" if budget.rows else "collect/train"}
         steps, _ = budget_steps(config, profile, budget, paired, subsets, {}, {"surface": "surface"}, "cpu", 2.0,
                                 {"surface_tap": 48})
