@@ -64,6 +64,7 @@ def test_the_estimate_counts_the_optimiser_steps_the_run_takes(tmp_path):
     assert gdnn["rows"] == 20 + 12 and gdnn["translate_s"] > 0  # the replays and the random contacts, translated
     assert estimated["posenet/surface_real"]["translate_s"] == 0
     assert estimated["translator/surface_tilt"]["start_s"] >= estimated["posenet/surface_real"]["end_s"]
+    assert result["device"] == "auto"  # the smoke profile's: its probes train where its steps would
     assert result["jobs"] == 1 and result["training_wall_min"] * 60 == pytest.approx(  # one lane: end to end
         sum(s["seconds"] for s in result["steps"]), abs=6)
     assert "training about" in format_estimate(result)
@@ -77,6 +78,45 @@ def test_probes_time_the_trainers_with_the_runs_settings():
     assert min(plain.step_s, pose.step_s, gdnn.step_s) > 0
     assert min(plain.holdout_s_per_row, pose.holdout_s_per_row, gdnn.holdout_s_per_row) > 0
     assert translation_s_per_row({"arch": "shpix2pix", "base_channels": 4, "max_channels": 8}, 32, batch=4) > 0
+
+
+def test_probes_train_on_the_device_the_run_would_and_cuda_without_one_is_one_clear_error(monkeypatch):
+    import torch
+
+    from simshear_gym.train import step_timing
+
+    seen = []
+    monkeypatch.setattr(step_timing, "_time_trainer",
+                        lambda trainer, rows, steps, ready, device: seen.append((trainer.device.type, device)))
+    translator_step_time({"base_channels": 4, "max_channels": 8}, 32, steps=1, device="cpu")
+    posenet_step_time({"image_size_px": 32, "batch_size": 8}, "surface", steps=1, device="auto")
+    expected = "cuda" if torch.cuda.is_available() else "cpu"
+    assert seen == [("cpu", "cpu"), (expected, expected)]
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device 'cuda'.*finds no CUDA device"):
+            posenet_step_time({"image_size_px": 32, "batch_size": 8}, "surface", steps=1, device="cuda")
+
+
+def test_the_command_takes_a_device_and_records_it(tmp_path, capsys, monkeypatch):
+    from simshear_gym.cli import main
+    from simshear_gym.pipelines import estimate as estimate_module
+
+    asked = {}
+
+    def fake(config, root, profile, jobs, probe_steps, device):
+        asked.update(profile=profile, device=device)
+        return {"config": "c", "sensor": "lab", "profile": profile, "jobs": 1, "device": device, "probe_s": 0.0,
+                "training_wall_min": 1.0, "lane_busy_min": 1.0, "steps": []}
+
+    monkeypatch.setattr(estimate_module, "estimate", fake)
+    data = tmp_path / "data"
+    config = write_lab(data, rows=30, config=POOLED)
+    assert main(["pipeline", "estimate", str(config), "--profile", "smoke", "--data", str(data), "--device", "cpu",
+                 "--json", str(tmp_path / "e.json")]) == 0
+    assert asked == {"profile": "smoke", "device": "cpu"}
+    assert "device cpu" in capsys.readouterr().out
+    record = json.loads((tmp_path / "e.json").read_text())
+    assert "--device cpu" in record["command"] and record["device"] == "cpu"
 
 
 def test_the_lanes_give_the_measured_wall_time_of_the_shipped_recipe_from_its_steps_times():

@@ -10,6 +10,10 @@ real shapes), ``jobs`` probes side by side as the run trains them, started toget
 settings share a probe. The steps are then laid out on ``jobs`` lanes in the order the run starts them
 (:func:`simshear_gym.pipelines.stages.order_steps`), which gives the training's wall time.
 
+The probes train on the device the run would (``--device``, else the profile's ``device``): on a GPU machine
+``--device cuda`` times each step on the GPU (synchronised), ``jobs`` probes sharing it as the run's steps would;
+a GDNN's rows are translated on the CPU there too, as in the run.
+
 The machine's load is measured before the probes (:func:`machine_load`: the 1-minute load average against the
 CPU count, ``os.getloadavg``): probes beside other work run slower than the run would on an idle machine, about
 ``(load + jobs) / cpus`` times where that exceeds 1; the estimate says so and gives the idle figure beside it.
@@ -115,20 +119,22 @@ def _probe_key(work: dict, image_size_px: int, views: int = 1) -> tuple:
     return (work["trainer"], image_size_px, views, kept)
 
 
-def _translator_probe(settings: dict, image_size_px: int, steps: int, barrier):
+def _translator_probe(settings: dict, image_size_px: int, steps: int, device: str, barrier):
     from simshear_gym.train.step_timing import translation_s_per_row, translator_step_time
 
     threads = settings.get("threads", 1)
-    timed = translator_step_time(settings, image_size_px, steps=steps, threads=threads, ready=barrier.wait)
+    timed = translator_step_time(settings, image_size_px, steps=steps, threads=threads, ready=barrier.wait,
+                                 device=device)
     barrier.wait()
     return timed, translation_s_per_row(settings, image_size_px, threads=threads)
 
 
-def _posenet_probe(settings: dict, variables: str, views: int, steps: int, barrier):
+def _posenet_probe(settings: dict, variables: str, views: int, steps: int, device: str, barrier):
     from simshear_gym.train.step_timing import posenet_step_time
 
     threads = settings.get("threads", 1)
-    return posenet_step_time(settings, variables, views=views, steps=steps, threads=threads, ready=barrier.wait), 0.0
+    return posenet_step_time(settings, variables, views=views, steps=steps, threads=threads, ready=barrier.wait,
+                             device=device), 0.0
 
 
 def _side_by_side(pool, barrier, probe, jobs: int) -> tuple:
@@ -159,15 +165,19 @@ def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, 
 
 
 def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | None = None,
-             probe_steps: int = 50, log=print) -> dict:
+             probe_steps: int = 50, device: str | None = None, log=print) -> dict:
     """The profile's training steps with their estimated seconds, and the training's wall time on ``jobs`` lanes
-    (None: the profile's); see the module docstring."""
+    (None: the profile's), its steps trained on ``device`` (None: the profile's; a GPU's steps are probed on it, the
+    translations of a GDNN's rows stay on the CPU as in the run); see the module docstring."""
+    from simshear_gym.models.device import check_device_name
+
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.train.posenet_config import PosenetTrainConfig
     from simshear_gym.train.translator_config import TranslatorTrainConfig
 
     settings = config.profile(profile)
     jobs = jobs or settings.jobs
+    device = check_device_name(device or settings.device)
     train_rows = {name: split_sizes(dataset, root, name, settings.rows_per_split)["train"]
                   for name, dataset in config.datasets.items()}
     steps = planned_steps(config, profile)
@@ -182,12 +192,12 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
             work = step.work
             if work["trainer"] == "translator":
                 key_of[step.name] = _probe_key(work, translator_px)
-                probe = partial(_translator_probe, work["settings"], translator_px, probe_steps)
+                probe = partial(_translator_probe, work["settings"], translator_px, probe_steps, device)
             else:
                 views = max(1, len(work["translators"]))
                 key_of[step.name] = _probe_key(work, gdnn_px, views)
                 variables = work["contact"] if work["contact"] in VARIABLE_SETS else "surface"  # same cost
-                probe = partial(_posenet_probe, work["settings"], variables, views, probe_steps)
+                probe = partial(_posenet_probe, work["settings"], variables, views, probe_steps, device)
             if key_of[step.name] not in probes:
                 log(f"probing {step.name} ({work['trainer']}, {jobs} side by side)")
                 probes[key_of[step.name]] = _side_by_side(pool, barrier, probe, jobs)
@@ -216,7 +226,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
                               start_s=round(laid[name][0], 3), end_s=round(laid[name][1], 3))
                  for name in sorted(laid, key=lambda n: laid[n])]
     wall_s = max(end for _, end in laid.values())
-    return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs,
+    return {"config": str(config.path), "sensor": config.name, "profile": profile, "jobs": jobs, "device": device,
             "probe_s": round(probe_s, 1), "training_wall_min": round(wall_s / 60, 1),
             "lane_busy_min": round(sum(plan["seconds"] for plan in planned.values()) / 60, 1),
             "load": load, "training_wall_min_if_idle": round(wall_s / 60 / load["slowdown"], 1),
@@ -254,7 +264,8 @@ def format_estimate(result: dict) -> str:
         lines.append(f"  {row['name']}: {row['estimated_epoch_s']} s per epoch estimated, {row['measured_epoch_s']} s "
                      f"measured (median of {row['epochs_measured']} epochs): {row['estimate_over_measured']:.2f}x")
     lines.append(f"{result['sensor']} profile {result['profile']}: training about {result['training_wall_min']} min "
-                 f"on {result['jobs']} lane(s) of this machine ({result['lane_busy_min']} lane-min of steps), plus "
+                 f"on {result['jobs']} lane(s) of this machine (device {result.get('device', 'cpu')}; "
+                 f"{result['lane_busy_min']} lane-min of steps), plus "
                  f"the data stages and the evaluation (a few minutes)")
     if "load" in result:
         lines.append(load_note(result["load"], result["training_wall_min"]))
@@ -263,6 +274,8 @@ def format_estimate(result: dict) -> str:
 
 # ----------------------------------------------------------------------------------------------- command line
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from simshear_gym.models.device import DEVICES
+
     parser.add_argument("config", type=Path, help="experiment config (TOML), e.g. configs/tactip331.toml")
     add_set_argument(parser)
     parser.add_argument("--profile", default="quick", help="the profile to estimate: smoke, quick or full")
@@ -271,6 +284,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=None,
                         help="training steps side by side (default: the profile's jobs)")
     parser.add_argument("--probe-steps", type=int, default=50, help="timed optimiser steps per probe (default 50)")
+    parser.add_argument("--device", choices=DEVICES, default=None,
+                        help="where the training steps train, probed there (default: the profile's device)")
     parser.add_argument("--json", type=Path, default=None, help="also write the estimate to this JSON file")
     parser.add_argument("--compare", type=Path, default=None, metavar="RUN",
                         help="a pipeline run folder of this profile: its steps' epoch times against the estimate's")
@@ -287,7 +302,7 @@ def run(args: argparse.Namespace) -> int:
     root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
     if args.compare is not None and not args.compare.is_dir():
         raise FileNotFoundError(f"--compare {args.compare}: no such run folder")
-    result = estimate(config, root, args.profile, args.jobs, args.probe_steps)
+    result = estimate(config, root, args.profile, args.jobs, args.probe_steps, args.device)
     if args.compare is not None:
         result["compared_with"] = str(args.compare)
         result["measured"] = measured_epochs(result, args.compare)

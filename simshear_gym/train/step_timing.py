@@ -7,7 +7,9 @@ step a run takes (layout, losses, augmentation); a pose-consistency translator r
 the real-image reference's architecture (random weights). Used by :mod:`simshear_gym.pipelines.estimate`.
 
 Times are per process: run the probes as many side by side as the run will train (its ``jobs``), since two
-trainers on a 2-core CPU each run slower than one alone.
+trainers on a 2-core CPU each run slower than one alone. A probe runs on the ``device`` the run will train on
+("cpu", "cuda" or "auto"); on a GPU each timed step ends with a synchronisation, so that it counts the GPU's work,
+not only its launch.
 """
 
 from __future__ import annotations
@@ -32,30 +34,49 @@ class StepTime:
     holdout_s_per_row: float
 
 
-def _median_s(action, repeats: int, warmup: int) -> float:
+def _synchronise(device: str) -> None:
+    """Wait for a CUDA device's queued work (nothing to wait for on the CPU)."""
+    if device != "cpu":
+        import torch
+
+        torch.cuda.synchronize()
+
+
+def _median_s(action, repeats: int, warmup: int, device: str = "cpu") -> float:
     for _ in range(warmup):
         action()
+    _synchronise(device)
     times = []
     for _ in range(repeats):
         start = time.perf_counter()
         action()
+        _synchronise(device)
         times.append(time.perf_counter() - start)
     return float(np.median(times))
 
 
-def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None) -> StepTime:
+def _probe_device(device: str) -> str:
+    """"cpu" or "cuda": the device a run asked for as ``device`` trains on here (``auto``: CUDA where there is one;
+    "cuda" without CUDA is the trainers' own error)."""
+    from simshear_gym.models.device import check_device_name, resolve_device
+
+    return resolve_device(check_device_name(device)).type
+
+
+def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None, device: str = "cpu") -> StepTime:
     if ready is not None:
         ready()
     trainer.train_mode()
     batches = itertools.cycle(trainer.epoch_batches())
-    step_s = _median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3)
+    step_s = _median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3, device=device)
     start = time.perf_counter()
     trainer.holdout_metric()
+    _synchronise(device)
     return StepTime(step_s, (time.perf_counter() - start) / holdout_rows)
 
 
 def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, threads: int = 1,
-                         ready=None) -> StepTime:
+                         ready=None, device: str = "cpu") -> StepTime:
     """A translator run's step with ``settings`` (:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig`
     fields; ``pose_weight`` > 0: with the pose-consistency loss); ``ready`` (if given) is called once the trainer
     is built, before the first step (a barrier, so that probes side by side time their steps together)."""
@@ -69,6 +90,7 @@ def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, th
     from simshear_gym.train.translator_trainer import PairedTensors, TranslatorTrainer
 
     torch.set_num_threads(threads)
+    device = _probe_device(device)
     generator = torch.Generator().manual_seed(0)
     with tempfile.TemporaryDirectory() as folder:
         pose, pose_settings = None, {}
@@ -78,7 +100,7 @@ def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, th
             pose = PoseConsistency(path)
             pose_settings = {"pose_net": str(path), "pose_variables": ()}
         config = TranslatorTrainConfig(**{**settings, **pose_settings, "paired_dirs": ("random",),
-                                          "image_size_px": image_size_px, "device": "cpu", "threads": threads})
+                                          "image_size_px": image_size_px, "device": device, "threads": threads})
         shape = (PROBE_ROWS, image_size_px, image_size_px)
         pairs = PairedTensors(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator),
                               torch.randn(PROBE_ROWS, 6, generator=generator),
@@ -86,11 +108,11 @@ def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, th
                               torch.rand(PROBE_ROWS, pose.variables.encoded_dim if pose else 1,
                                          generator=generator) if pose else None)
         trainer = TranslatorTrainer(config, Path(folder) / "run", pairs, pose=pose)
-        return _time_trainer(trainer, len(trainer.holdout_pairs), steps, ready)
+        return _time_trainer(trainer, len(trainer.holdout_pairs), steps, ready, device)
 
 
 def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int = 10, threads: int = 1,
-                      ready=None) -> StepTime:
+                      ready=None, device: str = "cpu") -> StepTime:
     """A GDNN run's step with ``settings`` (:class:`~simshear_gym.train.posenet_config.PosenetTrainConfig` fields)
     reading ``variables`` (a variable set's name or inline spec), on rows of ``views`` renditions each; ``ready``
     as for :func:`translator_step_time`."""
@@ -101,8 +123,9 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
     from simshear_gym.train.posenet_trainer import LabelledImages, PosenetTrainer
 
     torch.set_num_threads(threads)
+    device = _probe_device(device)
     generator = torch.Generator().manual_seed(0)
-    config = PosenetTrainConfig(**{**settings, "paired_dirs": ("random",), "variables": variables, "device": "cpu",
+    config = PosenetTrainConfig(**{**settings, "paired_dirs": ("random",), "variables": variables, "device": device,
                                    "threads": threads})
     size = config.image_size_px
     shape = (PROBE_ROWS, views, size, size) if views > 1 else (PROBE_ROWS, size, size)
@@ -112,7 +135,7 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
     data = LabelledImages(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator), labels)
     with tempfile.TemporaryDirectory() as folder:
         trainer = PosenetTrainer(config, Path(folder) / "run", data)
-        return _time_trainer(trainer, len(trainer.holdout_data), steps, ready)
+        return _time_trainer(trainer, len(trainer.holdout_data), steps, ready, device)
 
 
 def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, repeats: int = 3,
