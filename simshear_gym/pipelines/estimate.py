@@ -170,7 +170,6 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     (None: the profile's), its steps trained on ``device`` (None: the profile's; a GPU's steps are probed on it, the
     translations of a GDNN's rows stay on the CPU as in the run); see the module docstring."""
     from simshear_gym.models.device import check_device_name
-
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.train.posenet_config import PosenetTrainConfig
     from simshear_gym.train.translator_config import TranslatorTrainConfig
