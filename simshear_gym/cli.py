@@ -111,6 +111,8 @@ COMMANDS: tuple[tuple[tuple[str, ...], str, str], ...] = (
      "make a finished pipeline run's translators and GDNNs the package's shipped weights, with cards"),
     (("ship", "recheck-posenet"), "simshear_gym.ship.recheck_posenet",
      "measure a shipped GDNN's check figure again (after a new translator) and record it in its file and card"),
+    (("ship", "zoo"), "simshear_gym.ship.zoo",
+     "every shipped model as a Hugging Face Hub folder (config.json, model.safetensors, README.md), checked"),
 )
 
 # Old command words -> the command they name now. Each stays a command of its own (the same module, so the same
@@ -139,7 +141,8 @@ GROUPS: dict[str, str] = {
     "evaluate": "benchmarks and evaluations, each writing its record under results/",
     "train": "train the translator, the pose-and-shear GDNN and RL agents",
     "pipeline": "a sensor's experiment config: check it, run its cached pipeline (simshear ship run ships its models)",
-    "ship": "make a run's translator, GDNN, ONNX export or policy (or a whole pipeline run) shipped weights with cards",
+    "ship": "make a run's translator, GDNN, ONNX export or policy (or a whole pipeline run) shipped weights with "
+            "cards; the shipped models as Hugging Face Hub folders",
     "experiment": "the paper's two-arm experiments on two MG400s (or the rehearsal rig)",
 }
 

@@ -1,5 +1,6 @@
-"""Atomic file writes: a crash never leaves a half-written checkpoint, set or result behind; a full disk is one
-clear error naming the file and the free space; weights files carry a sha256 beside them, checked when read."""
+"""Atomic file and folder writes: a crash never leaves a half-written checkpoint, set, result or model folder behind;
+a full disk is one clear error naming the file and the free space; weights files carry a sha256 beside them, checked
+when read."""
 
 from __future__ import annotations
 
@@ -87,6 +88,46 @@ def atomic_write(path: str | os.PathLike, write: Callable[[str], object], suffix
             os.unlink(tmp)
         if isinstance(error, Exception) and not isinstance(error, DiskFullError) and _disk_full(error, target.parent):
             raise disk_full(target, "; the previous file, if any, is left as it was") from None
+        raise
+    return target
+
+
+def atomic_folder(path: str | os.PathLike, write: Callable[[Path], object]) -> Path:
+    """Call ``write(tmp_folder)`` on a temporary folder beside ``path``, then put it in place of ``path`` (a folder
+    there before is replaced whole): a reader sees the old folder or the new one, never a half-written one.
+
+    Raises:
+        DiskFullError: the disk filled up (the previous folder, if any, is left whole).
+    """
+    target = Path(path)
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    except OSError as error:
+        if _disk_full(error, target.parent):
+            raise disk_full(target) from None
+        raise
+    try:
+        write(tmp)
+        os.chmod(tmp, 0o755)  # mkdtemp creates 0700 (and some writers 0600 files): a model folder is an ordinary one
+        for item in tmp.rglob("*"):
+            os.chmod(item, 0o755 if item.is_dir() else 0o644)
+        if target.is_dir() and not target.is_symlink():
+            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+            os.replace(target, old / target.name)
+            try:
+                os.replace(tmp, target)
+            except BaseException:
+                os.replace(old / target.name, target)  # the previous folder back in place
+                raise
+            finally:
+                shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(tmp, target)
+    except BaseException as error:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(error, Exception) and not isinstance(error, DiskFullError) and _disk_full(error, target.parent):
+            raise disk_full(target, "; the previous folder, if any, is left as it was") from None
         raise
     return target
 

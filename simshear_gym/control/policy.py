@@ -52,6 +52,7 @@ from simshear_gym.control.policy_files import (
     has_policy_files,
     load_policy,
     policy_files,
+    policy_path,
     read_description,
 )
 from simshear_gym.control.policy_files import load_normalizer as load_json_normalizer
@@ -336,9 +337,10 @@ class SB3Controller:
              action_scale: ActionScale = ActionScale(), trust_pickle: bool = False) -> SB3Controller:
         """Load a PPO/SAC/TQC policy on the CPU with its run's ``VecNormalize`` statistics and settings, and check
         that it was trained on these spaces (the env's). ``path``: any of the policy's pickle-free files (or the
-        SB3 ``.zip`` they lie beside); ``trust_pickle``: an SB3 ``.zip`` / ``.pkl`` without them is loaded by
-        unpickling (only files you made: a pickle runs code). ``reference_depth_mm`` and ``action_scale`` (the
-        env's) are the residual law's, for a residual policy.
+        SB3 ``.zip`` they lie beside), or its folder (a shipped one, or its zoo folder with ``model.safetensors``);
+        ``trust_pickle``: an SB3 ``.zip`` / ``.pkl`` without them is loaded by unpickling (only files you made: a
+        pickle runs code). ``reference_depth_mm`` and ``action_scale`` (the env's) are the residual law's, for a
+        residual policy.
 
         Raises:
             FileNotFoundError: no such policy.
@@ -346,7 +348,7 @@ class SB3Controller:
                 (:class:`~simshear_gym.control.policy_files.PolicyFileError`), a corrupt file, or trained for other
                 observation/action spaces.
         """
-        path = Path(path)
+        path = policy_path(path)  # a policy folder: its model.json
         if has_policy_files(path):
             model = load_policy(path)
         elif path.suffix == ".zip" and path.is_file():

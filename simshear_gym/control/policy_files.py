@@ -4,7 +4,8 @@ A Stable-Baselines3 ``.zip`` holds cloudpickled objects (the spaces, the policy 
 ``VecNormalize`` statistics are a pickle: loading either can run whatever code a crafted file carries. Here a
 policy ``<stem>`` is two files:
 
-- ``<stem>.pt``: the policy network's ``state_dict`` (tensors only: read with ``torch.load(weights_only=True)``);
+- ``<stem>.pt``: the policy network's ``state_dict`` (tensors only: read with ``torch.load(weights_only=True)``;
+  ``<stem>.safetensors`` instead in a zoo folder, ``simshear ship zoo``);
 - ``<stem>.json``: :data:`POLICY_FORMAT`, the algorithm (``ppo``, ``sac``, ``tqc``), the policy class (one of
   :data:`POLICY_CLASSES`, by name), its constructor arguments (spaces as plain tables, classes by allowlisted name,
   :data:`ALLOWED_CLASSES`) and the sha256 of the ``.pt``, checked at load.
@@ -67,11 +68,27 @@ class PolicyFileError(ValueError):
     """A policy or statistics file that cannot be loaded; the message names the file and what was expected."""
 
 
+SAFETENSORS_SUFFIX = ".safetensors"
+FOLDER_MODEL = "model.json"
+"""The description of the policy in a policy folder (a shipped one, its zoo folder, a run's final model)."""
+
+
+def policy_path(path: str | os.PathLike) -> Path:
+    """A policy named by its folder: the folder's ``model.json``; any other name as it is."""
+    path = Path(path)
+    return path / FOLDER_MODEL if path.is_dir() else path
+
+
 def policy_files(path: str | os.PathLike) -> tuple[Path, Path]:
     """The pickle-free files of a policy given by any of its names (``<stem>.json``, ``<stem>.pt`` or the SB3
-    ``<stem>.zip`` they were written beside): (``<stem>.json``, ``<stem>.pt``)."""
-    path = Path(path)
-    return path.with_suffix(".json"), path.with_suffix(".pt")
+    ``<stem>.zip`` they were written beside, or a policy folder, :func:`policy_path`): (``<stem>.json``,
+    ``<stem>.pt``); named other than by its ``.pt``, ``<stem>.safetensors`` for the weights where that lies there
+    instead (a zoo folder)."""
+    path = policy_path(path)
+    weights = path.with_suffix(".pt")
+    if path.suffix != ".pt" and not weights.is_file() and path.with_suffix(SAFETENSORS_SUFFIX).is_file():
+        weights = path.with_suffix(SAFETENSORS_SUFFIX)
+    return path.with_suffix(".json"), weights
 
 
 def has_policy_files(path: str | os.PathLike) -> bool:
@@ -187,7 +204,7 @@ def save_policy(model, path: str | os.PathLike) -> Path:
     atomically, the state dict first; returns the ``.json``."""
     import torch
 
-    description, weights = policy_files(path)
+    description, weights = policy_files(policy_path(path).with_suffix(".pt"))
     policy = model.policy
     arguments = {key: value for key, value in policy._get_constructor_parameters().items() if key != "lr_schedule"}
     state = {key: value.detach().cpu().clone() for key, value in policy.state_dict().items()}
@@ -262,12 +279,17 @@ def load_policy(path: str | os.PathLike) -> LoadedPolicy:
 
 
 def load_weights(path: Path, what: str) -> dict:
-    """A ``torch.save``d table of tensors read with ``weights_only=True`` (a file that would run code, or that is
-    no torch file at all, is a :class:`PolicyFileError` naming it)."""
+    """A ``torch.save``d table of tensors read with ``weights_only=True``, or a ``.safetensors`` file (a file that
+    would run code, or that is no such file at all, is a :class:`PolicyFileError` naming it)."""
     import torch
 
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        if Path(path).suffix == SAFETENSORS_SUFFIX:
+            from safetensors.torch import load_file
+
+            state = load_file(path, device="cpu")
+        else:
+            state = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as error:  # noqa: BLE001 - torch raises RuntimeError, UnpicklingError, EOFError...
         reason = " ".join(str(error).split())[:200]
         raise PolicyFileError(f"{path}: not a {what} weights file of tensors that loads without running code "

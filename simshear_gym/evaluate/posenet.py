@@ -68,6 +68,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
+    from simshear_gym.models.zoo import model_path
 
     where = resolve_device(device)
     val = read_set(val_dir or real_set_dir(root, contact, "shear", "val"))
@@ -75,7 +76,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
     images = val.load_images()[select]
     results, arrays = {}, {}
     for name, path in models.items():
-        model, card = load_posenet(path)
+        model, card = load_posenet(model_path(path))
         variables = model.variables
         if variables.name in VARIABLE_SETS and variables.name != contact:  # an inline set is a sensor's own
             raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")
@@ -135,7 +136,8 @@ def acceptance(models: dict, reference: str = "real", candidate: str = "shpix2pi
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", required=True, metavar="NAME[:CONTACT]=PATH",
-                        help="a posenet best.pt to evaluate; repeat for several; '{contact}' in PATH is replaced "
+                        help="a posenet best.pt (or a zoo folder, or hf://OWNER/NAME: a Hugging Face Hub id) to "
+                             "evaluate; repeat for several; '{contact}' in PATH is replaced "
                              "by each --contact; NAME:CONTACT=PATH names the model of one contact type")
     parser.add_argument("--contact", choices=CONTACTS, nargs="+", default=None,
                         help="contact type(s) whose real tactip331 shear val set the models read; one section and "

@@ -11,7 +11,8 @@ Reference rows: ``nearest-label retrieval`` (the real training image whose label
 their ranges, the edge angle as sin/cos), and each model fed the **published** Tactile Gym sim images of the same
 rows instead of ours. ``simshear evaluate translation --model shpix2pix=PATH --model pix2pix=PATH`` writes
 ``results/translation.json`` and the figure ``results/translation.png`` (sim | each model | real). A ``.pt`` file
-runs on torch, a ``.onnx`` file (``simshear ship onnx``) on ONNX Runtime, e.g.
+runs on torch (so does a zoo folder, ``simshear ship zoo``; ``hf://OWNER/NAME`` is one on the Hugging Face Hub), a
+``.onnx`` file (``simshear ship onnx``) on ONNX Runtime, e.g.
 ``--model shpix2pix:surface=W.pt --model shpix2pix_onnx:surface=W.onnx`` compares the two runtimes.
 
 Pose fidelity (``--reader CONTACT=PATH``, optional): a GDNN trained on the **real** training images of that contact
@@ -112,15 +113,17 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
     from simshear_gym.models.device import OnDevice, resolve_device
     from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator_runtime import ONNX_SUFFIX, load_translator
+    from simshear_gym.models.zoo import model_path
     from simshear_gym.sim.replay import render_poses
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
     # a .onnx file runs on ONNX Runtime, a .pt file on torch (never swapped for the .onnx beside it)
     where = resolve_device(device)
+    models = {name: {contact: model_path(path) for contact, path in per.items()} for name, per in models.items()}
     translators = {(name, contact): on_device(load_translator(path, "onnx" if path.suffix == ONNX_SUFFIX
                                                               else "torch"), where)
                    for name, per in models.items() for contact, path in per.items()}
-    reader_models = {contact: load_posenet(path)[0] for contact, path in (readers or {}).items()}
+    reader_models = {contact: load_posenet(model_path(path))[0] for contact, path in (readers or {}).items()}
     if where.type != "cpu":
         reader_models = {contact: OnDevice(model, where) for contact, model in reader_models.items()}
     results: dict = {}
@@ -202,8 +205,9 @@ def _palette_png(png: bytes) -> bytes:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", action="append", default=[], metavar="NAME[:CONTACT]=PATH",
-                        help="a translator to evaluate (.pt: torch, .onnx: ONNX Runtime); repeat for several "
-                             "(default: the shipped .pt ones)")
+                        help="a translator to evaluate (.pt or a zoo folder: torch, .onnx: ONNX Runtime; "
+                             "hf://OWNER/NAME: a Hugging Face Hub id); repeat for several (default: the shipped .pt "
+                             "ones)")
     parser.add_argument("--data", type=Path, default=None, help="data root (default $SIMSHEAR_DATA or ../shared/data)")
     parser.add_argument("--rows", type=int, default=None, help="only the first ROWS of each val set (default all)")
     parser.add_argument("--workers", type=int, default=2, help="processes rendering the sim images (default 2)")

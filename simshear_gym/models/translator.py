@@ -16,7 +16,8 @@ import numpy as np
 import torch
 
 from simshear_gym.models.unet import UNetConfig, UNetGenerator
-from simshear_gym.models.weights_io import load_model, save_model
+from simshear_gym.models.weights_io import save_model
+from simshear_gym.models.zoo_format import load_any
 
 ARCHS = ("shpix2pix", "pix2pix")  # shear-conditioned U-Net | the plain pix2pix baseline
 SIM_SCALE = 64.0
@@ -48,9 +49,10 @@ def save_generator(path: str | os.PathLike, generator: UNetGenerator, card: dict
 
 
 def load_generator(path: str | os.PathLike) -> tuple[UNetGenerator, dict]:
-    """Load a generator written by :func:`save_generator` (or a training checkpoint's ``generator`` entry)."""
-    return load_model(path, lambda settings: UNetGenerator(UNetConfig(**settings)), "translator",
-                      checkpoint_entry="generator")
+    """Load a generator written by :func:`save_generator` (or a training checkpoint's ``generator`` entry), or a zoo
+    folder of one (:mod:`~simshear_gym.models.zoo_format`)."""
+    return load_any(path, lambda settings: UNetGenerator(UNetConfig(**settings)), "translator",
+                    UNetGenerator.__name__, checkpoint_entry="generator")
 
 
 class Translator:

@@ -98,17 +98,23 @@ def _current_onnx(weights: Path, threads: int) -> OnnxTranslator | Exception:
 
 def load_translator(weights: str | os.PathLike, runtime: str = "auto", threads: int = DEFAULT_THREADS,
                     device: str = "cpu"):
-    """A translator from a weights file: a torch :class:`~simshear_gym.models.translator.Translator`, or an
-    :class:`OnnxTranslator` of the ``.onnx`` beside the ``.pt`` (or of ``weights`` itself if it is a ``.onnx``,
-    which only ONNX Runtime runs). ``"auto"`` picks ONNX where it can; ``"onnx"`` raises where it cannot
-    (ImportError: onnxruntime missing; FileNotFoundError: no ``.onnx``; ValueError: an ``.onnx`` not exported from
-    the ``.pt`` as it is now). ``threads``: ONNX Runtime's intra-op threads (torch keeps its own setting).
-    ``device``: a torch device name (``"cpu"``, ``"cuda"``, ``"cuda:1"``); on a GPU the torch translator runs
-    there ("auto" then means torch: the ONNX path here is the CPU's)."""
+    """A translator from a weights file (or a zoo folder, :mod:`~simshear_gym.models.zoo_format`, run on torch): a
+    torch :class:`~simshear_gym.models.translator.Translator`, or an :class:`OnnxTranslator` of the ``.onnx`` beside
+    the ``.pt`` (or of ``weights`` itself if it is a ``.onnx``, which only ONNX Runtime runs). ``"auto"`` picks
+    ONNX where it can; ``"onnx"`` raises where it cannot (ImportError: onnxruntime missing; FileNotFoundError: no
+    ``.onnx``; ValueError: an ``.onnx`` not exported from the ``.pt`` as it is now, or a zoo folder). ``threads``:
+    ONNX Runtime's intra-op threads (torch keeps its own setting). ``device``: a torch device name (``"cpu"``,
+    ``"cuda"``, ``"cuda:1"``); on a GPU the torch translator runs there ("auto" then means torch: the ONNX path here
+    is the CPU's)."""
     check_runtime(runtime)
     weights = Path(weights)
-    if not weights.is_file():
+    if not weights.exists():
         raise FileNotFoundError(f"translator weights {weights} not found")
+    if weights.is_dir():  # a zoo folder (config.json, model.safetensors): torch weights, no ONNX export beside them
+        if runtime == "onnx":
+            raise ValueError(f"translator runtime 'onnx' needs a .onnx file (or a .pt with its export beside it); "
+                             f"{weights} is a zoo folder of torch weights: use runtime 'torch' or 'auto'")
+        runtime = "torch"
     if not str(device).startswith("cpu"):
         if runtime == "onnx" or weights.suffix == ONNX_SUFFIX:
             raise ValueError(f"translator on device {device!r}: ONNX Runtime runs here on the CPU only; give torch "

@@ -5,7 +5,8 @@ and checked on load, so a flipped bit is an error rather than a model that compu
 such a file silently); fp16 on request (loaded back as fp32). A model's ``config`` is the frozen dataclass it was
 built from, so a file alone rebuilds the model. Read with ``torch.load(weights_only=True)``: a file that would run
 code is refused. Every bad file (empty, truncated, random bytes, a checksum that differs, another model's weights)
-is one :class:`WeightsFileError` (a ValueError) naming the file and what was expected.
+is one :class:`WeightsFileError` (a ValueError) naming the file and what was expected. The same model as a folder
+in the Hugging Face Hub layout (safetensors, no pickle): :mod:`simshear_gym.models.zoo_format`.
 """
 
 from __future__ import annotations

@@ -6,10 +6,16 @@ The shipped folder, :data:`WEIGHTS_DIR` (``simshear_gym/models/weights``), each 
   shPix2pix (``<arch>_<contact>.onnx``, :func:`~simshear_gym.models.translator_runtime.onnx_path_for`);
 - their distilled students (the envs' ``translator="student"``): ``student/``, named the same;
 - GDNNs: ``posenet/<name>.pt`` (``surface``, ``edge``, ``colift``, ...);
-- policies: ``policies/<name>/`` (``model.pt``, ``model.json``, ``vecnormalize.json``, ``config.json``, ``model.md``).
+- policies: ``policies/<name>/`` (``model.pt``, ``model.json``, ``vecnormalize.json``, ``config.json``, ``model.md``;
+  its zoo folder holds ``model.safetensors`` for ``model.pt`` and ``README.md`` for ``model.md``).
 
 A sensor's own models (``simshear pipeline run``) are named by its run folder's ``sensor.json``
 (:func:`write_sensor`, :func:`load_sensor`). Torch is imported only by the loaders that need it.
+
+Every shipped model converts to a folder in the Hugging Face Hub layout (``simshear ship zoo --to DIR``: one folder
+per name of :func:`shipped_models`; the format: :mod:`~simshear_gym.models.zoo_format`). A model is then named by a
+path (a ``.pt`` file, a zoo folder) or by a Hub id (``hf://OWNER/NAME[@REVISION]``, or ``OWNER/NAME`` where no such
+path exists), which :func:`model_path` downloads with ``huggingface_hub`` (the ``hub`` extra) into its cache.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -101,6 +108,72 @@ def estimator_file(name: str) -> Path:
     if name.startswith("posenet_"):
         return posenet_file(name.removeprefix("posenet_"))
     raise ValueError(f"estimator model name must start with 'translator_' or 'posenet_', got {name!r}")
+
+
+def shipped_models() -> dict[str, tuple[str, Path]]:
+    """Every shipped model by the name of its zoo folder: ``{name: (kind, path)}``, kind ``translator``
+    (``translator_<arch>_<contact>``; a student: ``translator_student_<stem>``), ``posenet`` (``posenet_<name>``)
+    or ``policy`` (``policy_<name>``, its folder)."""
+    models: dict[str, tuple[str, Path]] = {}
+    for prefix, folder in (("translator_", WEIGHTS_DIR), ("translator_student_", STUDENT_DIR)):
+        for path in sorted(folder.glob(f"*{WEIGHTS_SUFFIX}")):
+            models[f"{prefix}{path.stem}"] = ("translator", path)
+    for name in shipped_posenets():
+        models[f"posenet_{name}"] = ("posenet", posenet_file(name))
+    for name in shipped_policies():
+        models[f"policy_{name}"] = ("policy", POLICY_DIR / name)
+    return models
+
+
+HUB_PREFIX = re.compile(r"hf:/{1,2}")
+"""``hf://OWNER/NAME``: a Hugging Face Hub id (one slash: the same spec after ``pathlib.Path`` collapsed ``//``)."""
+HUB_ID = re.compile(r"[A-Za-z0-9][\w.-]*/[A-Za-z0-9][\w.-]*(@[\w./-]+)?")
+FILE_SUFFIXES = (WEIGHTS_SUFFIX, ".onnx", ".zip", ".json", ".safetensors")
+"""A missing ``OWNER/NAME`` with one of these suffixes is a mistyped file, never looked up on the Hub."""
+
+
+def model_path(spec: str | os.PathLike) -> Path:
+    """The local path of a model named by ``spec``: a path as it is (a ``.pt`` file, a zoo folder, ...), or a
+    Hugging Face Hub id, ``hf://OWNER/NAME[@REVISION]`` (or ``OWNER/NAME[@REVISION]`` where no such path exists),
+    downloaded by ``huggingface_hub.snapshot_download`` into its cache: the snapshot's folder.
+
+    Raises:
+        ImportError: an ``hf://`` id without huggingface_hub (``pip install 'simshear-gym[hub]'``).
+        FileNotFoundError: the Hub gave no such model (the message names the id and the Hub's error).
+    """
+    text = os.fspath(spec)
+    hub = HUB_PREFIX.match(text)
+    if not hub and (Path(text).exists() or not HUB_ID.fullmatch(text) or Path(text).suffix in FILE_SUFFIXES):
+        return Path(text)
+    try:
+        from huggingface_hub import snapshot_download
+    except ImportError:
+        if not hub:
+            return Path(text)  # a path that does not exist: its loader says so
+        raise ImportError(f"{text!r}: a Hugging Face Hub id needs the huggingface_hub package: "
+                          "pip install 'simshear-gym[hub]'") from None
+    repo, _, revision = text[hub.end() if hub else 0:].partition("@")
+    try:
+        return Path(snapshot_download(repo_id=repo, revision=revision or None))
+    except Exception as error:  # noqa: BLE001 - the Hub raises its own errors, network errors, ...
+        reason = " ".join(str(error).split())[:200]
+        raise FileNotFoundError(f"{text!r}: {'no such path, and ' if not hub else ''}no model {repo!r} from the "
+                                f"Hugging Face Hub ({type(error).__name__}: {reason})") from None
+
+
+def load_translator(spec: str | os.PathLike):
+    """The torch translator (:class:`~simshear_gym.models.translator.Translator`) of a ``.pt`` file, a zoo folder
+    or a Hub id (:func:`model_path`)."""
+    from simshear_gym.models.translator import Translator
+
+    return Translator.load(model_path(spec))
+
+
+def load_posenet(spec: str | os.PathLike):
+    """(GDNN in eval mode, card) of a ``.pt`` file, a zoo folder or a Hub id (:func:`model_path`)."""
+    from simshear_gym.models.posenet_io import load_posenet as load
+
+    return load(model_path(spec))
 
 
 @functools.cache
