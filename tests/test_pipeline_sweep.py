@@ -16,6 +16,7 @@ from simshear_gym.pipelines.sweep import (
     epoch_scale,
     parse_budgets,
     scaled,
+    subset_rows,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -145,3 +146,16 @@ def test_a_budget_trains_the_profiles_pool_on_its_rows_read_by_its_own_real_gdnn
         assert chain.needs == ("translator/surface_shpix2pix", "translator/surface_tilt", "translator/surface_plain")
         assert chain.action.args[6] == (("translator/surface_shpix2pix", 1), ("translator/surface_tilt", 2),
                                         ("translator/surface_plain", 1))
+
+
+def test_a_budgets_rows_are_a_seeded_random_draw_nested_in_larger_budgets_or_the_first_n():
+    """A set sorted by a label (tactip331's edge sets are sorted by the edge angle) must not give a budget only one
+    end of that label's range: by default a budget's rows are one fixed permutation's first N, in the set's order."""
+    small, large = subset_rows(5000, 250, "random"), subset_rows(5000, 1000, "random")
+    assert len(small) == 250 and len(set(small)) == 250 and list(small) == sorted(small)
+    assert set(small) <= set(large)  # a smaller budget's rows are among a larger one's
+    assert list(subset_rows(5000, 250, "random")) == list(small)  # the same draw every time
+    assert small.max() > 4000 and small.min() < 1000  # spread over the whole set, not its start
+    assert list(subset_rows(5000, 3, "first")) == [0, 1, 2]
+    with pytest.raises(ValueError, match="--rows-from: 'last'"):
+        subset_rows(10, 3, "last")

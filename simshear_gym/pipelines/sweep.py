@@ -3,8 +3,10 @@ needs.
 
 For each budget N (real training rows per dataset; ``all``: every training row of the profile), per contact type:
 
-- ``rows/<dataset>``: the first N rows of each paired training set (a set of its own, cached by its content; its
-  images link to the full set's);
+- ``rows/<dataset>``: N rows of each paired training set, drawn at random by one seeded permutation (a smaller
+  budget's rows among a larger one's: the first N rows of a collection of random poses; ``--rows-from first``: the
+  set's first N, for a set in collection order; a published set may be sorted by a label, as tactip331's edge sets
+  are by the edge angle), a set of its own, cached by its content; its images link to the full set's;
 - the chain: a shPix2pix and the profile's pool generators trained on those N pairs (a pool generator with the
   pose-consistency loss read by the GDNN on the N real images: a lab with N rows has no other reader), and a GDNN
   on their translations of the sim renders of *every* training row (sim contacts cost no robot time; plus the
@@ -34,6 +36,7 @@ from dataclasses import dataclass, replace
 from functools import partial
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from simshear_gym.command_line import recorded_command
@@ -42,6 +45,9 @@ from simshear_gym.pipelines.stages import StageRunner, Step, file_fingerprint, r
 from simshear_gym.tables import add_set_argument
 
 ALL = "all"
+ROWS_FROM = ("random", "first")
+"""Which N rows of a set a budget takes (:func:`subset_rows`)."""
+SUBSET_SEED = 0
 PAPER_ROWS_PER_TASK = 5000
 PAPER_ROBOT_MINUTES_PER_TASK = 130.0
 ROBOT_S_PER_ROW = PAPER_ROBOT_MINUTES_PER_TASK * 60.0 / PAPER_ROWS_PER_TASK
@@ -112,18 +118,31 @@ def scaled(epochs: int, factor: float) -> int:
     return max(1, round(epochs * factor))
 
 
-def write_rows(runner: StageRunner, name: str, source: str, rows: int) -> str:
-    """``rows/<name>``: the first ``rows`` rows of the paired set ``source`` (relative to the run folder) as a set
-    of its own (its ``targets.csv`` cut, its ``meta.json`` as it was, ``images/`` a link to the full set's);
-    cached by the source's labels and the row count. Returns its path relative to the run folder."""
+def subset_rows(count: int, rows: int, order: str) -> np.ndarray:
+    """The indices of a budget's ``rows`` of a set of ``count`` rows, in the set's order: the first ones
+    (``order`` "first"), or the first of one fixed permutation ("random", seed :data:`SUBSET_SEED`: a lab's first
+    N rows of a collection in random order; a smaller budget's rows are among a larger one's)."""
+    if order not in ROWS_FROM:
+        raise ValueError(f"--rows-from: {order!r}; expected one of {list(ROWS_FROM)}")
+    if order == "first":
+        return np.arange(min(rows, count))
+    return np.sort(np.random.default_rng(SUBSET_SEED).permutation(count)[:rows])
+
+
+def write_rows(runner: StageRunner, name: str, source: str, rows: int, order: str = "random") -> str:
+    """``rows/<name>``: ``rows`` rows of the paired set ``source`` (relative to the run folder; which ones:
+    :func:`subset_rows`) as a set of its own (its ``targets.csv`` cut, its ``meta.json`` as it was, ``images/`` a
+    link to the full set's); cached by the source's labels, the row count and the order. Returns its path relative
+    to the run folder."""
     full = runner.root / source
-    key = {"source": source, "rows": rows, "targets": file_fingerprint([full / "targets.csv"])}
+    key = {"source": source, "rows": rows, "targets": file_fingerprint([full / "targets.csv"]),
+           **({"order": order, "seed": SUBSET_SEED} if order != "first" else {})}
 
     def work(folder: Path) -> dict:
         out = folder / "set"
         out.mkdir(parents=True, exist_ok=True)
         targets = pd.read_csv(full / "targets.csv")
-        targets.iloc[:rows].to_csv(out / "targets.csv", index=False)
+        targets.iloc[subset_rows(len(targets), rows, order)].to_csv(out / "targets.csv", index=False)
         if (full / "meta.json").is_file():
             (out / "meta.json").write_text((full / "meta.json").read_text())
         link = out / "images"
@@ -215,7 +234,7 @@ def sweep_profile(config, profile_name: str):
 
 def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[Budget, ...], *,
               scale_cap: float | None = None, workers: int = 2, jobs: int | None = None,
-              device: str | None = None, log=print) -> dict:
+              device: str | None = None, rows_from: str = "random", log=print) -> dict:
     """Train and evaluate every budget (each step cached in ``out``); returns the records' common figures (wall
     time, load, how many stages ran now or were cached) and {contact: its budgets}."""
     from simshear_gym.models.device import check_device_name
@@ -251,7 +270,8 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
     for budget in budgets:
         log(f"[sweep] budget {budget.label} real rows per dataset")
         subsets = {name: (paired[name]["train"] if budget.rows is None
-                          else write_rows(runner, name, paired[name]["train"], budget.rows)) for name in paired}
+                          else write_rows(runner, name, paired[name]["train"], budget.rows, rows_from))
+                   for name in paired}
         steps, epochs = budget_steps(config, profile, budget, paired, subsets, random_sets, variables, device,
                                      scale_cap, train_rows)
         done = run_steps(steps, out, jobs, log=log)
@@ -402,6 +422,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scale-epochs", type=float, default=None, metavar="CAP",
                         help="train the models on N rows all/N times the profile's epochs, at most CAP times "
                              "(default: the profile's epochs, so fewer rows train fewer optimiser steps)")
+    parser.add_argument("--rows-from", choices=ROWS_FROM, default="random",
+                        help="which N rows of each training set: random (one seeded draw, a smaller budget's rows "
+                             "among a larger one's: a collection of random poses; default) or first (the set's "
+                             "first N: only where its rows are in collection order)")
     parser.add_argument("--out", type=Path, default=None,
                         help="run folder (default runs/pipeline/<sensor>; shares stages with pipeline run there)")
     parser.add_argument("--data", type=Path, default=None,
@@ -436,7 +460,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("runs") / "pipeline" / config.name
     prefix = args.record or Path("results") / "ablations" / f"pipeline_sweep_{config.name}_{args.profile}"
     body = run_sweep(config, out, root, args.profile, budgets, scale_cap=args.scale_epochs, workers=args.workers,
-                     jobs=args.jobs, device=args.device)
+                     jobs=args.jobs, device=args.device, rows_from=args.rows_from)
     from simshear_gym.machine import machine_info
 
     command = recorded_command("simshear pipeline sweep", add_arguments, args)
@@ -452,6 +476,9 @@ def run(args: argparse.Namespace) -> int:
             "load_1min": body["load_1min"], "stages": body["stages"],
             "run_folder": _relative(out),
             "collection_rate_s_per_row": ROBOT_S_PER_ROW,
+            "rows_from": ("the first N rows of each training set" if args.rows_from == "first" else
+                          f"N rows of each training set drawn at random (seed {SUBSET_SEED}; a smaller budget's "
+                          "among a larger one's)"),
             "epochs": ("scaled: the models on N rows train all/N times the profile's epochs, at most "
                        f"{args.scale_epochs}" if args.scale_epochs else "the profile's (fewer rows, fewer steps)"),
             "chain": "a shPix2pix and the profile's pool generators on the N real pairs (a pose-consistency "
