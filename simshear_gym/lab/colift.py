@@ -279,9 +279,7 @@ def run_colift_rehearsal(config: CoLiftConfig, out_dir: str | Path, controller: 
     if rig is not None:
         return run_on_rig(rig, config, out_dir, controller, calibration, posenet, command, on_cycle,
                           experiment=CoLiftRun)
-    rig_config = rig_config if rig_config is not None else CoLiftRigConfig(
-        object_name=config.object_name, preprocess=config.preprocess, mount=config.mount,
-        control_period_s=config.control_period_s)
+    rig_config = rig_config if rig_config is not None else CoLiftRigConfig.for_run(config)
     if rig_config.object_name != config.object_name:
         raise ValueError(f"the rig holds {rig_config.object_name!r}, the run expects {config.object_name!r}")
     with CoLiftRig(rig_config) as started:
@@ -329,8 +327,7 @@ def run(args: argparse.Namespace) -> int:
     if args.rehearsal:
         from simshear_gym.lab.colift_rig import CoLiftRigConfig
 
-        rig_config = CoLiftRigConfig(object_name=args.object, leader_in_follower=BaseToBase(*args.rig_leader_base),
-                                     preprocess=config.preprocess, control_period_s=args.period_s)
+        rig_config = CoLiftRigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
         summary = run_colift_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
                                        command, rig_config)
         summary.pop("rows")

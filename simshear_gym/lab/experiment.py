@@ -960,8 +960,7 @@ def run_tracking_rehearsal(config: ExperimentConfig, out_dir: str | Path, contro
     """One tracking run on a fresh rehearsal rig (:func:`run_on_rig`)."""
     from simshear_gym.lab.rig import RehearsalRig, RigConfig
 
-    rig_config = rig_config if rig_config is not None else RigConfig(preprocess=config.preprocess,
-                                                                     plate=config.plate, mount=config.mount)
+    rig_config = rig_config if rig_config is not None else RigConfig.for_run(config)
     with RehearsalRig(rig_config) as rig:
         summary = run_on_rig(rig, config, out_dir, controller, calibration, posenet, command)
     summary.pop("rows")
@@ -1000,7 +999,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
         from simshear_gym.lab.rig import RigConfig
 
-        rig_config = RigConfig(leader_in_follower=BaseToBase(*args.rig_leader_base), preprocess=config.preprocess)
+        rig_config = RigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
         summary = run_tracking_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
                                          command, rig_config)
     else:
