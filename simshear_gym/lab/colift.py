@@ -72,12 +72,11 @@ from simshear_gym.lab.experiment import (
     _wait_still,
     add_arm_arguments,
     add_loop_arguments,
-    rehearsal_safety,
     report_run,
     run_on_rig,
+    start_run,
 )
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
-from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
 logger = logging.getLogger(__name__)
@@ -306,18 +305,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the co-lift experiment; 0 when it completed, 1 when a stop ended it early."""
-    import torch
-
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if args.rehearsal and (args.leader or args.follower or args.camera):
-        raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
-    if not args.rehearsal and not (args.leader and args.follower and args.camera is not None and args.calibration):
-        raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
-    if args.controller != "servo" and not Path(args.controller).is_file():
-        raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
-    torch.set_num_threads(args.threads)
-    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
-    safety = SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+    safety = start_run(args)
     config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
                           lift_mm=args.lift_mm, control_period_s=args.period_s, safety=safety,
                           preprocess=_preprocess(args.preprocess))

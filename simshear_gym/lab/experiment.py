@@ -978,16 +978,32 @@ def report_run(summary: dict[str, Any], out_dir: Path, headline: str) -> int:
     return 0 if summary["completed"] else 1
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
+def arms_safety(args: argparse.Namespace) -> SafetyConfig:
+    """Both arms' limits: the safe defaults, or :func:`rehearsal_safety` with ``--max-feedback-age-s`` (default 1 s
+    with ``--rehearsal``)."""
+    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
+    return SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+
+
+def start_run(args: argparse.Namespace) -> SafetyConfig:
+    """What a two-arm experiment's ``run`` starts with: the arms, camera and calibration given (or ``--rehearsal``),
+    the controller found, logging and torch's threads set; returns :func:`arms_safety`."""
     import torch
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    torch.set_num_threads(args.threads)
+    if args.rehearsal and (args.leader or args.follower or args.camera):
+        raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
+    if not args.rehearsal and not (args.leader and args.follower and args.camera is not None and args.calibration):
+        raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
     if args.controller != "servo" and not Path(args.controller).is_file():
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
-    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
-    safety = SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    torch.set_num_threads(args.threads)
+    return arms_safety(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
+    safety = start_run(args)
     config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s, control_period_s=args.period_s,
                               reference_depth_mm=args.reference_depth_mm, safety=safety,
                               preprocess=_preprocess(args.preprocess))
@@ -995,16 +1011,12 @@ def run(args: argparse.Namespace) -> int:
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
     if args.rehearsal:
-        if args.leader or args.follower or args.camera:
-            raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
         from simshear_gym.lab.rig import RigConfig
 
         rig_config = RigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
         summary = run_tracking_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
                                          command, rig_config)
     else:
-        if not (args.leader and args.follower and args.camera is not None and calibration is not None):
-            raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
         from simshear_gym.real.camera import CameraSource
 
         camera = CameraSource(args.camera)
