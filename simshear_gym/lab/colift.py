@@ -295,11 +295,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_arm_arguments(parser, "holds the plate", "the horizontal TacTip",
                       "the co-lift scene's object between them, the rig camera", COLIFT_LEADER_IN_FOLLOWER_MM_DEG,
                       "the co-lift scene's")
-    parser.add_argument("--trajectory", default="circular_wave", choices=COLIFT_TRAJECTORIES,
+    parser.add_argument("--trajectory", default=CoLiftConfig.trajectory, choices=COLIFT_TRAJECTORIES,
                         help="the leader's path")
-    parser.add_argument("--object", default="prism", choices=OBJECT_NAMES, help="the object carried")
-    parser.add_argument("--speed-mm-s", type=float, default=5.0, help="the leader's speed along its path, mm/s")
-    parser.add_argument("--lift-mm", type=float, default=10.0, help="lift off the support before the path, mm")
+    parser.add_argument("--object", default=CoLiftConfig.object_name, choices=OBJECT_NAMES, help="the object carried")
+    parser.add_argument("--speed-mm-s", type=float, default=CoLiftConfig.speed_mm_s,
+                        help="the leader's speed along its path, mm/s")
+    parser.add_argument("--lift-mm", type=float, default=CoLiftConfig.lift_mm,
+                        help="lift off the support before the path, mm")
     add_loop_arguments(parser, "co-lift", "runs/colift")
 
 

@@ -897,7 +897,8 @@ def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", o
     parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law) or an SB3 model of simshear train rl")
     parser.add_argument("--posenet", default=None, help=f"GDNN weights (default: the shipped {gdnn} GDNN)")
-    parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1: 10 Hz)")
+    parser.add_argument("--period-s", type=float, default=ExperimentConfig.control_period_s,
+                        help="control period, s (default %(default)g: 10 Hz)")
     parser.add_argument("--max-feedback-age-s", type=float, default=None,
                         help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
                              "camera's 0.5; 1.0 with --rehearsal: the emulators share this process)")
@@ -910,9 +911,12 @@ def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", o
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``simshear experiment tracking``."""
     add_arm_arguments(parser)
-    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
-    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
-    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
+    parser.add_argument("--trajectory", default=ExperimentConfig.trajectory, choices=TRAJECTORIES,
+                        help="the leader's path")
+    parser.add_argument("--speed-mm-s", type=float, default=ExperimentConfig.speed_mm_s,
+                        help="the leader's speed along its path, mm/s")
+    parser.add_argument("--reference-depth-mm", type=float, default=ExperimentConfig.reference_depth_mm,
+                        help="depth to hold (default %(default).1f)")
     add_loop_arguments(parser)
 
 
