@@ -681,11 +681,14 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``simshear evaluate soak``."""
-    parser.add_argument("--cycles", type=int, default=10_000, help="control cycles to run (default 10000)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
-    parser.add_argument("--period-s", type=float, default=0.02, help="control period, s (default 0.02)")
-    parser.add_argument("--mean-gap", type=float, default=20.0,
-                        help="mean cycles between one fault's end and the next (default 20)")
+    parser.add_argument("--cycles", type=int, default=SoakConfig.cycles,
+                        help="control cycles to run (default %(default)d)")
+    parser.add_argument("--seed", type=int, default=SoakConfig.seed,
+                        help="seed of every random choice (default %(default)d)")
+    parser.add_argument("--period-s", type=float, default=SoakConfig.control_period_s,
+                        help="control period, s (default %(default)g)")
+    parser.add_argument("--mean-gap", type=float, default=SoakConfig.mean_gap_cycles,
+                        help="mean cycles between one fault's end and the next (default %(default)g)")
     parser.add_argument("--data", default=None,
                         help="data root holding tactip331_raw/ (the replayed frames; default SIMSHEAR_DATA or "
                              "../shared/data)")

@@ -238,15 +238,11 @@ def run(args: argparse.Namespace) -> int:
                          "calibrate by touch, or --fixture X Y Z RZ")
     import torch
 
-    from simshear_gym.lab.experiment import ExperimentConfig, rehearsal_safety
+    from simshear_gym.lab.experiment import ExperimentConfig, arms_safety
 
     torch.set_num_threads(1)
     guess = BaseToBase(*args.guess)
-    from simshear_gym.real.safety import SafetyConfig
-
-    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
-    safety = SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
-    config = ExperimentConfig(safety=safety, hover_mm=8.0, max_approach_mm=10.0)
+    config = ExperimentConfig(safety=arms_safety(args), hover_mm=8.0, max_approach_mm=10.0)
     run_dir = args.out.parent / f"{args.out.stem}_run"
     if args.rehearsal:
         if args.leader or args.follower or args.camera:

@@ -72,12 +72,11 @@ from simshear_gym.lab.experiment import (
     _wait_still,
     add_arm_arguments,
     add_loop_arguments,
-    rehearsal_safety,
     report_run,
     run_on_rig,
+    start_run,
 )
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
-from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
 logger = logging.getLogger(__name__)
@@ -279,9 +278,7 @@ def run_colift_rehearsal(config: CoLiftConfig, out_dir: str | Path, controller: 
     if rig is not None:
         return run_on_rig(rig, config, out_dir, controller, calibration, posenet, command, on_cycle,
                           experiment=CoLiftRun)
-    rig_config = rig_config if rig_config is not None else CoLiftRigConfig(
-        object_name=config.object_name, preprocess=config.preprocess, mount=config.mount,
-        control_period_s=config.control_period_s)
+    rig_config = rig_config if rig_config is not None else CoLiftRigConfig.for_run(config)
     if rig_config.object_name != config.object_name:
         raise ValueError(f"the rig holds {rig_config.object_name!r}, the run expects {config.object_name!r}")
     with CoLiftRig(rig_config) as started:
@@ -298,28 +295,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_arm_arguments(parser, "holds the plate", "the horizontal TacTip",
                       "the co-lift scene's object between them, the rig camera", COLIFT_LEADER_IN_FOLLOWER_MM_DEG,
                       "the co-lift scene's")
-    parser.add_argument("--trajectory", default="circular_wave", choices=COLIFT_TRAJECTORIES,
+    parser.add_argument("--trajectory", default=CoLiftConfig.trajectory, choices=COLIFT_TRAJECTORIES,
                         help="the leader's path")
-    parser.add_argument("--object", default="prism", choices=OBJECT_NAMES, help="the object carried")
-    parser.add_argument("--speed-mm-s", type=float, default=5.0, help="the leader's speed along its path, mm/s")
-    parser.add_argument("--lift-mm", type=float, default=10.0, help="lift off the support before the path, mm")
+    parser.add_argument("--object", default=CoLiftConfig.object_name, choices=OBJECT_NAMES, help="the object carried")
+    parser.add_argument("--speed-mm-s", type=float, default=CoLiftConfig.speed_mm_s,
+                        help="the leader's speed along its path, mm/s")
+    parser.add_argument("--lift-mm", type=float, default=CoLiftConfig.lift_mm,
+                        help="lift off the support before the path, mm")
     add_loop_arguments(parser, "co-lift", "runs/colift")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the co-lift experiment; 0 when it completed, 1 when a stop ended it early."""
-    import torch
-
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    if args.rehearsal and (args.leader or args.follower or args.camera):
-        raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
-    if not args.rehearsal and not (args.leader and args.follower and args.camera is not None and args.calibration):
-        raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
-    if args.controller != "servo" and not Path(args.controller).is_file():
-        raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
-    torch.set_num_threads(args.threads)
-    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
-    safety = SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+    safety = start_run(args)
     config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
                           lift_mm=args.lift_mm, control_period_s=args.period_s, safety=safety,
                           preprocess=_preprocess(args.preprocess))
@@ -329,8 +317,7 @@ def run(args: argparse.Namespace) -> int:
     if args.rehearsal:
         from simshear_gym.lab.colift_rig import CoLiftRigConfig
 
-        rig_config = CoLiftRigConfig(object_name=args.object, leader_in_follower=BaseToBase(*args.rig_leader_base),
-                                     preprocess=config.preprocess, control_period_s=args.period_s)
+        rig_config = CoLiftRigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
         summary = run_colift_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
                                        command, rig_config)
         summary.pop("rows")

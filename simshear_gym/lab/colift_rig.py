@@ -24,9 +24,9 @@ rig's: :meth:`CoLiftCamera.knock` (the object is knocked out of the grip).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 
@@ -36,14 +36,12 @@ from simshear_gym.lab.colift_layout import (
     COLIFT_LEADER_START_POSE_MM_DEG,
     ObjectFace,
 )
-from simshear_gym.lab.frames import BaseToBase, flange_pose_for_sensor, sensor_on_face
-from simshear_gym.lab.rig import RehearsalRig, RigCamera, RigTruth
-from simshear_gym.real.camera import PreprocessConfig, default_config
+from simshear_gym.lab.frames import BaseToBase
+from simshear_gym.lab.rig import RehearsalRig, RigCamera, RigConfig, RigTruth
+from simshear_gym.real.camera import PreprocessConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
-from simshear_gym.robots.mg400.protocol import FEEDBACK_PERIOD_S
 from simshear_gym.sim.colift_scene import CoLiftScene, CoLiftSceneConfig
 from simshear_gym.sim.objects import OBJECTS, spawn_object
-from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.tactip import TacTipConfig
 from simshear_gym.transforms import invert, matrix_to_pybullet_fast, pose_from_matrix_fast
 
@@ -167,44 +165,38 @@ class CoLiftCamera(RigCamera):
 
 
 @dataclass(frozen=True)
-class CoLiftRigConfig:
-    """The co-lift rig's layout.
+class CoLiftRigConfig(RigConfig):
+    """The co-lift rig's layout: :class:`~simshear_gym.lab.rig.RigConfig`'s (``plate`` the object's
+    :class:`ObjectFace`, ``hover_mm`` the dome apex's distance from it) in the co-lift layout, and:
 
     Attributes:
-        object_name: the object the arms carry (one of the co-lift env's).
-        leader_in_follower: where the emulated leader's base truly stands in the follower's frame.
-        leader_start_pose_mm_deg: where the emulated leader's flange starts (its base frame).
-        hover_mm: the emulated follower starts with its dome apex this far from the object's face, mm.
-        mount: the horizontal TacTip on the follower's flange.
+        object_name: the object the arms carry (one of the co-lift env's); sets ``plate`` when that is None.
         control_period_s: physics time per camera frame, s.
-        feedback_period_s, preprocess, camera_seed: as :class:`~simshear_gym.lab.rig.RigConfig`.
     """
 
-    object_name: str = "prism"
     leader_in_follower: BaseToBase = BaseToBase(*COLIFT_LEADER_IN_FOLLOWER_MM_DEG)
     leader_start_pose_mm_deg: tuple[float, float, float, float] = COLIFT_LEADER_START_POSE_MM_DEG
-    hover_mm: float = 5.0
+    plate: Any = None
     mount: HorizontalTacTipMount = HorizontalTacTipMount()
+    object_name: str = "prism"
     control_period_s: float = 0.1
-    feedback_period_s: float = FEEDBACK_PERIOD_S
-    preprocess: PreprocessConfig | None = field(default_factory=default_config)
-    camera_seed: int = 0
 
     def __post_init__(self) -> None:
         if self.object_name not in OBJECTS:
             raise ValueError(f"CoLiftRigConfig.object_name must be one of {tuple(OBJECTS)}, got {self.object_name!r}")
-        if not (math.isfinite(self.hover_mm) and 0.0 < self.hover_mm <= 50.0):
-            raise ValueError(f"CoLiftRigConfig.hover_mm must be in (0, 50] mm, got {self.hover_mm!r}")
+        if self.plate is None:
+            object.__setattr__(self, "plate", ObjectFace(self.object_name))
+        super().__post_init__()
+
+    @classmethod
+    def for_run(cls, config, **changes) -> CoLiftRigConfig:
+        """The rig laid out as a co-lift run's ``config`` has it (its object and control period too)."""
+        return super().for_run(config, object_name=config.object_name, control_period_s=config.control_period_s,
+                               **changes)
 
     @property
     def face(self) -> ObjectFace:
-        return ObjectFace(self.object_name)
-
-    def follower_start_pose(self) -> np.ndarray:
-        """The follower flange pose with the dome apex ``hover_mm`` from the object's face, on its centre line."""
-        T_face = self.face.T_follower_face(self.leader_start_pose_mm_deg, self.leader_in_follower.T_follower_leader())
-        T_sensor = sensor_on_face(T_face, 0.0, 0.0, SURFACE_DEPTH_MM - self.hover_mm)
-        return flange_pose_for_sensor(T_sensor, self.mount.T_flange_sensor())
+        return self.plate
 
 
 class CoLiftRig(RehearsalRig):
@@ -213,7 +205,7 @@ class CoLiftRig(RehearsalRig):
     config: CoLiftRigConfig
 
     def __init__(self, config: CoLiftRigConfig = CoLiftRigConfig()) -> None:
-        super().__init__(config)  # type: ignore[arg-type]
+        super().__init__(config)
 
     def new_camera(self) -> CoLiftCamera:
         """A fresh co-lift camera (the object back on its support, a fresh scene); the old one is closed."""
@@ -222,6 +214,6 @@ class CoLiftRig(RehearsalRig):
         cfg = self.config
         leader, follower = self.leader, self.follower
         self.camera = CoLiftCamera(lambda: follower.pose, lambda: leader.pose,
-                                   cfg.leader_in_follower.T_follower_leader(), cfg.face, cfg.control_period_s,
+                                   cfg.leader_in_follower.T_follower_leader(), cfg.plate, cfg.control_period_s,
                                    cfg.mount, cfg.preprocess, cfg.camera_seed)
         return self.camera

@@ -897,7 +897,8 @@ def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", o
     parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law) or an SB3 model of simshear train rl")
     parser.add_argument("--posenet", default=None, help=f"GDNN weights (default: the shipped {gdnn} GDNN)")
-    parser.add_argument("--period-s", type=float, default=0.1, help="control period, s (default 0.1: 10 Hz)")
+    parser.add_argument("--period-s", type=float, default=ExperimentConfig.control_period_s,
+                        help="control period, s (default %(default)g: 10 Hz)")
     parser.add_argument("--max-feedback-age-s", type=float, default=None,
                         help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
                              "camera's 0.5; 1.0 with --rehearsal: the emulators share this process)")
@@ -910,9 +911,12 @@ def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", o
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``simshear experiment tracking``."""
     add_arm_arguments(parser)
-    parser.add_argument("--trajectory", default="circle", choices=TRAJECTORIES, help="the leader's path")
-    parser.add_argument("--speed-mm-s", type=float, default=4.0, help="the leader's speed along its path, mm/s")
-    parser.add_argument("--reference-depth-mm", type=float, default=4.0, help="depth to hold (default 4.0)")
+    parser.add_argument("--trajectory", default=ExperimentConfig.trajectory, choices=TRAJECTORIES,
+                        help="the leader's path")
+    parser.add_argument("--speed-mm-s", type=float, default=ExperimentConfig.speed_mm_s,
+                        help="the leader's speed along its path, mm/s")
+    parser.add_argument("--reference-depth-mm", type=float, default=ExperimentConfig.reference_depth_mm,
+                        help="depth to hold (default %(default).1f)")
     add_loop_arguments(parser)
 
 
@@ -960,8 +964,7 @@ def run_tracking_rehearsal(config: ExperimentConfig, out_dir: str | Path, contro
     """One tracking run on a fresh rehearsal rig (:func:`run_on_rig`)."""
     from simshear_gym.lab.rig import RehearsalRig, RigConfig
 
-    rig_config = rig_config if rig_config is not None else RigConfig(preprocess=config.preprocess,
-                                                                     plate=config.plate, mount=config.mount)
+    rig_config = rig_config if rig_config is not None else RigConfig.for_run(config)
     with RehearsalRig(rig_config) as rig:
         summary = run_on_rig(rig, config, out_dir, controller, calibration, posenet, command)
     summary.pop("rows")
@@ -979,16 +982,32 @@ def report_run(summary: dict[str, Any], out_dir: Path, headline: str) -> int:
     return 0 if summary["completed"] else 1
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
+def arms_safety(args: argparse.Namespace) -> SafetyConfig:
+    """Both arms' limits: the safe defaults, or :func:`rehearsal_safety` with ``--max-feedback-age-s`` (default 1 s
+    with ``--rehearsal``)."""
+    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
+    return SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+
+
+def start_run(args: argparse.Namespace) -> SafetyConfig:
+    """What a two-arm experiment's ``run`` starts with: the arms, camera and calibration given (or ``--rehearsal``),
+    the controller found, logging and torch's threads set; returns :func:`arms_safety`."""
     import torch
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    torch.set_num_threads(args.threads)
+    if args.rehearsal and (args.leader or args.follower or args.camera):
+        raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
+    if not args.rehearsal and not (args.leader and args.follower and args.camera is not None and args.calibration):
+        raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
     if args.controller != "servo" and not Path(args.controller).is_file():
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
-    age = args.max_feedback_age_s if args.max_feedback_age_s is not None else (1.0 if args.rehearsal else None)
-    safety = SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    torch.set_num_threads(args.threads)
+    return arms_safety(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
+    safety = start_run(args)
     config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s, control_period_s=args.period_s,
                               reference_depth_mm=args.reference_depth_mm, safety=safety,
                               preprocess=_preprocess(args.preprocess))
@@ -996,16 +1015,12 @@ def run(args: argparse.Namespace) -> int:
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
     if args.rehearsal:
-        if args.leader or args.follower or args.camera:
-            raise ValueError("--rehearsal starts its own arms and camera: leave out --leader, --follower and --camera")
         from simshear_gym.lab.rig import RigConfig
 
-        rig_config = RigConfig(leader_in_follower=BaseToBase(*args.rig_leader_base), preprocess=config.preprocess)
+        rig_config = RigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
         summary = run_tracking_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
                                          command, rig_config)
     else:
-        if not (args.leader and args.follower and args.camera is not None and calibration is not None):
-            raise ValueError("give --leader, --follower, --camera and --calibration (or --rehearsal)")
         from simshear_gym.real.camera import CameraSource
 
         camera = CameraSource(args.camera)

@@ -244,12 +244,20 @@ class RigConfig:
     camera_seed: int = 0
 
     def __post_init__(self) -> None:
+        name = type(self).__name__
         if not (math.isfinite(self.hover_mm) and 0.0 < self.hover_mm <= 50.0):
-            raise ValueError(f"RigConfig.hover_mm must be in (0, 50] mm, got {self.hover_mm!r}")
+            raise ValueError(f"{name}.hover_mm must be in (0, 50] mm, got {self.hover_mm!r}")
         start = tuple(float(v) for v in self.leader_start_pose_mm_deg)
         if len(start) != 4 or not all(math.isfinite(v) for v in start):
-            raise ValueError(f"RigConfig.leader_start_pose_mm_deg must be 4 finite numbers, got {start!r}")
+            raise ValueError(f"{name}.leader_start_pose_mm_deg must be 4 finite numbers, got {start!r}")
         object.__setattr__(self, "leader_start_pose_mm_deg", start)
+
+    @classmethod
+    def for_run(cls, config, **changes) -> RigConfig:
+        """The rig laid out as a run's ``config`` (an :class:`~simshear_gym.lab.experiment.ExperimentConfig`) has
+        it: its plate, mount, leader start pose and camera preprocessing (``changes``: the rest)."""
+        return cls(plate=config.plate, mount=config.mount, leader_start_pose_mm_deg=config.leader_start_pose_mm_deg,
+                   preprocess=config.preprocess, **changes)
 
     def follower_start_pose(self) -> np.ndarray:
         """The follower flange pose with the sensor ``hover_mm`` above the plate's centre at the leader's start."""
