@@ -67,8 +67,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
     from simshear_gym.models.device import OnDevice, resolve_device
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.models.gdnn_input import predict
-    from simshear_gym.models.posenet_io import load_posenet
-    from simshear_gym.models.zoo import model_path
+    from simshear_gym.models.zoo import load_posenet
 
     where = resolve_device(device)
     val = read_set(val_dir or real_set_dir(root, contact, "shear", "val"))
@@ -76,7 +75,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
     images = val.load_images()[select]
     results, arrays = {}, {}
     for name, path in models.items():
-        model, card = load_posenet(model_path(path))
+        model, card = load_posenet(path)
         variables = model.variables
         if variables.name in VARIABLE_SETS and variables.name != contact:  # an inline set is a sensor's own
             raise ValueError(f"--model {name}={path}: predicts the {variables.name!r} variables, not {contact!r}")

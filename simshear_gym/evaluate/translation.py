@@ -111,9 +111,8 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
     (:data:`~simshear_gym.models.device.DEVICES`)."""
     from simshear_gym.evaluate.metrics import mape, ssim, truth_labels
     from simshear_gym.models.device import OnDevice, resolve_device
-    from simshear_gym.models.posenet_io import load_posenet
     from simshear_gym.models.translator_runtime import ONNX_SUFFIX, load_translator
-    from simshear_gym.models.zoo import model_path
+    from simshear_gym.models.zoo import load_posenet, model_path
     from simshear_gym.sim.replay import render_poses
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
 
@@ -123,7 +122,7 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
     translators = {(name, contact): on_device(load_translator(path, "onnx" if path.suffix == ONNX_SUFFIX
                                                               else "torch"), where)
                    for name, per in models.items() for contact, path in per.items()}
-    reader_models = {contact: load_posenet(model_path(path))[0] for contact, path in (readers or {}).items()}
+    reader_models = {contact: load_posenet(path)[0] for contact, path in (readers or {}).items()}
     if where.type != "cpu":
         reader_models = {contact: OnDevice(model, where) for contact, model in reader_models.items()}
     results: dict = {}

@@ -74,6 +74,15 @@ def load_model(path: str | os.PathLike, build: Callable[[dict], nn.Module], what
     payload = read_weights(path, what)
     if checkpoint_entry and checkpoint_entry in payload:
         payload = payload[checkpoint_entry]
+    model = rebuild(payload, build, f"{path}: not a simshear {what} file (another model's weights or architecture?")
+    card = payload.get("card", {})
+    return model, card if isinstance(card, dict) else {}
+
+
+def rebuild(payload, build: Callable[[dict], nn.Module], failure: str) -> nn.Module:
+    """The model ``build`` makes from ``payload["config"]`` (lists as tuples) with ``payload["state_dict"]`` loaded
+    (fp16 tensors as fp32), in eval mode; a payload of another model or architecture is a WeightsFileError starting
+    with ``failure``."""
     try:
         settings = {k: tuple(v) if isinstance(v, list) else v for k, v in payload["config"].items()}
         model = build(settings)
@@ -81,7 +90,5 @@ def load_model(path: str | os.PathLike, build: Callable[[dict], nn.Module], what
                                for k, v in payload["state_dict"].items()})
     except (KeyError, TypeError, RuntimeError, ValueError, AttributeError) as error:
         reason = " ".join(str(error).split())[:300]
-        raise WeightsFileError(f"{path}: not a simshear {what} file (another model's weights or architecture? "
-                               f"{reason})") from None
-    card = payload.get("card", {})
-    return model.eval(), card if isinstance(card, dict) else {}
+        raise WeightsFileError(f"{failure} {reason})") from None
+    return model.eval()

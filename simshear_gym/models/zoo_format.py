@@ -28,7 +28,7 @@ from pathlib import Path
 from torch import nn
 
 from simshear_gym.io import atomic_folder, file_sha256, write_json
-from simshear_gym.models.weights_io import WeightsFileError, load_model, read_weights
+from simshear_gym.models.weights_io import WeightsFileError, load_model, read_weights, rebuild
 
 FORMAT = "simshear-zoo/1"
 CONFIG_FILE = "config.json"
@@ -44,19 +44,24 @@ def is_zoo_folder(path: str | os.PathLike) -> bool:
     return path.is_dir() and (path / CONFIG_FILE).is_file() and (path / WEIGHTS_FILE).is_file()
 
 
+def write_safetensors(path: Path, state: dict) -> None:
+    """A state dict as a safetensors file (copies of its tensors on the CPU: safetensors refuses tensors that share
+    memory, and a state dict may name one parameter twice)."""
+    from safetensors.torch import save_file
+
+    save_file({key: value.detach().cpu().clone().contiguous() for key, value in state.items()}, path,
+              metadata={"format": "pt"})
+
+
 def write_folder(folder: str | os.PathLike, model_class: str, config: dict, state: dict, card: dict | None = None,
                  readme: str | None = None) -> Path:
     """Write a zoo folder from a model class name, its config fields and its state dict, atomically."""
-    from safetensors.torch import save_file
-
     clash = sorted(set(config) & set(RESERVED))
     if clash:
         raise ValueError(f"{model_class} config fields {clash} clash with the keys of {CONFIG_FILE} {RESERVED}")
-    # clones: safetensors refuses tensors sharing memory (a state dict may name one parameter twice)
-    tensors = {key: value.detach().cpu().clone().contiguous() for key, value in state.items()}
 
     def write(tmp: Path) -> None:
-        save_file(tensors, tmp / WEIGHTS_FILE, metadata={"format": "pt"})
+        write_safetensors(tmp / WEIGHTS_FILE, state)
         write_json(tmp / CONFIG_FILE, {"format": FORMAT, "model_class": model_class, **config,
                                        "weights_sha256": file_sha256(tmp / WEIGHTS_FILE), "card": card or {}})
         if readme is not None:
@@ -124,9 +129,9 @@ def load_folder(folder: str | os.PathLike, build: Callable[[dict], nn.Module], w
     expected = f"expected the {what} weights that {CONFIG_FILE} describes (safetensors of its state dict)"
     if not weights.is_file():
         raise WeightsFileError(f"{weights}: missing; {expected}")
-    recorded = table.get("weights_sha256")
-    if recorded is not None and file_sha256(weights) != recorded:
-        raise WeightsFileError(f"{weights}: sha256 {file_sha256(weights)[:12]}... differs from the "
+    recorded, actual = table.get("weights_sha256"), file_sha256(weights)
+    if recorded is not None and actual != recorded:
+        raise WeightsFileError(f"{weights}: sha256 {actual[:12]}... differs from the "
                                f"{str(recorded)[:12]}... recorded in {CONFIG_FILE}: the file is corrupt (a flipped "
                                "bit, a truncated copy) or was replaced; " + expected)
     try:
@@ -135,16 +140,11 @@ def load_folder(folder: str | os.PathLike, build: Callable[[dict], nn.Module], w
         reason = " ".join(str(error).split())[:200]
         raise WeightsFileError(f"{weights}: not a readable safetensors file ({type(error).__name__}: {reason}); "
                                f"{expected}") from None
-    try:
-        settings = {k: tuple(v) if isinstance(v, list) else v for k, v in table.items() if k not in RESERVED}
-        model = build(settings)
-        model.load_state_dict({k: v.float() if v.is_floating_point() else v for k, v in state.items()})
-    except (KeyError, TypeError, RuntimeError, ValueError, AttributeError) as error:
-        reason = " ".join(str(error).split())[:300]
-        raise WeightsFileError(f"{folder}: not a simshear {what} folder ({CONFIG_FILE} and {WEIGHTS_FILE} of "
-                               f"another architecture? {reason})") from None
+    config = {k: v for k, v in table.items() if k not in RESERVED}
+    failure = f"{folder}: not a simshear {what} folder ({CONFIG_FILE} and {WEIGHTS_FILE} of another architecture?"
+    model = rebuild({"config": config, "state_dict": state}, build, failure)
     card = table.get("card", {})
-    return model.eval(), card if isinstance(card, dict) else {}
+    return model, card if isinstance(card, dict) else {}
 
 
 def load_any(path: str | os.PathLike, build: Callable[[dict], nn.Module], what: str, model_class: str,

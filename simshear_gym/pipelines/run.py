@@ -298,6 +298,19 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
     return runner.run(name, key, work)
 
 
+def pool_step(config: ExperimentConfig, stage, contact: str, names: list[str], train_sets: list[str], generator,
+              device: str, reader: str | None = None) -> Step:
+    """The training step of a pool generator on ``train_sets``; with the pose-consistency loss it needs its reader's
+    step (``reader``, by default the generator's own real-image GDNN)."""
+    needs = ((reader or f"posenet/{contact}_{generator.reader_step}"),) if generator.pose_weight > 0 else ()
+    settings = _translator_settings(stage, contact, generator)
+    return Step(f"translator/{contact}_{generator.name}", partial(
+        translator_step, config, stage, contact, "shpix2pix", train_sets, generator, device=device,
+        reader=needs[0] if needs else None), needs=needs,
+        cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
+        work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names))
+
+
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
                  done: dict, *, device: str = "auto", seed: int | None = None,
@@ -431,15 +444,8 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
                 steps.append(Step(f"translator/{contact}_{arch}", partial(
                     translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
                     cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact), work=work))
-            for generator in profile.pool_for(contact):
-                needs = (f"posenet/{contact}_{generator.reader_step}",) if generator.pose_weight > 0 else ()
-                settings = _translator_settings(profile.translator, contact, generator)
-                work = _translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names)
-                steps.append(Step(f"translator/{contact}_{generator.name}", partial(
-                    translator_step, config, profile.translator, contact, "shpix2pix", train_sets, generator,
-                    device=device), needs=needs,
-                    cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
-                    work=work))
+            steps += [pool_step(config, profile.translator, contact, names, train_sets, generator, device)
+                      for generator in profile.pool_for(contact)]
         if "posenet" in stages:
             gdnn_work = partial(_gdnn_work, profile.posenet, contact, names)
             steps.append(Step(f"posenet/{contact}_real", partial(

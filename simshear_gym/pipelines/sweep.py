@@ -162,9 +162,9 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         POSENET_EPOCH_COST,
         TRANSLATOR_EPOCH_COST,
         _gdnn_work,
-        _translator_settings,
         _translator_work,
         contacts_of,
+        pool_step,
         posenet_step,
         translator_step,
     )
@@ -194,15 +194,9 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
             own = generator.overrides.get("epochs")
             if own is not None:
                 generator = replace(generator, overrides={**generator.overrides, "epochs": scaled(own, factor)})
-            name = f"translator/{contact}_{generator.name}"
-            needs = (real_rows_name,) if generator.pose_weight > 0 else ()
-            settings = _translator_settings(translator, contact, generator)
-            steps.append(Step(name, partial(translator_step, config, translator, contact, "shpix2pix", budget_sets,
-                                            generator, device=device, reader=needs[0] if needs else None),
-                              needs=needs, cost=TRANSLATOR_EPOCH_COST * settings["epochs"],
-                              work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact,
-                                                    names)))
-            pool.append((name, generator.draws))
+            steps.append(pool_step(config, translator, contact, names, budget_sets, generator, device,
+                                   reader=real_rows_name))
+            pool.append((steps[-1].name, generator.draws))
         drawn = ((translator_name, reader.translator_draws_for(contact)), *pool)
         chain_sets = all_sets + ([random_sets[contact]] if contact in random_sets else [])
         steps.append(Step(f"posenet/{contact}_shpix2pix", partial(

@@ -56,8 +56,6 @@ def convert_weights(kind: str, source: Path, target: Path) -> Path:
 
 def convert_policy(source: Path, target: Path) -> Path:
     """A shipped policy folder as a zoo folder (``model.safetensors``, ``README.md``), checked."""
-    from safetensors.torch import save_file
-
     from simshear_gym.control.policy_files import (
         FOLDER_MODEL,
         SAFETENSORS_SUFFIX,
@@ -67,6 +65,7 @@ def convert_policy(source: Path, target: Path) -> Path:
         read_description,
     )
     from simshear_gym.io import atomic_folder, file_sha256, write_json
+    from simshear_gym.models.zoo_format import write_safetensors
 
     description_path, weights = policy_files(source / FOLDER_MODEL)
     description = read_description(description_path)
@@ -79,9 +78,7 @@ def convert_policy(source: Path, target: Path) -> Path:
         for item in sorted(source.iterdir()):
             if item.is_file() and item.name not in (weights.name, description_path.name, POLICY_CARD):
                 shutil.copyfile(item, tmp / item.name)
-        # clones: safetensors refuses tensors sharing memory (a shared feature extractor is named twice)
-        save_file({key: value.clone().contiguous() for key, value in state.items()}, tmp / safetensors_name,
-                  metadata={"format": "pt"})
+        write_safetensors(tmp / safetensors_name, state)
         write_json(tmp / description_path.name, {**description, "weights": safetensors_name,
                                                   "weights_sha256": file_sha256(tmp / safetensors_name)})
         if (source / POLICY_CARD).is_file():
