@@ -349,7 +349,8 @@ def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], e
 # ------------------------------------------------------------------------------------------------ figure
 def plot_contact(record: dict, path: Path) -> None:
     """MAE per variable against real rows (log axis, robot minutes above) for the chain, the GDNN on N real images
-    and the reference; one panel per dataset and variable, and one of translation MAPE against retrieval."""
+    and the reference; one panel per dataset and variable the reference reads, and one of translation MAPE against
+    retrieval."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -358,8 +359,8 @@ def plot_contact(record: dict, path: Path) -> None:
 
     entries = record["budgets"]
     xs = [sum(e["rows_per_dataset"].values()) / len(e["rows_per_dataset"]) for e in entries]
-    panels = [(name, variable) for name in entries[0]["datasets"]
-              for variable in entries[0]["datasets"][name]["mae"]["reference"]]
+    panels = [(name, variable) for name in entries[0]["datasets"]  # the variables the reference reads
+              for variable in entries[0]["datasets"][name]["read_by_reference"]]
     panels += [(name, None) for name in entries[0]["datasets"]]
     columns = min(4, len(panels))
     rows = math.ceil(len(panels) / columns)
