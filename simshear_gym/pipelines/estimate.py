@@ -53,7 +53,8 @@ if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so tha
 
 #: settings that change what a trainer learns but not what a step costs (left out of a probe's key)
 FREE_SETTINGS = ("seed", "epochs", "lr", "lr_schedule", "cap_minutes", "max_minutes", "patience_epochs", "holdout",
-                 "pose_weight", "pose_variables", "device", "l1_weight", "beta", "dropout")
+                 "pose_weight", "pose_variables", "device", "l1_weight", "beta", "dropout", "lr_scaling",
+                 "warmup_epochs")
 
 
 @dataclass(frozen=True)
