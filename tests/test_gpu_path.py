@@ -168,3 +168,12 @@ def test_a_probe_times_whole_batches_of_the_profiles_size():
     timed = posenet_step_time({"image_size_px": 16, "conv_channels": [4, 8], "conv_kernels": [3, 3], "dense": [8],
                                "batch_size": 600, "data_on_device": "on"}, "surface", steps=1)
     assert timed.step_s > 0 and timed.holdout_s_per_row > 0
+
+
+def test_translation_stays_on_the_cpu_unless_the_run_trains_on_a_gpu():
+    from simshear_gym.train.posenet_trainer import on_translation_device
+
+    translators = [object()]
+    assert on_translation_device(translators, "cpu", 64) == (translators, 64)
+    if not torch.cuda.is_available():
+        assert on_translation_device(translators, "auto", 64) == (translators, 64)

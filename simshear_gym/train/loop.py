@@ -100,8 +100,8 @@ class EpochTrainer(ABC):
 
     ``config`` is a frozen dataclass with at least ``epochs``, ``max_minutes`` (None: no budget),
     ``patience_epochs``, ``lr``, ``lr_schedule``, ``batch_size`` and ``threads`` (and may hold ``lr_scaling``,
-    ``reference_batch`` and ``warmup_epochs``: :func:`~simshear_gym.train.runs.run_lr`); ``distributed``: this process's place under
-    torchrun (None: the only process). The loop's counters are attributes: ``epoch``
+    ``reference_batch`` and ``warmup_epochs``: :func:`~simshear_gym.train.runs.run_lr`); ``distributed``: this
+    process's place under torchrun (None: the only process). The loop's counters are attributes: ``epoch``
     (finished epochs), ``step`` (optimiser steps), ``elapsed_s`` (training time), ``best_holdout``,
     ``epochs_since_best`` and ``history`` (one record per epoch).
 

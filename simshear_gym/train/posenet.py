@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(config.threads)
     with distributed_session(config.device) as distributed:
         data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
-                           translators=config.translators, variables=config.variables)
+                           translators=config.translators, variables=config.variables,
+                           device=config.device if distributed is None else "cpu")  # torchrun: each on its CPU
         trainer = PosenetTrainer(config, args.out, data, distributed)
         resumed = args.resume and trainer.resume()
         if resumed and trainer.is_main:

@@ -72,11 +72,13 @@ class LabelledImages:
 
 def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
                 image_size_px: int = 128, batch: int = 64,
-                translators: tuple[str, ...] | list[str] = (), variables: str = "") -> LabelledImages:
+                translators: tuple[str, ...] | list[str] = (), variables: str = "",
+                device: str = "cpu") -> LabelledImages:
     """Images of ``source`` (see :mod:`simshear_gym.train.posenet`) and labels of the paired sets' rows;
     ``translators``: generator weights to use instead of the shipped one (several give (N, K, H, W) renditions);
     ``variables``: an inline variable set (:func:`~simshear_gym.models.gdnn.variable_set`) instead of the
-    contact's."""
+    contact's; ``device`` (``cpu``, ``cuda``, ``auto``): where the translators run (on a GPU in batches of
+    :data:`GPU_TRANSLATION_BATCH`: a GDNN's rows through a pool of generators cost minutes on one CPU thread)."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
     variables = variable_set(variables or contact)
@@ -96,6 +98,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
                 raise ValueError(f"translator {path}: a {'pix2pix' if wants_shear else 'shpix2pix'} generator, "
                                  f"but --source {source}")
     digests = [weights_digest(translator) for translator in chosen]  # the translation cache's keys
+    chosen, batch = on_translation_device(chosen, device, batch)
     images, labels = [], []
     for directory in paired_dirs:
         paired, real = load_paired(directory, data, load_real=source == "real")  # only "real" reads the real set
@@ -117,6 +120,23 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
+
+
+GPU_TRANSLATION_BATCH = 512
+"""Rows a generator translates at once on a GPU (a 128 px U-Net of the shipped size takes well under 1 GB)."""
+
+
+def on_translation_device(translators: list, device: str, batch: int) -> tuple[list, int]:
+    """``translators`` as they run on ``device`` and the batch they translate in: unchanged on the CPU; on a GPU
+    each generator moved there (:class:`~simshear_gym.models.device.OnDevice`: CPU arrays in and out) and batches
+    of :data:`GPU_TRANSLATION_BATCH`."""
+    from simshear_gym.models.device import OnDevice, check_device_name, resolve_device
+
+    where = resolve_device(check_device_name(device))
+    if where.type == "cpu":
+        return translators, batch
+    return [Translator(OnDevice(t.generator.float(), where), t.card, fast=False) for t in translators], max(
+        batch, GPU_TRANSLATION_BATCH)
 
 
 def weights_digest(translator) -> str:

@@ -151,8 +151,9 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
 
 
 def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, repeats: int = 3,
-                          threads: int = 1) -> float:
-    """Seconds per row of a generator with ``settings`` translating batches of ``batch`` sim renders."""
+                          threads: int = 1, device: str = "cpu") -> float:
+    """Seconds per row of a generator with ``settings`` translating batches of ``batch`` sim renders on ``device``
+    (on a GPU as a GDNN's rows are translated there: :func:`~simshear_gym.train.posenet_trainer.load_source`)."""
     import torch
 
     from simshear_gym.models.translator import Translator
@@ -162,7 +163,10 @@ def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, r
     torch.set_num_threads(threads)
     config = TranslatorTrainConfig(**{**settings, "paired_dirs": ("random",), "image_size_px": image_size_px,
                                       "pose_weight": 0.0, "pose_net": ""})
-    translator = Translator(UNetGenerator(config.generator_config()))
+    from simshear_gym.train.posenet_trainer import on_translation_device
+
+    (translator,), batch = on_translation_device([Translator(UNetGenerator(config.generator_config()))],
+                                                 _probe_device(device), batch)
     rng = np.random.default_rng(0)
     sim = rng.integers(0, 256, (batch, image_size_px, image_size_px), dtype=np.uint8)
     shear = rng.normal(size=(batch, 6)).astype(np.float32)

@@ -79,7 +79,8 @@ FLAG_HELP = {
     "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
     "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on a "
                       "GPU); the same batches either way",
-    "compile": "run the generator through torch.compile (the eager generator, after one warning, where it cannot compile)",
+    "compile": "run the generator through torch.compile (the eager generator, after one warning, where it cannot "
+               "compile)",
     "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
 }
 
