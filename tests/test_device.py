@@ -202,8 +202,8 @@ def test_the_pipeline_takes_device_from_the_profile_or_the_flag(tmp_path):
         steps = pipeline_run.training_steps(config, profile, {}, paired, {}, variables, stages, device)
         assert steps and all(step.action.keywords == {"device": expected} for step in steps)
     bad = tmp_path / "bad.toml"
-    bad.write_text(open("configs/tactip331.toml").read() + '\n[profiles.gpu]\ndevice = "gpu"\n')
-    with pytest.raises(ValueError, match=r"profiles.gpu.*device must be one of"):
+    bad.write_text(open("configs/tactip331.toml").read() + '\n[profiles.on_gpu]\ndevice = "gpu"\n')
+    with pytest.raises(ValueError, match=r"profiles.on_gpu.*device must be one of"):
         load_config(bad)
 
 

@@ -239,16 +239,18 @@ def test_a_failed_checkpoint_write_leaves_the_previous_one_whole(tmp_path, monke
 
 
 # --------------------------------------------------------------------------------------------------- the flags
+GPU_FLAGS = ("--lr-scaling", "--warmup-epochs", "--data-on-device", "--compile", "--no-tf32")
 COMMAND_FLAGS = {
     posenet: {"--source", "--contact", "--paired", "--out", "--data", "--image-size", "--epochs", "--batch-size",
               "--lr", "--beta", "--holdout", "--patience-epochs", "--shift", "--seed", "--threads", "--blur",
               "--erase", "--max-minutes", "--cap-minutes", "--lr-schedule", "--translators", "--variables", "--resume",
-              "--device", "--no-amp", "--wandb"},
+              "--device", "--no-amp", "--wandb", *GPU_FLAGS},
     translator: {"--arch", "--paired", "--out", "--data", "--lr-schedule", "--shear-decoder", "--flow",
                  "--image-size", "--base-channels", "--max-channels", "--decoder-scale", "--epochs", "--batch-size",
                  "--lr", "--l1-weight", "--density-weight", "--gan-weight", "--holdout", "--patience-epochs", "--seed",
                  "--threads", "--max-minutes", "--cap-minutes", "--pose-net", "--pose-weight", "--pose-variables",
-                 "--teacher", "--no-template", "--resume", "--export", "--device", "--no-amp", "--wandb"},
+                 "--teacher", "--no-template", "--resume", "--export", "--device", "--no-amp", "--wandb",
+                 *GPU_FLAGS},
     rl: {"--algo", "--out", "--timesteps", "--obs-mode", "--image-size", "--n-envs", "--n-steps", "--batch-size",
          "--learning-rate", "--checkpoint-steps", "--seed", "--threads", "--resume", "--quiet", "--device", "--task",
          "--minutes", "--observation", "--history", "--no-randomise", "--vec", "--n-epochs", "--gamma", "--net-arch",

@@ -416,8 +416,11 @@ class Profile:
     processes; give the stages ``threads`` = cores / jobs), where they train (``device``: ``auto``, ``cpu`` or
     ``cuda``, as ``--device`` of the trainers; not part of a step's cache key, so a step trained on one device is
     reused on another), the training stages' settings and the pool of extra generators for the translated-image
-    GDNN (``[[profiles.<name>.pool]]``, :class:`PoolGenerator`)."""
+    GDNN (``[[profiles.<name>.pool]]``, :class:`PoolGenerator`). ``base`` names the profile it starts from (read
+    by :func:`load_config`: that profile's tables key by key under this one's, its pool unless this one gives its
+    own), so a variant of a recipe names only what differs."""
 
+    base: str = ""
     rows_per_split: int | None = None
     eval_rows: int | None = None
     jobs: int = 1
@@ -593,6 +596,12 @@ def load_config(path: str | Path, settings: tuple[str, ...] | list[str] = ()) ->
     for name, overrides in (table.get("profiles") or {}).items():
         if not isinstance(overrides, dict):
             raise ConfigError(f"{source}: [profiles.{name}] must be a table, got {overrides!r}")
+        if "base" in overrides:  # a variant: the base profile's tables, as read so far, under this one's
+            base = overrides["base"]
+            if not isinstance(base, str) or base == name or base not in tables:
+                raise ConfigError(f"{source}: [profiles.{name}] base = {base!r}; expected a profile built in or "
+                                  f"defined above it: one of {sorted(set(tables) - {name})}")
+            tables[name] = dict(tables[base])
         merged = tables.setdefault(name, {})
         for key, value in overrides.items():  # the stage tables key by key
             stage = merged.get(key)

@@ -11,8 +11,9 @@ settings share a probe. The steps are then laid out on ``jobs`` lanes in the ord
 (:func:`simshear_gym.pipelines.stages.order_steps`), which gives the training's wall time.
 
 The probes train on the device the run would (``--device``, else the profile's ``device``): on a GPU machine
-``--device cuda`` times each step on the GPU (synchronised), ``jobs`` probes sharing it as the run's steps would;
-a GDNN's rows are translated on the CPU there too, as in the run.
+``--device cuda`` times each step on the GPU (synchronised) at the step's batch size, its rows on the GPU as the
+run keeps them (``data_on_device``), ``jobs`` probes sharing it as the run's steps would; a GDNN's rows are
+translated on the GPU there too, as in the run.
 
 The machine's load is measured before the probes (:func:`machine_load`: the 1-minute load average against the
 CPU count, ``os.getloadavg``): probes beside other work run slower than the run would on an idle machine, about
@@ -53,7 +54,8 @@ if TYPE_CHECKING:  # the config imports the simulator (pybullet): in run, so tha
 
 #: settings that change what a trainer learns but not what a step costs (left out of a probe's key)
 FREE_SETTINGS = ("seed", "epochs", "lr", "lr_schedule", "cap_minutes", "max_minutes", "patience_epochs", "holdout",
-                 "pose_weight", "pose_variables", "device", "l1_weight", "beta", "dropout")
+                 "pose_weight", "pose_variables", "device", "l1_weight", "beta", "dropout", "lr_scaling",
+                 "warmup_epochs")
 
 
 @dataclass(frozen=True)
@@ -126,7 +128,7 @@ def _translator_probe(settings: dict, image_size_px: int, steps: int, device: st
     timed = translator_step_time(settings, image_size_px, steps=steps, threads=threads, ready=barrier.wait,
                                  device=device)
     barrier.wait()
-    return timed, translation_s_per_row(settings, image_size_px, threads=threads)
+    return timed, translation_s_per_row(settings, image_size_px, threads=threads, device=device)
 
 
 def _posenet_probe(settings: dict, variables: str, views: int, steps: int, device: str, barrier):
@@ -167,8 +169,8 @@ def lanes(steps: list[Step], seconds: dict[str, float], jobs: int) -> dict[str, 
 def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | None = None,
              probe_steps: int = 50, device: str | None = None, log=print) -> dict:
     """The profile's training steps with their estimated seconds, and the training's wall time on ``jobs`` lanes
-    (None: the profile's), its steps trained on ``device`` (None: the profile's; a GPU's steps are probed on it, the
-    translations of a GDNN's rows stay on the CPU as in the run); see the module docstring."""
+    (None: the profile's), its steps trained on ``device`` (None: the profile's; a GPU's steps, and the translations
+    of a GDNN's rows, are probed on it as the run runs them); see the module docstring."""
     from simshear_gym.models.device import check_device_name
     from simshear_gym.models.gdnn import VARIABLE_SETS
     from simshear_gym.train.posenet_config import PosenetTrainConfig

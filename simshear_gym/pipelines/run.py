@@ -341,7 +341,7 @@ def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, tra
         torch.set_num_threads(train_config.threads)
         data = load_source(source, contact, [str(runner.root / d) for d in train_sets], str(runner.root),
                            train_config.image_size_px, translators=[str(runner.root / t) for t in used],
-                           variables=variables)
+                           variables=variables, device=device)
         trainer = PosenetTrainer(train_config, folder / "run", data)
         trainer.resume()
         runner.log(training_start_line(name, train_config.epochs, folder / "run" / "tb"))

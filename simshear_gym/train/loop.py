@@ -5,8 +5,9 @@ A trainer subclasses :class:`EpochTrainer` and keeps what is its own: data, netw
 checkpoint holds besides the loop's counters (the hooks below). :meth:`EpochTrainer.fit` trains until
 ``config.epochs`` epochs are done, ``config.patience_epochs`` epochs in a row bring no better holdout metric, or
 the time budget ``config.max_minutes`` (training time, counted across resumes) runs out. Each step sets the
-learning rate of every optimiser to :func:`~simshear_gym.train.runs.scheduled_lr` of the share of the run done
-(of its time budget when it has one, else of its steps). A config may also hold ``cap_minutes``: a wall-clock
+learning rate of every optimiser to :func:`~simshear_gym.train.runs.run_lr` of the share of the run done (of its
+time budget when it has one, else of its steps): the schedule of the rate, scaled to the batch size and warmed up
+where the config asks. A config may also hold ``cap_minutes``: a wall-clock
 safety cap on the training time of one ``fit`` call (``stopped_by`` "wall-clock cap",
 :data:`~simshear_gym.train.runs.CAP_STOP`) that does not shape the schedule. It stops at once and drops the
 unfinished epoch: the trainer goes back to its last finished epoch's checkpoint, so a resumed run (which gets its
@@ -46,7 +47,7 @@ from tqdm import tqdm
 
 from simshear_gym.io import atomic_write, write_json
 from simshear_gym.train.distributed import Distributed
-from simshear_gym.train.runs import CAP_STOP, check_same_settings, run_progress, scheduled_lr
+from simshear_gym.train.runs import CAP_STOP, check_same_settings, run_lr, run_progress
 
 LOG_EVERY_STEPS = 20  # training scalars to tensorboard
 
@@ -98,8 +99,9 @@ class EpochTrainer(ABC):
     """Base of a trainer run in epochs; see the module docstring.
 
     ``config`` is a frozen dataclass with at least ``epochs``, ``max_minutes`` (None: no budget),
-    ``patience_epochs``, ``lr``, ``lr_schedule`` and ``threads``; ``distributed``: this process's place under
-    torchrun (None: the only process). The loop's counters are attributes: ``epoch``
+    ``patience_epochs``, ``lr``, ``lr_schedule``, ``batch_size`` and ``threads`` (and may hold ``lr_scaling``,
+    ``reference_batch`` and ``warmup_epochs``: :func:`~simshear_gym.train.runs.run_lr`); ``distributed``: this
+    process's place under torchrun (None: the only process). The loop's counters are attributes: ``epoch``
     (finished epochs), ``step`` (optimiser steps), ``elapsed_s`` (training time), ``best_holdout``,
     ``epochs_since_best`` and ``history`` (one record per epoch).
 
@@ -111,8 +113,9 @@ class EpochTrainer(ABC):
     metric: str = "loss"
     """Name of the holdout metric (lower is better): history keys ``train_<metric>`` / ``holdout_<metric>``, the
     checkpoint's and summary's ``best_holdout_<metric>``; ``train_batch`` reports the training loss under it."""
-    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes", "device", "amp")
-    """Settings a resumed run may change."""
+    resume_free: tuple[str, ...] = ("epochs", "max_minutes", "patience_epochs", "cap_minutes", "device", "amp",
+                                    "data_on_device", "compile", "tf32")
+    """Settings a resumed run may change (where the run trains and how fast, not what it learns)."""
     clock: Callable[[], float] = staticmethod(time.perf_counter)
     """The clock (seconds) that the time budget and the wall-clock cap read; tests give a trainer a clock that
     advances per step, so that budgets and caps are tested alike on a fast, slow or busy machine."""
@@ -267,7 +270,7 @@ class EpochTrainer(ABC):
             if len(index) < self.min_batch_rows():  # batch norm needs two rows (per process)
                 continue
             done = run_progress(self.elapsed_s, budget_s, self.step, config.epochs * len(batches))
-            lr = scheduled_lr(config.lr, config.lr_schedule, done)
+            lr = run_lr(config, done)
             for optimiser in self.optimisers():
                 for group in optimiser.param_groups:
                     group["lr"] = lr

@@ -46,7 +46,7 @@ from pathlib import Path
 from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.posenet_config import CONTACTS, SOURCES, PosenetTrainConfig
-from simshear_gym.train.runs import LR_SCHEDULES
+from simshear_gym.train.runs import DATA_PLACEMENTS, LR_SCALINGS, LR_SCHEDULES
 from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
 FLAG_HELP = {
@@ -84,6 +84,13 @@ FLAG_HELP = {
               "CUDA); under torchrun each process takes GPU LOCAL_RANK",
     "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
            "CPU always trains in float32",
+    "lr_scaling": "scale --lr from the batch it was tuned at (64) to --batch-size: none, linear (x the ratio) or "
+                  "sqrt (x its square root, the rule for Adam)",
+    "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
+    "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on a "
+                      "GPU); the same batches either way",
+    "compile": "run the GDNN through torch.compile (the eager GDNN, after one warning, where it cannot compile)",
+    "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
 }
 
 
@@ -91,7 +98,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, PosenetTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired", "blur_px": "--blur"},
-                 choices={"source": SOURCES, "contact": CONTACTS, "lr_schedule": LR_SCHEDULES, "device": DEVICES},
+                 choices={"source": SOURCES, "contact": CONTACTS, "lr_schedule": LR_SCHEDULES, "device": DEVICES,
+                          "lr_scaling": LR_SCALINGS, "data_on_device": DATA_PLACEMENTS},
                  required=("source", "contact", "paired_dirs"), metavars={"paired_dirs": "DIR",
                                                                           "translators": "WEIGHTS"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
@@ -113,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(config.threads)
     with distributed_session(config.device) as distributed:
         data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
-                           translators=config.translators, variables=config.variables)
+                           translators=config.translators, variables=config.variables,
+                           device=config.device if distributed is None else "cpu")  # torchrun: each on its CPU
         trainer = PosenetTrainer(config, args.out, data, distributed)
         resumed = args.resume and trainer.resume()
         if resumed and trainer.is_main:

@@ -4,10 +4,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from simshear_gym.models.device import check_device_name
-from simshear_gym.train.runs import scheduled_lr
+from simshear_gym.train.runs import check_gpu_knobs, scheduled_lr
 
 if TYPE_CHECKING:
     from simshear_gym.models.gdnn import GDNNConfig
@@ -21,8 +21,14 @@ class PosenetTrainConfig:
     """Everything a posenet training run depends on (saved as ``config.json`` beside its outputs).
 
     The architecture fields default to :class:`simshear_gym.models.gdnn.GDNNConfig`'s defaults (written out here so
-    that the command needs no torch; ``tests/test_train_loop.py`` checks that they agree).
+    that the command needs no torch; ``tests/test_train_loop.py`` checks that they agree). The GPU knobs
+    (``lr_scaling``, ``warmup_epochs``, ``data_on_device``, ``compile``, ``tf32``) are those of
+    :class:`~simshear_gym.train.translator_config.TranslatorTrainConfig`, the GDNN in place of the generator (with
+    ``data_on_device`` the augmentations run on the device too, their random draws from the run's CPU generators).
     """
+
+    reference_batch: ClassVar[int] = 64
+    """The batch size ``lr`` was tuned at (the default ``batch_size``): what ``lr_scaling`` scales from."""
 
     source: str = "real"
     contact: str = "surface"
@@ -50,6 +56,11 @@ class PosenetTrainConfig:
     variables: str = ""
     device: str = "auto"
     amp: bool = True
+    lr_scaling: str = "none"
+    warmup_epochs: float = 0.0
+    data_on_device: str = "auto"
+    compile: bool = False
+    tf32: bool = True
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -77,6 +88,7 @@ class PosenetTrainConfig:
             raise ValueError(f"lr must be > 0, got {self.lr}")
         scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
         check_device_name(self.device)
+        check_gpu_knobs(self)
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:

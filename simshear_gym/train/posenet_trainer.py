@@ -28,8 +28,8 @@ from simshear_gym.models.zoo import load_shipped_translator
 from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.posenet_config import SOURCES, PosenetTrainConfig
-from simshear_gym.train.precision import MixedPrecision, autocast_dtype, memory_format
-from simshear_gym.train.runs import split_holdout
+from simshear_gym.train.precision import Compiled, MixedPrecision, autocast_dtype, memory_format, use_tf32
+from simshear_gym.train.runs import data_on_device, split_holdout
 
 
 # ------------------------------------------------------------------------------------------------------ data
@@ -50,8 +50,12 @@ class LabelledImages:
         return len(self.images)
 
     def subset(self, index: np.ndarray) -> LabelledImages:
-        index = torch.as_tensor(index)
+        index = torch.as_tensor(index).to(self.images.device, non_blocking=True)
         return LabelledImages(self.images[index], self.labels[index])
+
+    def to(self, device: torch.device) -> LabelledImages:
+        """The rows on ``device``."""
+        return LabelledImages(self.images.to(device), self.labels.to(device))
 
     @property
     def first(self) -> torch.Tensor:
@@ -62,17 +66,19 @@ class LabelledImages:
         """(N, H, W): a randomly drawn rendition of each row (the images themselves when there is one)."""
         if self.images.dim() == 3:
             return self.images
-        views = torch.from_numpy(rng.integers(0, self.images.shape[1], len(self)))
-        return self.images[torch.arange(len(self)), views]
+        views = torch.from_numpy(rng.integers(0, self.images.shape[1], len(self))).to(self.images.device)
+        return self.images[torch.arange(len(self), device=self.images.device), views]
 
 
 def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
                 image_size_px: int = 128, batch: int = 64,
-                translators: tuple[str, ...] | list[str] = (), variables: str = "") -> LabelledImages:
+                translators: tuple[str, ...] | list[str] = (), variables: str = "",
+                device: str = "cpu") -> LabelledImages:
     """Images of ``source`` (see :mod:`simshear_gym.train.posenet`) and labels of the paired sets' rows;
     ``translators``: generator weights to use instead of the shipped one (several give (N, K, H, W) renditions);
     ``variables``: an inline variable set (:func:`~simshear_gym.models.gdnn.variable_set`) instead of the
-    contact's."""
+    contact's; ``device`` (``cpu``, ``cuda``, ``auto``): where the translators run (on a GPU in batches of
+    :data:`GPU_TRANSLATION_BATCH`: a GDNN's rows through a pool of generators cost minutes on one CPU thread)."""
     if source not in SOURCES:
         raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
     variables = variable_set(variables or contact)
@@ -92,6 +98,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
                 raise ValueError(f"translator {path}: a {'pix2pix' if wants_shear else 'shpix2pix'} generator, "
                                  f"but --source {source}")
     digests = [weights_digest(translator) for translator in chosen]  # the translation cache's keys
+    chosen, batch = on_translation_device(chosen, device, batch)
     images, labels = [], []
     for directory in paired_dirs:
         paired, real = load_paired(directory, data, load_real=source == "real")  # only "real" reads the real set
@@ -113,6 +120,23 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
         images.append(resize_images(stack, image_size_px))
         labels.append(label_matrix(paired.targets, variables))
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
+
+
+GPU_TRANSLATION_BATCH = 512
+"""Rows a generator translates at once on a GPU (a 128 px U-Net of the shipped size takes well under 1 GB)."""
+
+
+def on_translation_device(translators: list, device: str, batch: int) -> tuple[list, int]:
+    """``translators`` as they run on ``device`` and the batch they translate in: unchanged on the CPU; on a GPU
+    each generator moved there (:class:`~simshear_gym.models.device.OnDevice`: CPU arrays in and out) and batches
+    of :data:`GPU_TRANSLATION_BATCH`."""
+    from simshear_gym.models.device import OnDevice, check_device_name, resolve_device
+
+    where = resolve_device(check_device_name(device))
+    if where.type == "cpu":
+        return translators, batch
+    return [Translator(OnDevice(t.generator.float(), where), t.card, fast=False) for t in translators], max(
+        batch, GPU_TRANSLATION_BATCH)
 
 
 def weights_digest(translator) -> str:
@@ -153,13 +177,15 @@ def _load_env_sets(directories, variables: VariableSet, image_size_px: int) -> L
     return LabelledImages(torch.from_numpy(np.concatenate(images)), torch.from_numpy(np.concatenate(labels)))
 
 
+# The augmentations draw their random numbers from a CPU generator (a few per image: the same draws on any
+# device, and a state the checkpoint holds) and transform the images where they are (the CPU or the GPU).
 def random_shift(images: torch.Tensor, max_share: float, generator: torch.Generator) -> torch.Tensor:
     """Shift each image of (B, 1, H, W) by up to ``max_share`` of its size in x and y, edge pixels repeated."""
     if max_share <= 0:
         return images
     batch = images.shape[0]
-    offset = (torch.rand(batch, 2, generator=generator) * 2 - 1) * (2 * max_share)  # grid units span 2
-    theta = torch.zeros(batch, 2, 3)
+    offset = ((torch.rand(batch, 2, generator=generator) * 2 - 1) * (2 * max_share)).to(images.device)  # grid: 2
+    theta = torch.zeros(batch, 2, 3, device=images.device)
     theta[:, 0, 0] = theta[:, 1, 1] = 1.0
     theta[:, :, 2] = offset
     grid = F.affine_grid(theta, list(images.shape), align_corners=False)
@@ -173,8 +199,8 @@ def random_blur(images: torch.Tensor, max_sigma_px: float, generator: torch.Gene
         return images
     batch = images.shape[0]
     radius = int(np.ceil(3 * max_sigma_px))
-    sigma = torch.rand(batch, 1, generator=generator) * max_sigma_px
-    offsets = torch.arange(-radius, radius + 1, dtype=torch.float32)
+    sigma = (torch.rand(batch, 1, generator=generator) * max_sigma_px).to(images.device)
+    offsets = torch.arange(-radius, radius + 1, dtype=torch.float32, device=images.device)
     weights = torch.where(sigma > 0, torch.exp(-0.5 * (offsets / sigma.clamp_min(1e-6)) ** 2),
                           (offsets == 0).to(torch.float32).expand(batch, -1))
     weights = weights / weights.sum(dim=1, keepdim=True)
@@ -190,10 +216,10 @@ def random_erase(images: torch.Tensor, max_radius_share: float, generator: torch
     if max_radius_share <= 0:
         return images
     batch, _, height, width = images.shape
-    radius = torch.rand(batch, 1, 1, generator=generator) * max_radius_share
-    centre = 0.25 + 0.5 * torch.rand(batch, 2, 1, 1, generator=generator)
-    y = (torch.arange(height, dtype=torch.float32).view(1, -1, 1) + 0.5) / height
-    x = (torch.arange(width, dtype=torch.float32).view(1, 1, -1) + 0.5) / width
+    radius = (torch.rand(batch, 1, 1, generator=generator) * max_radius_share).to(images.device)
+    centre = (0.25 + 0.5 * torch.rand(batch, 2, 1, 1, generator=generator)).to(images.device)
+    y = (torch.arange(height, dtype=torch.float32, device=images.device).view(1, -1, 1) + 0.5) / height
+    x = (torch.arange(width, dtype=torch.float32, device=images.device).view(1, 1, -1) + 0.5) / width
     inside = (y - centre[:, 0]) ** 2 + (x - centre[:, 1]) ** 2 < radius ** 2
     return images.masked_fill(inside.unsqueeze(1), 0.0)
 
@@ -204,11 +230,13 @@ class PosenetTrainer(EpochTrainer):
 
     The rows stay on the CPU, where each batch is drawn and augmented (from the CPU generators the checkpoint
     holds); the batch then moves to ``config.device`` (under torchrun: the process's device, and its share of the
-    batch). The model runs in ``channels_last`` (faster on the CPU too) and on CUDA, with ``config.amp``, in mixed
-    precision."""
+    batch). With ``config.data_on_device`` (by default on a GPU) the training rows live on the device and each
+    batch is gathered and augmented there, the same rows and random draws. The model runs in ``channels_last``
+    (faster on the CPU too) and on CUDA, with ``config.amp``, in mixed precision, with ``config.tf32`` its float32
+    products in TF32; with ``config.compile`` through ``torch.compile`` (one process only)."""
 
     metric = "nll"  # history: train_nll (the beta-NLL training loss), holdout_nll (the plain Gaussian NLL)
-    resume_free = ("epochs", "max_minutes", "patience_epochs", "threads", "cap_minutes", "device", "amp")
+    resume_free = EpochTrainer.resume_free + ("threads",)
 
     def __init__(self, config: PosenetTrainConfig, run_dir: Path, data: LabelledImages,
                  distributed: Distributed | None = None) -> None:
@@ -216,6 +244,7 @@ class PosenetTrainer(EpochTrainer):
         self.device = distributed.device if distributed is not None else resolve_device(config.device)
         self.memory_format = memory_format(self.device)
         self.precision = MixedPrecision(self.device, autocast_dtype(self.device, config.amp))
+        use_tf32(self.device, config.tf32)
         torch.manual_seed(config.seed)
         data = LabelledImages(torch.as_tensor(resize_images(data.images.numpy(), config.image_size_px)),
                               data.labels)
@@ -224,6 +253,9 @@ class PosenetTrainer(EpochTrainer):
         self.model = GDNN(config.gdnn_config()).to(self.device, memory_format=self.memory_format)
         self.variables = self.model.variables
         self.net = distributed.wrap(self.model) if distributed is not None else self.model  # what trains
+        self.forward = Compiled(self.net, config.compile and distributed is None, "the GDNN")
+        self.device_data = (self.train_data.to(self.device) if data_on_device(config.data_on_device,
+                                                                               self.device.type) else None)
         self.optimiser = torch.optim.Adam(self.model.parameters(), lr=config.lr)
         self.batch_rng = np.random.default_rng(config.seed + 1)
         self.shift_rng = torch.Generator().manual_seed(config.seed + 2)
@@ -263,9 +295,10 @@ class PosenetTrainer(EpochTrainer):
         return images.to(self.device, memory_format=self.memory_format, non_blocking=True)
 
     def train_step(self, images: torch.Tensor, target: torch.Tensor) -> float:
-        """One optimiser step on CPU ``images`` (B, 1, H, W) and encoded ``target`` (B, D); returns the loss."""
+        """One optimiser step on ``images`` (B, 1, H, W) and encoded ``target`` (B, D), on the CPU or already on the
+        device; returns the loss."""
         with self.precision.autocast():
-            mean, std = self.net(self._on_device(images))
+            mean, std = self.forward(self._on_device(images))
         loss = beta_nll(mean.float(), std.float(), target.to(self.device), self.config.beta)
         self.optimiser.zero_grad(set_to_none=True)
         self.precision.backward(loss)
@@ -290,7 +323,7 @@ class PosenetTrainer(EpochTrainer):
         torchrun: every process augments the whole batch, so its generators stay in step, and trains on its
         share)."""
         config = self.config
-        part = self.train_data.subset(index)
+        part = (self.device_data if self.device_data is not None else self.train_data).subset(index)
         images = random_shift(to_input(part.drawn(self.batch_rng)), config.shift, self.shift_rng)
         images = random_blur(images, config.blur_px, self.shift_rng)
         images = random_erase(images, config.erase, self.shift_rng)

@@ -5,12 +5,17 @@ written by :mod:`simshear_gym.train.loop`."""
 from __future__ import annotations
 
 import math
-from dataclasses import asdict
+from dataclasses import MISSING, asdict, fields
 from pathlib import Path
 
 import numpy as np
 
 LR_SCHEDULES = ("constant", "cosine")
+LR_SCALINGS = ("none", "linear", "sqrt")
+"""How a run's learning rate follows its batch size (:func:`batch_scaled_lr`)."""
+DATA_PLACEMENTS = ("auto", "on", "off")
+"""Where a run's training rows live (``data_on_device``): ``on`` the training device (batches gathered and augmented
+there), ``off`` on the CPU (each batch built there and copied over), ``auto``: on the device when it is a GPU."""
 
 CAP_STOP = "wall-clock cap"
 """``stopped_by`` of a training stopped by its ``cap_minutes`` safety cap: not the recipe's model (it stopped at
@@ -24,6 +29,57 @@ def scheduled_lr(lr: float, schedule: str, progress: float) -> float:
     if schedule == "constant":
         return lr
     return lr * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))
+
+
+def batch_scaled_lr(lr: float, batch_size: int, reference_batch: int, scaling: str) -> float:
+    """The peak learning rate of a run of ``batch_size`` rows per step whose ``lr`` was tuned at
+    ``reference_batch``: ``none`` keeps ``lr``; ``linear`` multiplies it by ``batch_size / reference_batch`` (the
+    same step per row seen, for SGD-like updates); ``sqrt`` by the square root of that ratio (the rule for Adam,
+    whose step size does not grow with the gradient's scale: the gradient's noise falls as the square root of the
+    batch)."""
+    if scaling not in LR_SCALINGS:
+        raise ValueError(f"lr_scaling must be one of {LR_SCALINGS}, got {scaling!r}")
+    ratio = batch_size / reference_batch
+    return lr * {"none": 1.0, "linear": ratio, "sqrt": math.sqrt(ratio)}[scaling]
+
+
+def warmup_factor(progress: float, warmup_share: float) -> float:
+    """The share of its learning rate a run takes after ``progress`` (0..1) with a linear warm-up over the first
+    ``warmup_share`` of it (1 throughout when ``warmup_share`` is 0): a large batch's scaled rate would throw
+    the freshly initialised weights about in the first steps."""
+    if warmup_share <= 0 or progress >= warmup_share:
+        return 1.0
+    return max(progress, 0.0) / warmup_share
+
+
+def run_lr(config, progress: float) -> float:
+    """The learning rate of a training run (a trainer config: ``lr``, ``lr_schedule``, ``batch_size``, and where
+    it has them ``lr_scaling``, ``reference_batch`` and ``warmup_epochs``, ``epochs``) after ``progress`` (0..1) of
+    it: the schedule of the batch-scaled peak rate, times the warm-up."""
+    scaling = getattr(config, "lr_scaling", "none")
+    peak = (config.lr if scaling == "none" else
+            batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, scaling))
+    share = getattr(config, "warmup_epochs", 0.0) / config.epochs
+    return scheduled_lr(peak, config.lr_schedule, progress) * warmup_factor(progress, share)
+
+
+def data_on_device(setting: str, device_type: str) -> bool:
+    """Whether a run with ``data_on_device`` = ``setting`` keeps its training rows on its device (of
+    ``device_type``: "cpu" or "cuda")."""
+    return setting == "on" or (setting == "auto" and device_type == "cuda")
+
+
+def check_gpu_knobs(config) -> None:
+    """Raise a ValueError naming the valid values unless a trainer config's ``lr_scaling``, ``warmup_epochs``,
+    ``data_on_device``, ``compile`` and ``tf32`` are valid."""
+    batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, config.lr_scaling)
+    if not 0.0 <= config.warmup_epochs <= config.epochs:
+        raise ValueError(f"warmup_epochs must be in [0, epochs = {config.epochs}], got {config.warmup_epochs!r}")
+    if config.data_on_device not in DATA_PLACEMENTS:
+        raise ValueError(f"data_on_device must be one of {DATA_PLACEMENTS}, got {config.data_on_device!r}")
+    for name in ("compile", "tf32"):
+        if not isinstance(getattr(config, name), bool):
+            raise ValueError(f"{name} must be true or false, got {getattr(config, name)!r}")
 
 
 def run_progress(elapsed_s: float, budget_s: float, step: int, total_steps: int) -> float:
@@ -41,8 +97,12 @@ def split_holdout(n_rows: int, share: float, seed: int) -> tuple[np.ndarray, np.
 
 
 def check_same_settings(path: Path, saved_config: dict, config, free: tuple[str, ...]) -> None:
-    """Refuse to resume ``path`` when its run's settings differ from ``config`` outside the ``free`` ones."""
-    saved = {k: tuple(v) if isinstance(v, list) else v for k, v in saved_config.items() if k not in free}
+    """Refuse to resume ``path`` when its run's settings differ from ``config`` outside the ``free`` ones; a
+    setting the saved run predates counts as its default (a checkpoint written before a knob existed trained as the
+    knob's default does)."""
+    defaults = {item.name: item.default for item in fields(config) if item.default is not MISSING}
+    saved = {k: tuple(v) if isinstance(v, list) else v for k, v in {**defaults, **saved_config}.items()
+             if k not in free}
     mine = {k: v for k, v in asdict(config).items() if k not in free}
     if saved != mine:
         changed = sorted(k for k in mine if saved.get(k) != mine[k])

@@ -3,7 +3,8 @@ loaded: the wall time of a trainer's optimiser step and of its holdout pass, and
 a batch (the GDNN on translated images translates its sets first). The trainers are the package's own
 (:class:`~simshear_gym.train.translator_trainer.TranslatorTrainer`,
 :class:`~simshear_gym.train.posenet_trainer.PosenetTrainer`), built with the run's settings, so a step is the
-step a run takes (layout, losses, augmentation); a pose-consistency translator reads its images with a GDNN of
+step a run takes (layout, losses, augmentation, batch size; on a GPU the device-resident batches of the run's
+``data_on_device``); a pose-consistency translator reads its images with a GDNN of
 the real-image reference's architecture (random weights). Used by :mod:`simshear_gym.pipelines.estimate`.
 
 Times are per process: run the probes as many side by side as the run will train (its ``jobs``), since two
@@ -15,6 +16,7 @@ not only its launch.
 from __future__ import annotations
 
 import itertools
+import math
 import tempfile
 import time
 from dataclasses import dataclass
@@ -23,7 +25,15 @@ from pathlib import Path
 import numpy as np
 
 PROBE_ROWS = 512
-"""Rows of the random set a probe trains on (the holdout pass is timed on its share of them and scaled)."""
+"""Rows of the random set a probe trains on (the holdout pass is timed on its share of them and scaled), or more
+where the run's batch needs them (:func:`probe_rows`)."""
+
+
+def probe_rows(batch_size: int, holdout: float) -> int:
+    """Rows of a probe's random set: :data:`PROBE_ROWS`, or enough for two whole training batches of
+    ``batch_size`` beside the ``holdout`` share (a GPU run's batch of 1024 is timed at 1024 rows, not cut to what
+    512 rows leave)."""
+    return max(PROBE_ROWS, math.ceil(2 * batch_size / (1.0 - holdout)) + 2)
 
 
 @dataclass(frozen=True)
@@ -67,7 +77,8 @@ def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None, device: st
     if ready is not None:
         ready()
     trainer.train_mode()
-    batches = itertools.cycle(trainer.epoch_batches())
+    size = trainer.config.batch_size
+    batches = itertools.cycle([index for index in trainer.epoch_batches() if len(index) == size])  # whole ones
     step_s = _median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3, device=device)
     start = time.perf_counter()
     trainer.holdout_metric()
@@ -101,11 +112,12 @@ def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, th
             pose_settings = {"pose_net": str(path), "pose_variables": ()}
         config = TranslatorTrainConfig(**{**settings, **pose_settings, "paired_dirs": ("random",),
                                           "image_size_px": image_size_px, "device": device, "threads": threads})
-        shape = (PROBE_ROWS, image_size_px, image_size_px)
+        rows = probe_rows(config.batch_size, config.holdout)
+        shape = (rows, image_size_px, image_size_px)
         pairs = PairedTensors(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator),
-                              torch.randn(PROBE_ROWS, 6, generator=generator),
+                              torch.randn(rows, 6, generator=generator),
                               torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator),
-                              torch.rand(PROBE_ROWS, pose.variables.encoded_dim if pose else 1,
+                              torch.rand(rows, pose.variables.encoded_dim if pose else 1,
                                          generator=generator) if pose else None)
         trainer = TranslatorTrainer(config, Path(folder) / "run", pairs, pose=pose)
         return _time_trainer(trainer, len(trainer.holdout_pairs), steps, ready, device)
@@ -127,11 +139,11 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
     generator = torch.Generator().manual_seed(0)
     config = PosenetTrainConfig(**{**settings, "paired_dirs": ("random",), "variables": variables, "device": device,
                                    "threads": threads})
-    size = config.image_size_px
-    shape = (PROBE_ROWS, views, size, size) if views > 1 else (PROBE_ROWS, size, size)
+    size, rows = config.image_size_px, probe_rows(config.batch_size, config.holdout)
+    shape = (rows, views, size, size) if views > 1 else (rows, size, size)
     specs = variable_set(variables).variables
     low, high = torch.tensor([v.low for v in specs]), torch.tensor([v.high for v in specs])
-    labels = low + (high - low) * torch.rand(PROBE_ROWS, len(low), generator=generator)
+    labels = low + (high - low) * torch.rand(rows, len(low), generator=generator)
     data = LabelledImages(torch.randint(0, 256, shape, dtype=torch.uint8, generator=generator), labels)
     with tempfile.TemporaryDirectory() as folder:
         trainer = PosenetTrainer(config, Path(folder) / "run", data)
@@ -139,8 +151,9 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
 
 
 def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, repeats: int = 3,
-                          threads: int = 1) -> float:
-    """Seconds per row of a generator with ``settings`` translating batches of ``batch`` sim renders."""
+                          threads: int = 1, device: str = "cpu") -> float:
+    """Seconds per row of a generator with ``settings`` translating batches of ``batch`` sim renders on ``device``
+    (on a GPU as a GDNN's rows are translated there: :func:`~simshear_gym.train.posenet_trainer.load_source`)."""
     import torch
 
     from simshear_gym.models.translator import Translator
@@ -150,7 +163,10 @@ def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, r
     torch.set_num_threads(threads)
     config = TranslatorTrainConfig(**{**settings, "paired_dirs": ("random",), "image_size_px": image_size_px,
                                       "pose_weight": 0.0, "pose_net": ""})
-    translator = Translator(UNetGenerator(config.generator_config()))
+    from simshear_gym.train.posenet_trainer import on_translation_device
+
+    (translator,), batch = on_translation_device([Translator(UNetGenerator(config.generator_config()))],
+                                                 _probe_device(device), batch)
     rng = np.random.default_rng(0)
     sim = rng.integers(0, 256, (batch, image_size_px, image_size_px), dtype=np.uint8)
     shear = rng.normal(size=(batch, 6)).astype(np.float32)

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
-from simshear_gym.train.runs import LR_SCHEDULES
+from simshear_gym.train.runs import DATA_PLACEMENTS, LR_SCALINGS, LR_SCHEDULES
 from simshear_gym.train.translator_config import ARCHS, DENSITY_POOL_PX, TranslatorTrainConfig
 from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
@@ -74,6 +74,14 @@ FLAG_HELP = {
               "CUDA); under torchrun each process takes GPU LOCAL_RANK",
     "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
            "CPU always trains in float32",
+    "lr_scaling": "scale --lr from the batch it was tuned at (16) to --batch-size: none, linear (x the ratio) or "
+                  "sqrt (x its square root, the rule for Adam)",
+    "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
+    "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on a "
+                      "GPU); the same batches either way",
+    "compile": "run the generator through torch.compile (the eager generator, after one warning, where it cannot "
+               "compile)",
+    "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
 }
 
 
@@ -81,7 +89,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, TranslatorTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired"},
-                 choices={"arch": ARCHS, "lr_schedule": LR_SCHEDULES, "device": DEVICES}, required=("paired_dirs",),
+                 choices={"arch": ARCHS, "lr_schedule": LR_SCHEDULES, "device": DEVICES,
+                          "lr_scaling": LR_SCALINGS, "data_on_device": DATA_PLACEMENTS}, required=("paired_dirs",),
                  metavars={"paired_dirs": "DIR", "pose_variables": "NAME"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")

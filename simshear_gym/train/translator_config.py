@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from simshear_gym.models.device import check_device_name
-from simshear_gym.train.runs import scheduled_lr
+from simshear_gym.train.runs import check_gpu_knobs, run_lr, scheduled_lr
 
 if TYPE_CHECKING:
     from simshear_gym.models.unet import UNetConfig
@@ -23,7 +23,17 @@ pitches at 128 px."""
 
 @dataclass(frozen=True)
 class TranslatorTrainConfig:
-    """Everything a translator training run depends on (saved as ``config.json`` beside its outputs)."""
+    """Everything a translator training run depends on (saved as ``config.json`` beside its outputs).
+
+    The GPU knobs: ``lr_scaling`` (``none``, ``linear``, ``sqrt``) scales ``lr`` from :attr:`reference_batch`, the
+    batch it was tuned at, to ``batch_size``, and ``warmup_epochs`` ramps the rate up linearly over that many
+    epochs (:func:`~simshear_gym.train.runs.run_lr`); ``data_on_device`` (``auto``, ``on``, ``off``) keeps the
+    training pairs on the training device, batches gathered there (``auto``: on a GPU); ``compile`` runs the
+    generator through ``torch.compile`` (the eager generator, with one warning, where it cannot compile);
+    ``tf32``: on CUDA, float32 matrix products and convolutions in TF32 (:mod:`simshear_gym.train.precision`)."""
+
+    reference_batch: ClassVar[int] = 16
+    """The batch size ``lr`` was tuned at (the default ``batch_size``): what ``lr_scaling`` scales from."""
 
     arch: str = "shpix2pix"
     paired_dirs: tuple[str, ...] = ()
@@ -53,12 +63,18 @@ class TranslatorTrainConfig:
     teacher: str = ""
     device: str = "auto"
     amp: bool = True
+    lr_scaling: str = "none"
+    warmup_epochs: float = 0.0
+    data_on_device: str = "auto"
+    compile: bool = False
+    tf32: bool = True
 
     def __post_init__(self) -> None:
         if self.arch not in ARCHS:
             raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
         scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
         check_device_name(self.device)
+        check_gpu_knobs(self)
         if self.shear_decoder and self.arch != "shpix2pix":
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:
@@ -91,5 +107,5 @@ class TranslatorTrainConfig:
                           decoder_scale=self.decoder_scale, flow_px=self.flow_px)
 
     def lr_at(self, progress: float) -> float:
-        """Learning rate after ``progress`` (0..1) of the run."""
-        return scheduled_lr(self.lr, self.lr_schedule, progress)
+        """Learning rate after ``progress`` (0..1) of the run (scaled to the batch and warmed up as asked)."""
+        return run_lr(self, progress)

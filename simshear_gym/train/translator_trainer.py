@@ -22,8 +22,8 @@ from simshear_gym.models.unet import PatchDiscriminator, PatchDiscriminatorConfi
 from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.pose_consistency import PoseConsistency
-from simshear_gym.train.precision import MixedPrecision, autocast_dtype, memory_format
-from simshear_gym.train.runs import split_holdout
+from simshear_gym.train.precision import Compiled, MixedPrecision, autocast_dtype, memory_format, use_tf32
+from simshear_gym.train.runs import data_on_device, split_holdout
 from simshear_gym.train.translator_config import DENSITY_POOL_PX, TranslatorTrainConfig
 
 
@@ -51,6 +51,34 @@ class PairedTensors:
         real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
         labels = None if self.pose_labels is None else self.pose_labels[index]
         return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real, labels
+
+
+@dataclass(frozen=True, eq=False)
+class DevicePairs:
+    """Training pairs held on the training device (``data_on_device``): sim uint8 (N, H, W), shear float32 (N, 6)
+    already normalised (:func:`~simshear_gym.models.translator.normalise_shear`), real uint8 (N, H, W), pose labels
+    float32 (N, D) or None. A batch is gathered there by index: the same float tensors
+    :meth:`PairedTensors.batch` builds on the CPU, with no copy of images per step."""
+
+    sim: torch.Tensor
+    shear: torch.Tensor
+    real: torch.Tensor
+    pose_labels: torch.Tensor | None = None
+
+    @classmethod
+    def of(cls, pairs: PairedTensors, device: torch.device) -> DevicePairs:
+        return cls(pairs.sim.to(device), normalise_shear(pairs.shear.numpy()).to(device), pairs.real.to(device),
+                   None if pairs.pose_labels is None else pairs.pose_labels.to(device))
+
+    def __len__(self) -> int:
+        return len(self.sim)
+
+    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Model-ready float tensors of the rows ``index`` on the device: sim, shear, real, pose labels (or None)."""
+        index = torch.as_tensor(index).to(self.sim.device, non_blocking=True)
+        real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
+        labels = None if self.pose_labels is None else self.pose_labels[index]
+        return normalise_sim(self.sim[index]), self.shear[index], real, labels
 
 
 def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
@@ -98,9 +126,12 @@ def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch:
 class TranslatorTrainer(EpochTrainer):
     """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it.
 
-    The pairs stay on the CPU; each batch moves to ``config.device`` (under torchrun: the process's device, and
-    its share of the batch). The networks run in ``channels_last`` (faster on the CPU too) and on CUDA, with
-    ``config.amp``, their forward passes in mixed precision (the losses in float32)."""
+    The pairs stay on the CPU and each batch moves to ``config.device`` (under torchrun: the process's device, and
+    its share of the batch), or with ``config.data_on_device`` (by default on a GPU) the training pairs live on the
+    device (:class:`DevicePairs`) and each batch is gathered there, the same rows in the same order. The networks
+    run in ``channels_last`` (faster on the CPU too) and on CUDA, with ``config.amp``, their forward passes in
+    mixed precision (the losses in float32), with ``config.tf32`` their float32 products in TF32; with
+    ``config.compile`` the generator runs through ``torch.compile`` (one process only)."""
 
     metric = "l1"  # history: train_l1, holdout_l1 (mean absolute pixel error, images in [0, 1])
 
@@ -113,6 +144,7 @@ class TranslatorTrainer(EpochTrainer):
         self.device = distributed.device if distributed is not None else resolve_device(config.device)
         self.memory_format = memory_format(self.device)
         self.precision = MixedPrecision(self.device, autocast_dtype(self.device, config.amp))
+        use_tf32(self.device, config.tf32)
         self.pose = pose.to(self.device) if pose is not None else None
         torch.manual_seed(config.seed)
         if config.teacher:  # distillation: the teacher's images are the targets (and the holdout's)
@@ -131,6 +163,9 @@ class TranslatorTrainer(EpochTrainer):
         self.net_g = distributed.wrap(self.generator) if distributed is not None else self.generator
         self.net_d = (distributed.wrap(self.discriminator) if distributed is not None and self.discriminator
                       is not None else self.discriminator)
+        self.forward_g = Compiled(self.net_g, config.compile and distributed is None, "the generator")
+        self.device_pairs = (DevicePairs.of(self.train_pairs, self.device)
+                             if data_on_device(config.data_on_device, self.device.type) else None)
         self.opt_g = torch.optim.Adam(self.generator.parameters(), lr=config.lr, betas=(0.5, 0.999))
         self.opt_d = (torch.optim.Adam(self.discriminator.parameters(), lr=config.lr, betas=(0.5, 0.999))
                       if self.discriminator is not None else None)
@@ -178,13 +213,14 @@ class TranslatorTrainer(EpochTrainer):
 
     def train_step(self, sim: torch.Tensor, shear: torch.Tensor, real: torch.Tensor,
                    pose_labels: torch.Tensor | None = None) -> dict[str, float]:
-        """One step of the discriminator (if any) and the generator on a CPU batch; returns the losses."""
+        """One step of the discriminator (if any) and the generator on a batch (on the CPU or already on the
+        device); returns the losses."""
         config = self.config
         precision = self.precision
         sim, shear_in = self._on_device(sim, shear)
         real = real.to(self.device, memory_format=self.memory_format, non_blocking=True)
         with precision.autocast():
-            fake = self.net_g(sim, shear_in)
+            fake = self.forward_g(sim, shear_in)
         fake = fake.float()  # the losses in float32
         losses = {}
         if self.discriminator is not None:
@@ -233,7 +269,8 @@ class TranslatorTrainer(EpochTrainer):
         self.generator.train()
 
     def train_batch(self, index: np.ndarray) -> dict[str, float]:
-        return self.train_step(*self.train_pairs.batch(index[self.local_rows(len(index))]))
+        rows = self.device_pairs if self.device_pairs is not None else self.train_pairs
+        return self.train_step(*rows.batch(index[self.local_rows(len(index))]))
 
     def holdout_metric(self) -> float:
         return self.holdout_l1()
