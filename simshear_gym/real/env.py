@@ -321,8 +321,7 @@ class RealEnvConfig:
             "reference_depth_mm": self.reference_depth_mm, "posenet": self.posenet,
             "estimator_process_std_mm": self.estimator_process_std_mm,
             "start_pose_mm_deg": list(self.start_pose_mm_deg),
-            "action_scale": {"step_mm": self.action_scale.step_mm, "step_deg": self.action_scale.step_deg},
-            "mount": {"tcp_offset_mm": self.mount.tcp_offset_mm, "mount_rz_deg": self.mount.mount_rz_deg},
+            "action_scale": dict(vars(self.action_scale)), "mount": dict(vars(self.mount)),  # a horizontal one's drop
             "safety": {key: (list(value) if isinstance(value, tuple) else value)
                        for key, value in vars(self.safety).items() if key not in ("geometry", "limits")},
             "safety_unsafe": list(self.safety.loosened()),
