@@ -7,6 +7,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -160,7 +161,8 @@ def test_cli_fixture_calibration_and_bad_flags(tmp_path, capsys):
 
 # -- slow: on the rehearsal rig --------------------------------------------------------------------------------
 
-SHORT = dict(scale=0.25, settle_s=1.0, hold_s=0.5, safety=rehearsal_safety())
+SHORT = dict(scale=0.25, settle_s=1.0, hold_s=0.5,
+             real_env=replace(ExperimentConfig.real_env, safety=rehearsal_safety()))
 
 
 @pytest.fixture
@@ -183,7 +185,8 @@ def test_tracking_rehearsal_end_to_end(tmp_path, torch_one_thread):
     assert summary["cycles_out_of_contact"] == 0 and summary["truth_cycles_out_of_contact"] == 0
     # the whole path: the plan's clock advances at most one servo command's t a cycle, however late the cycles
     config = ExperimentConfig(trajectory="circle", **SHORT)
-    assert summary["tracking_cycles"] >= (summary["trajectory_duration_s"] + config.hold_s) / config.servo_time_s
+    cycle_s = config.real_env.servo_time_s
+    assert summary["tracking_cycles"] >= (summary["trajectory_duration_s"] + config.hold_s) / cycle_s
     assert summary["contact_error_mean_mm"] < 1.0
     # the calibrated kinematics' contact error is the rig's true one (the rig's calibration is exact)
     assert summary["contact_error_mean_mm"] == pytest.approx(summary["truth_contact_error_mean_mm"], abs=0.1)
@@ -316,11 +319,11 @@ def test_a_late_cycle_slows_the_leader_instead_of_stopping_the_run(kind, tmp_pat
         summary = run_on_rig(rig, config, tmp_path / "late", on_cycle=on_cycle)
     assert summary["completed"], summary["stop_reason"]
     assert summary["commands_outside_limits"] == 0, summary["audit"]
-    assert summary["late_cycles"] >= 1 and summary["plan_behind_s"] >= 0.5 - config.servo_time_s
+    assert summary["late_cycles"] >= 1 and summary["plan_behind_s"] >= 0.5 - config.real_env.servo_time_s
     rows = [row for row in summary["rows"] if row["phase"] == "track" and math.isfinite(row["trajectory_s"])]
     advances = np.diff([row["trajectory_s"] for row in rows])
-    assert advances.max() <= config.servo_time_s + 1e-3  # the log rounds to 0.1 ms
-    assert rows[-1]["trajectory_s"] > summary["trajectory_duration_s"] + config.hold_s - config.servo_time_s
+    assert advances.max() <= config.real_env.servo_time_s + 1e-3  # the log rounds to 0.1 ms
+    assert rows[-1]["trajectory_s"] > summary["trajectory_duration_s"] + config.hold_s - config.real_env.servo_time_s
 
 
 @pytest.mark.slow
@@ -332,7 +335,7 @@ def test_calibration_recovers_a_known_leader_base(tmp_path, torch_one_thread):
     from simshear_gym.lab.rig import RehearsalRig
 
     truth = BaseToBase(600.0, 0.0, 0.0, 180.0)
-    config = ExperimentConfig(safety=rehearsal_safety(), hover_mm=8.0, max_approach_mm=10.0)
+    config = ExperimentConfig(hover_mm=8.0, max_approach_mm=10.0).with_env(safety=rehearsal_safety())
     with RehearsalRig(RigConfig(leader_in_follower=truth)) as rig:
         camera = rig.new_camera()
         calibration, summary = calibrate_by_touch(rig.leader_endpoint, rig.follower_endpoint, camera,

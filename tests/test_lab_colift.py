@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -42,8 +43,8 @@ def test_the_lab_layout_is_the_colift_scenes():
     assert np.allclose(BaseToBase(*COLIFT_LEADER_IN_FOLLOWER_MM_DEG).T_follower_leader(),
                        invert(FOLLOWER_T_WORLD_BASE))
     config = CoLiftConfig()
-    assert config.reference_depth_mm == pytest.approx(SURFACE_DEPTH_MM + SQUEEZE_MM["light"])
-    assert config.estimator_process_std_mm == SimShearCoLiftEnv.servo_hints.process_std_mm
+    assert config.real_env.reference_depth_mm == pytest.approx(SURFACE_DEPTH_MM + SQUEEZE_MM["light"])
+    assert config.real_env.estimator_process_std_mm == SimShearCoLiftEnv.servo_hints.process_std_mm
 
 
 @pytest.mark.parametrize("name", sorted(OBJECT_FACE_MM))
@@ -77,9 +78,9 @@ def test_plan_lifts_carries_along_the_env_path_and_sets_down():
     assert plan.flange_target(plan.duration_s) == pytest.approx(plan.flange_target(plan.duration_s + 5.0))
     assert plan.flange_target(plan.duration_s)[2] == pytest.approx(start[2] + trajectory.offset_at(1e9)[2])
     # from rest to rest, never faster than the path's speed (servo commands' t apart)
-    times = np.arange(0.0, plan.duration_s + 1.0, config.servo_time_s)
+    times = np.arange(0.0, plan.duration_s + 1.0, config.real_env.servo_time_s)
     targets = np.array([plan.flange_target(t) for t in times])
-    speeds = np.linalg.norm(np.diff(targets[:, :3], axis=0), axis=1) / config.servo_time_s
+    speeds = np.linalg.norm(np.diff(targets[:, :3], axis=0), axis=1) / config.real_env.servo_time_s
     assert speeds.max() <= config.speed_mm_s * 1.001 and speeds[0] < 0.5
     assert [plan.phase(t) for t in (0.1, plan.lift_s + 1.0, plan.duration_s - 0.1, plan.duration_s + 1.0)] == [
         "lift", "carry", "lower", "hold"]
@@ -94,10 +95,10 @@ def test_config_refuses_bad_values_naming_the_field():
         CoLiftConfig(rotation_deg=5.0)
     with pytest.raises(ValueError, match="CoLiftConfig.lift_mm"):
         CoLiftConfig(lift_mm=-1.0)
-    with pytest.raises(ValueError, match="CoLiftConfig.mount must be a HorizontalTacTipMount"):
+    with pytest.raises(ValueError, match="CoLiftConfig.real_env.mount must be a HorizontalTacTipMount"):
         from simshear_gym.contract import TacTipMount
 
-        CoLiftConfig(mount=TacTipMount())
+        CoLiftConfig().with_env(mount=TacTipMount())
     with pytest.raises(ValueError, match="CoLiftConfig.start_offset_mm"):
         CoLiftConfig(start_offset_mm=(10.0, 0.0))  # the prism is 30 mm across
     with pytest.raises(ValueError, match="CoLiftConfig.plate must be the ObjectFace of 'egg'"):
@@ -146,7 +147,8 @@ def test_cli_bad_flags(capsys):
 
 # -- slow: on the co-lift rig ---------------------------------------------------------------------------------------
 
-SHORT = dict(scale=0.25, settle_s=2.0, hold_s=0.5, lift_mm=5.0, safety=rehearsal_safety())
+SHORT = dict(scale=0.25, settle_s=2.0, hold_s=0.5, lift_mm=5.0,
+             real_env=replace(CoLiftConfig.real_env, safety=rehearsal_safety()))
 
 
 @pytest.mark.slow
@@ -163,7 +165,8 @@ def test_colift_rehearsal_end_to_end(tmp_path):
     assert summary["commands_outside_limits"] == 0, summary["audit"]
     assert not summary["dropped"] and not summary["truth_dropped"]
     assert summary["truth_object_slip_max_mm"] < 5.0
-    assert summary["tracking_cycles"] >= (summary["trajectory_duration_s"] + config.hold_s) / config.servo_time_s
+    cycle_s = config.real_env.servo_time_s
+    assert summary["tracking_cycles"] >= (summary["trajectory_duration_s"] + config.hold_s) / cycle_s
     assert summary["contact_error_mean_mm"] < 2.0
     assert summary["contact_error_mean_mm"] == pytest.approx(summary["truth_contact_error_mean_mm"], abs=0.1)
     phases = [row["phase"] for row in rows]

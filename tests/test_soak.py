@@ -4,6 +4,8 @@ every fault ends as a safe stop or a recovery. The record run is ``simshear eval
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,7 @@ from simshear_gym.evaluate.soak import (
     keep_in_box,
     run_soak,
     safety_config,
+    soak_env,
     synthetic_frames,
 )
 from simshear_gym.real.env import move_to_flange_target
@@ -56,7 +59,8 @@ def check(result: dict, cycles: int) -> None:
 
 def test_a_seeded_soak_stays_within_the_limits_and_handles_every_fault():
     cycles = 420
-    result = run_soak(SoakConfig(cycles=cycles, seed=3, mean_gap_cycles=8.0, posenet=posenet_path()),
+    result = run_soak(SoakConfig(cycles=cycles, seed=3, mean_gap_cycles=8.0,
+                                 real_env=replace(soak_env(), posenet=posenet_path())),
                       synthetic_frames(seed=3))
     check(result, cycles)
     # the faults that must stop an episode did

@@ -108,8 +108,8 @@ def _tracking(args: argparse.Namespace, command: str) -> dict:
     runs: dict[str, dict] = {}
     for name in args.trajectories:
         run_dir = runs_dir / name
-        config = ExperimentConfig(trajectory=name, speed_mm_s=args.speed_mm_s,
-                                  safety=rehearsal_safety(args.max_feedback_age_s, args.max_feedback_age_s))
+        config = ExperimentConfig(trajectory=name, speed_mm_s=args.speed_mm_s).with_env(
+            safety=rehearsal_safety(args.max_feedback_age_s, args.max_feedback_age_s))
         summary = run_tracking_rehearsal(config, run_dir, command=f"{command}  # run {name}")
         runs[name] = {"run_dir": str(run_dir), **{key: summary.get(key) for key in KEYS}}
         print(f"{name}: contact error {summary['contact_error_mean_mm']} +- {summary['contact_error_std_mm']} mm "
@@ -137,8 +137,8 @@ def _colift(args: argparse.Namespace, command: str) -> dict:
         for name in args.objects:
             key = f"{name}_{trajectory}"
             run_dir = runs_dir / key
-            config = CoLiftConfig(trajectory=trajectory, object_name=name, speed_mm_s=args.colift_speed_mm_s,
-                                  safety=rehearsal_safety(args.max_feedback_age_s, args.max_feedback_age_s))
+            config = CoLiftConfig(trajectory=trajectory, object_name=name, speed_mm_s=args.colift_speed_mm_s).with_env(
+                safety=rehearsal_safety(args.max_feedback_age_s, args.max_feedback_age_s))
             summary = run_colift_rehearsal(config, run_dir, command=f"{command}  # run {key}")
             summary.pop("rows")
             runs[key] = {"run_dir": str(run_dir), **{k: summary.get(k) for k in KEYS + COLIFT_KEYS}}

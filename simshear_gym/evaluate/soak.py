@@ -57,7 +57,7 @@ import math
 import threading
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +65,7 @@ import numpy as np
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
+from simshear_gym.real.env import ENV_CLIENT, RealEnvConfig
 
 FAULT_KINDS: tuple[str, ...] = ("dropped_connection", "split_replies", "partial_feedback", "corrupt_feedback",
                                 "stale_feedback", "inconsistent_feedback", "alarm_mid_motion", "slow_replies",
@@ -99,46 +100,7 @@ timeout) changes."""
 
 START_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
 WORKSPACE_HALF_MM = 25.0  # the soak's box around the start pose: every point of it within max_move_mm of the start
-
-
-@dataclass(frozen=True)
-class SoakConfig:
-    """Settings of one soak.
-
-    Attributes:
-        cycles: control cycles to run (env steps), at least 10,000 for the record.
-        seed: seeds every random choice (fault times, kinds, parameters, frames).
-        control_period_s: the env's control period, s (``t`` of each ServoP is 0.02 s more).
-        mean_gap_cycles: mean number of cycles between one fault's end and the next fault.
-        episode_cycles: an episode is truncated (reset, not counted as a stop) after this many cycles, once no
-            fault is active (short episodes keep the controller's drift on unrelated frames inside the box).
-        image_size_px: the tactile observation size.
-        servo_margin_s: added to the period for each ServoP's ``t``, s (generous: a cycle that runs late must not
-            let the arm arrive and stop, or the next command asks it to start again from rest).
-        reply_timeout_s: the client's reply timeout, s.
-        max_reset_attempts: resets refused in a row before the soak gives up (a stuck robot), counted as unhandled.
-        posenet: GDNN weights of the servo controller (None: the shipped surface GDNN).
-    """
-
-    cycles: int = 10_000
-    seed: int = 0
-    control_period_s: float = 0.02
-    servo_margin_s: float = 0.08
-    mean_gap_cycles: float = 20.0
-    episode_cycles: int = 40
-    image_size_px: int = 64
-    reply_timeout_s: float = 0.25
-    max_reset_attempts: int = 20
-    posenet: str | None = None
-
-    def __post_init__(self) -> None:
-        if self.cycles < 1 or self.episode_cycles < 1 or self.max_reset_attempts < 1:
-            raise ValueError(f"SoakConfig needs cycles, episode_cycles, max_reset_attempts >= 1, got {self.cycles}, "
-                             f"{self.episode_cycles}, {self.max_reset_attempts}")
-        if not (math.isfinite(self.mean_gap_cycles) and self.mean_gap_cycles >= 1.0):
-            raise ValueError(f"SoakConfig.mean_gap_cycles must be >= 1, got {self.mean_gap_cycles!r}")
-        if not (math.isfinite(self.control_period_s) and 0.004 <= self.control_period_s <= 1.0):
-            raise ValueError(f"SoakConfig.control_period_s must be in [0.004, 1] s, got {self.control_period_s!r}")
+CONTROL_PERIOD_S = 0.02  # the soak's control period, s: five times the robot's rate, for more cycles a minute
 
 
 def safety_config():
@@ -150,6 +112,52 @@ def safety_config():
     half = WORKSPACE_HALF_MM
     return SafetyConfig(x_range_mm=(x - half, x + half), y_range_mm=(y - half, y + half),
                         z_range_mm=(z - half, z + half), servo_over_limit="clamp")
+
+
+def soak_env() -> RealEnvConfig:
+    """The soak's env (``SoakConfig.real_env`` by default): :data:`CONTROL_PERIOD_S`, 64 px images, the start pose,
+    :func:`safety_config`'s limits, and a client that waits 0.25 s for a reply, 1 s for a connection and 5 s for
+    ``Sync`` (at the emulator's ports, set when the soak starts)."""
+    client = replace(ENV_CLIENT, host="127.0.0.1", reply_timeout_s=0.25, connect_timeout_s=1.0, sync_timeout_s=5.0)
+    return RealEnvConfig(client=client, control_period_s=CONTROL_PERIOD_S, image_size_px=64,
+                         start_pose_mm_deg=START_POSE_MM_DEG, safety=safety_config())
+
+
+@dataclass(frozen=True)
+class SoakConfig:
+    """Settings of one soak.
+
+    Attributes:
+        cycles: control cycles to run (env steps), at least 10,000 for the record.
+        seed: seeds every random choice (fault times, kinds, parameters, frames).
+        mean_gap_cycles: mean number of cycles between one fault's end and the next fault.
+        episode_cycles: an episode is truncated (reset, not counted as a stop) after this many cycles, once no
+            fault is active (short episodes keep the controller's drift on unrelated frames inside the box).
+        max_reset_attempts: resets refused in a row before the soak gives up (a stuck robot), counted as unhandled.
+        real_env: the env the servo controller drives (:func:`soak_env`): its control period, servo margin
+            (generous: a cycle that runs late must not let the arm arrive and stop, or the next command asks it to
+            start again from rest), image size, client timeouts, limits and ``posenet`` (the servo controller's
+            GDNN; None: the shipped surface one); its client's ports are the emulator's.
+    """
+
+    cycles: int = 10_000
+    seed: int = 0
+    mean_gap_cycles: float = 20.0
+    episode_cycles: int = 40
+    max_reset_attempts: int = 20
+    real_env: RealEnvConfig = field(default_factory=soak_env)
+
+    def __post_init__(self) -> None:
+        if self.cycles < 1 or self.episode_cycles < 1 or self.max_reset_attempts < 1:
+            raise ValueError(f"SoakConfig needs cycles, episode_cycles, max_reset_attempts >= 1, got {self.cycles}, "
+                             f"{self.episode_cycles}, {self.max_reset_attempts}")
+        if not (math.isfinite(self.mean_gap_cycles) and self.mean_gap_cycles >= 1.0):
+            raise ValueError(f"SoakConfig.mean_gap_cycles must be >= 1, got {self.mean_gap_cycles!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """The record's settings: the soak's, and ``real_env``'s (without the emulator's ports: a run's own)."""
+        env = {key: value for key, value in self.real_env.to_dict().items() if key != "ports"}
+        return {f.name: getattr(self, f.name) for f in fields(self)} | {"real_env": env}
 
 
 def braking_margin_mm(safety, servo_time_s: float) -> float:
@@ -434,7 +442,7 @@ def fault_schedule(config: SoakConfig) -> list[ScheduledFault]:
         if not order:
             order = [str(kind) for kind in rng.permutation(FAULT_KINDS)]
         kind = order.pop()
-        cycles, params = _draw_fault(kind, rng, config.control_period_s)
+        cycles, params = _draw_fault(kind, rng, config.real_env.control_period_s)
         schedule.append(ScheduledFault(kind, cycle, cycles, params))
         cycle += cycles + 1 + int(rng.exponential(config.mean_gap_cycles))
     return schedule
@@ -521,27 +529,22 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
     """Run the soak (see the module docstring) and return its counts."""
     import torch
 
-    from simshear_gym.contract import ActionScale
     from simshear_gym.control.estimator import EstimatorConfig
     from simshear_gym.control.servo import ServoController
-    from simshear_gym.real.camera import default_config
-    from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, env_client
+    from simshear_gym.real.env import RealTactileEnv
     from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
 
     torch.manual_seed(config.seed)
     schedule = fault_schedule(config)
-    safety = safety_config()
     emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
                                             joint_speed_deg_s=400.0, linear_speed_mm_s=1000.0)).start()
     camera = ReplayCamera(frames)
-    env_config = RealEnvConfig(
-        client=env_client("127.0.0.1", emulator.dashboard_port, emulator.motion_port, emulator.feedback_port,
-                          reply_timeout_s=config.reply_timeout_s, connect_timeout_s=1.0, sync_timeout_s=5.0),
-        control_period_s=config.control_period_s,
-        servo_margin_s=config.servo_margin_s, preprocess=default_config(),
-        image_size_px=config.image_size_px, start_pose_mm_deg=START_POSE_MM_DEG, safety=safety)
+    env_config = replace(config.real_env, client=replace(
+        config.real_env.client, dashboard_port=emulator.dashboard_port, motion_port=emulator.motion_port,
+        feedback_port=emulator.feedback_port))
     env = RealTactileEnv(env_config, camera=camera)
-    controller = ServoController(4.0, ActionScale(), estimator=EstimatorConfig(posenet=config.posenet))
+    controller = ServoController(env_config.reference_depth_mm, env_config.action_scale, estimator=EstimatorConfig(
+        posenet=env_config.posenet, process_std_mm=env_config.estimator_process_std_mm))
     estimator = FaultyEstimator(controller.estimator)
     controller.estimator = estimator
     injector = _Injector(emulator, camera, estimator)
@@ -669,9 +672,7 @@ def run_soak(config: SoakConfig, frames: list[np.ndarray]) -> dict[str, Any]:
         "fault_schedule": [[f.kind, f.start_cycle, f.cycles, dict(f.params)] for f in schedule],
         "unhandled_exceptions": len(tally.unhandled),
         "unhandled_examples": tally.unhandled[:10],
-        "config": asdict(config),
-        "limits": {key: (list(value) if isinstance(value, tuple) else value)
-                   for key, value in vars(safety).items() if key not in ("geometry", "limits")},
+        "config": config.to_dict(),
     }
 
 
@@ -685,7 +686,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="control cycles to run (default %(default)d)")
     parser.add_argument("--seed", type=int, default=SoakConfig.seed,
                         help="seed of every random choice (default %(default)d)")
-    parser.add_argument("--period-s", type=float, default=SoakConfig.control_period_s,
+    parser.add_argument("--period-s", type=float, default=CONTROL_PERIOD_S,
                         help="control period, s (default %(default)g)")
     parser.add_argument("--mean-gap", type=float, default=SoakConfig.mean_gap_cycles,
                         help="mean cycles between one fault's end and the next (default %(default)g)")
@@ -740,8 +741,8 @@ def run(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(args.threads)
     logging.getLogger("simshear_gym.real").setLevel(logging.CRITICAL)  # thousands of expected stops: counted instead
-    config = SoakConfig(cycles=args.cycles, seed=args.seed, control_period_s=args.period_s,
-                        mean_gap_cycles=args.mean_gap, posenet=args.posenet)
+    config = SoakConfig(cycles=args.cycles, seed=args.seed, mean_gap_cycles=args.mean_gap,
+                        real_env=replace(soak_env(), control_period_s=args.period_s, posenet=args.posenet))
     frames = synthetic_frames(seed=args.seed) if args.synthetic_frames else load_raw_frames(data_root(args.data))
     result = run_soak(config, frames)
     payload = {"command": recorded_command("simshear evaluate soak", add_arguments, args),

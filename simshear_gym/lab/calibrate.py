@@ -242,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
 
     torch.set_num_threads(1)
     guess = BaseToBase(*args.guess)
-    config = ExperimentConfig(safety=arms_safety(args), hover_mm=8.0, max_approach_mm=10.0)
+    config = ExperimentConfig(hover_mm=8.0, max_approach_mm=10.0).with_env(safety=arms_safety(args))
     run_dir = args.out.parent / f"{args.out.stem}_run"
     if args.rehearsal:
         if args.leader or args.follower or args.camera:

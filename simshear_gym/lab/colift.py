@@ -46,7 +46,7 @@ import argparse
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +77,7 @@ from simshear_gym.lab.experiment import (
     start_run,
 )
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
+from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
 logger = logging.getLogger(__name__)
@@ -91,7 +92,8 @@ class CoLiftConfig(ExperimentConfig):
     """Settings of a co-lift run: :class:`~simshear_gym.lab.experiment.ExperimentConfig`'s (the same meaning,
     the face being the object's: ``plate`` is an :class:`ObjectFace`) with the co-lift's defaults, and:
 
-    The co-lift's defaults: the env's path speed (5 mm/s), no turn, its squeeze (reference depth 5.2 mm) and its
+    The co-lift's defaults: the env's path speed (5 mm/s), no turn, and in ``real_env`` the horizontal TacTip
+    (:class:`~simshear_gym.contract.HorizontalTacTipMount`), the env's squeeze (reference depth 5.2 mm) and its
     estimator's process noise (1.5 mm); the touch at a co-lift GDNN depth of 2.9 mm (out of contact it reads about
     2.6 mm on the rig's images), the grip lost below 3.0 mm, the kinematic contact loss 2 mm off the object's face
     (a curved object's face is known to about a millimetre), a 2 s squeeze.
@@ -109,7 +111,9 @@ class CoLiftConfig(ExperimentConfig):
     object_name: str = "prism"
     speed_mm_s: float = 5.0
     rotation_deg: float = 0.0
-    reference_depth_mm: float = SURFACE_DEPTH_MM + SQUEEZE_MM
+    real_env: RealEnvConfig = replace(  # the noise: SimShearCoLiftEnv.servo_hints.process_std_mm
+        ExperimentConfig.real_env, reference_depth_mm=SURFACE_DEPTH_MM + SQUEEZE_MM, mount=HorizontalTacTipMount(),
+        estimator_process_std_mm=1.5)
     touch_depth_mm: float = 2.9
     min_depth_mm: float | None = 3.0
     max_approach_mm: float = 6.0
@@ -117,8 +121,6 @@ class CoLiftConfig(ExperimentConfig):
     lift_mm: float = 10.0
     settle_s: float = 2.0
     release_s: float = 1.0
-    estimator_process_std_mm: float | None = 1.5  # SimShearCoLiftEnv.servo_hints.process_std_mm
-    mount: HorizontalTacTipMount = HorizontalTacTipMount()
     plate: Any = None
     leader_start_pose_mm_deg: tuple[float, float, float, float] = COLIFT_LEADER_START_POSE_MM_DEG
 
@@ -130,9 +132,9 @@ class CoLiftConfig(ExperimentConfig):
         if not isinstance(self.plate, ObjectFace) or self.plate.object_name != self.object_name:
             raise ValueError(f"CoLiftConfig.plate must be the ObjectFace of {self.object_name!r} (or None), got "
                              f"{self.plate!r}")
-        if not isinstance(self.mount, HorizontalTacTipMount):
-            raise ValueError(f"CoLiftConfig.mount must be a HorizontalTacTipMount (the co-lift TacTip lies "
-                             f"horizontally), got {type(self.mount).__name__}")
+        if not isinstance(self.real_env.mount, HorizontalTacTipMount):
+            raise ValueError(f"CoLiftConfig.real_env.mount must be a HorizontalTacTipMount (the co-lift TacTip lies "
+                             f"horizontally), got {type(self.real_env.mount).__name__}")
         if not (math.isfinite(self.release_s) and 0.0 <= self.release_s <= self.settle_s):
             raise ValueError(f"CoLiftConfig.release_s must be in [0, settle_s = {self.settle_s!r}] s, got "
                              f"{self.release_s!r}")
@@ -238,10 +240,10 @@ class CoLiftRun(ExperimentRun):
         """After a finished run (the object set down): the follower backs off along the grip axis."""
         if self.truth is not None:
             self.truth.set_down()
-        time.sleep(self.config.servo_time_s)  # the last servo targets reached
+        time.sleep(self.config.real_env.servo_time_s)  # the last servo targets reached
         client = arms.env.client
         pose, _ = client.measured_state()
-        axis = (pose_to_T_base_flange(pose) @ self.config.mount.T_flange_sensor())[:3, 2]
+        axis = (pose_to_T_base_flange(pose) @ self.config.real_env.mount.T_flange_sensor())[:3, 2]
         target = pose.copy()
         target[:3] -= self.config.retreat_mm * axis
         client.reset_reference()
@@ -309,8 +311,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the co-lift experiment; 0 when it completed, 1 when a stop ended it early."""
     safety = start_run(args)
     config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
-                          lift_mm=args.lift_mm, control_period_s=args.period_s, safety=safety,
-                          preprocess=_preprocess(args.preprocess))
+                          lift_mm=args.lift_mm).with_env(control_period_s=args.period_s, safety=safety,
+                                                         preprocess=_preprocess(args.preprocess))
     command = recorded_command("simshear experiment colift", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/colift") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None

@@ -191,8 +191,8 @@ class CoLiftRigConfig(RigConfig):
     @classmethod
     def for_run(cls, config, **changes) -> CoLiftRigConfig:
         """The rig laid out as a co-lift run's ``config`` has it (its object and control period too)."""
-        return super().for_run(config, object_name=config.object_name, control_period_s=config.control_period_s,
-                               **changes)
+        return super().for_run(config, object_name=config.object_name,
+                               control_period_s=config.real_env.control_period_s, **changes)
 
     @property
     def face(self) -> ObjectFace:

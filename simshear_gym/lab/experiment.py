@@ -55,14 +55,13 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.contract import ActionScale, TacTipMount
 from simshear_gym.data.labels import SURFACE_DEPTH_MM, wrap_deg
 from simshear_gym.envs.trajectories import TRAJECTORIES, Trajectory, TrajectoryConfig
 from simshear_gym.io import atomic_write, write_json
@@ -76,6 +75,7 @@ from simshear_gym.lab.frames import (
     sensor_on_face,
 )
 from simshear_gym.real.camera import PreprocessConfig, default_config
+from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose, pose_to_T_base_flange
 from simshear_gym.transforms import invert, rz_matrix
@@ -105,9 +105,12 @@ class ExperimentConfig:
         trajectory: one of :data:`~simshear_gym.envs.trajectories.TRAJECTORIES`.
         scale: the path's size factor (1: the env's; smaller for short rehearsals).
         speed_mm_s, rotation_deg: the trajectory's speed and rotation amplitude (the env's defaults).
-        control_period_s: one cycle (both arms' commands, one camera frame), s.
-        servo_margin_s: added to the period for each ServoP's ``t``, s.
-        reference_depth_mm: the depth the follower holds (labels' convention: the plate's face at 2.2 mm).
+        real_env: the follower's :class:`~simshear_gym.real.env.RealEnvConfig`, whose control period, servo
+            margin, client timeouts and safety both arms share (one cycle: both arms' commands, one camera frame):
+            the reference depth (labels' convention: the plate's face at 2.2 mm), image size, preprocessing,
+            action scale, mount, estimator noise and frozen-frame limit are the follower's. The run sets its
+            client's address, start pose (the hover pose), ``posenet`` and, for an SB3 controller, the
+            observation the model was trained on; ``safety.stop_on_lost_contact`` follows ``min_depth_mm``.
         start_offset_mm: where on the plate (face frame x, y) the follower touches, mm.
         hover_mm: the follower starts this far above the plate, mm.
         approach_step_mm: the follower's descent per cycle until the touch, mm.
@@ -125,25 +128,15 @@ class ExperimentConfig:
             choice; off for the experiment, as in the sim env).
         kinematic_stops: stop on the calibrated kinematics (contact lost, arms apart; off while calibrating,
             when the transform is only a guess).
-        frozen_frame_limit: this many byte-identical camera frames in a row are a frozen stream.
-        safety: the limits both arms' commands pass (the safe defaults).
-        preprocess: camera frame -> tactile image (None: the source gives tactile images).
-        image_size_px: the follower's tactile observation size.
-        action_scale: the follower's full-scale move per cycle.
-        mount: the TacTip on the follower's flange.
         plate: the plate on the leader's flange.
         leader_start_pose_mm_deg: the leader's flange at the start (its base frame).
-        estimator_process_std_mm: the servo estimator's process noise, mm per cycle (None: the estimator's
-            default; co-lift: the co-lift env's).
     """
 
     trajectory: str = "circle"
     scale: float = 1.0
     speed_mm_s: float = 4.0
     rotation_deg: float = TrajectoryConfig().rotation_deg
-    control_period_s: float = 0.1
-    servo_margin_s: float = 0.08
-    reference_depth_mm: float = 4.0
+    real_env: RealEnvConfig = RealEnvConfig(frozen_frame_limit=5)
     start_offset_mm: tuple[float, float] = (0.0, 0.0)
     hover_mm: float = 5.0
     approach_step_mm: float = 0.5
@@ -158,47 +151,37 @@ class ExperimentConfig:
     retreat_mm: float = 10.0
     kinematic_stops: bool = True
     rz_feedforward: bool = False
-    frozen_frame_limit: int = 5
-    safety: SafetyConfig = SafetyConfig()
-    preprocess: PreprocessConfig | None = field(default_factory=default_config)
-    image_size_px: int = 128
-    action_scale: ActionScale = ActionScale()
-    mount: TacTipMount = TacTipMount()
     plate: PlateMount = PlateMount()
     leader_start_pose_mm_deg: tuple[float, float, float, float] = LEADER_START_POSE
-    estimator_process_std_mm: float | None = None
 
     def __post_init__(self) -> None:
         self._check_trajectory()
-        if not (math.isfinite(self.control_period_s) and 0.02 <= self.control_period_s <= 1.0):
-            raise ValueError(f"ExperimentConfig.control_period_s must be in [0.02, 1] s, got {self.control_period_s!r}")
+        env = self.real_env
+        if not 0.02 <= env.control_period_s:
+            raise ValueError(f"ExperimentConfig.real_env.control_period_s must be in [0.02, 1] s, got "
+                             f"{env.control_period_s!r}")
         for name in ("hover_mm", "approach_step_mm", "max_approach_mm", "max_lift_mm", "max_contact_error_mm",
                      "max_leader_lag_mm", "retreat_mm"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"ExperimentConfig.{name} must be finite and > 0 mm, got {value!r}")
-        for name in ("settle_s", "hold_s", "servo_margin_s"):
+        for name in ("settle_s", "hold_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"ExperimentConfig.{name} must be finite and >= 0 s, got {value!r}")
-        if not SURFACE_DEPTH_MM < self.touch_depth_mm < self.reference_depth_mm:
+        if not SURFACE_DEPTH_MM < self.touch_depth_mm < env.reference_depth_mm:
             raise ValueError(f"ExperimentConfig.touch_depth_mm must lie between the face ({SURFACE_DEPTH_MM} mm) and "
-                             f"the reference depth ({self.reference_depth_mm} mm), got {self.touch_depth_mm!r}")
-        if self.min_depth_mm is not None and not self.min_depth_mm < self.reference_depth_mm:
+                             f"the reference depth ({env.reference_depth_mm} mm), got {self.touch_depth_mm!r}")
+        if self.min_depth_mm is not None and not self.min_depth_mm < env.reference_depth_mm:
             raise ValueError(f"ExperimentConfig.min_depth_mm must be below the reference depth, got "
                              f"{self.min_depth_mm!r}")
         self._check_start_offset(20.0)
-        if self.safety.dry_run:
-            raise ValueError("ExperimentConfig.safety.dry_run: a two-arm run needs both arms moving (rehearse on the "
-                             "rig instead: --rehearsal)")
-        step_mm = self.approach_step_mm
-        if step_mm > self.action_scale.step_mm:
-            raise ValueError(f"ExperimentConfig.approach_step_mm ({step_mm:g}) must not exceed the action's full "
-                             f"scale ({self.action_scale.step_mm:g} mm)")
-        if self.estimator_process_std_mm is not None and not (math.isfinite(self.estimator_process_std_mm)
-                                                              and self.estimator_process_std_mm > 0.0):
-            raise ValueError(f"ExperimentConfig.estimator_process_std_mm must be None or > 0 mm, got "
-                             f"{self.estimator_process_std_mm!r}")
+        if env.dry_run:
+            raise ValueError("ExperimentConfig.real_env.dry_run: a two-arm run needs both arms moving (rehearse on "
+                             "the rig instead: --rehearsal)")
+        if self.approach_step_mm > env.action_scale.step_mm:
+            raise ValueError(f"ExperimentConfig.approach_step_mm ({self.approach_step_mm:g}) must not exceed the "
+                             f"action's full scale (real_env.action_scale.step_mm = {env.action_scale.step_mm:g})")
 
     def _check_trajectory(self) -> None:
         if self.trajectory not in TRAJECTORIES:
@@ -216,26 +199,18 @@ class ExperimentConfig:
                              f"{self.start_offset_mm!r}")
         object.__setattr__(self, "start_offset_mm", offset)
 
-    @property
-    def servo_time_s(self) -> float:
-        return self.control_period_s + self.servo_margin_s
+    def with_env(self, **changes) -> Self:
+        """This config with ``real_env``'s fields ``changes`` replaced."""
+        return replace(self, real_env=replace(self.real_env, **changes))
 
     def trajectory_config(self) -> TrajectoryConfig:
         return TrajectoryConfig(self.trajectory, scale=self.scale, speed_mm_s=self.speed_mm_s,
                                 rotation_deg=self.rotation_deg)
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for key, value in vars(self).items():
-            if key in ("safety",):
-                out[key] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(value).items()
-                            if k not in ("geometry", "limits")}
-            elif key == "preprocess":
-                out[key] = None if value is None else value.to_dict()
-            elif key in ("action_scale", "mount", "plate"):
-                out[key] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(value).items()}
-            else:
-                out[key] = list(value) if isinstance(value, tuple) else value
+        out = {key: list(value) if isinstance(value, tuple) else value for key, value in vars(self).items()}
+        out["real_env"] = self.real_env.to_dict()
+        out["plate"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(self.plate).items()}
         return out
 
 
@@ -306,18 +281,21 @@ def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np
     start pose), through the calibration."""
     T_face = config.plate.T_follower_face(config.leader_start_pose_mm_deg, calibration.T_follower_leader())
     T_sensor = sensor_on_face(T_face, *config.start_offset_mm, SURFACE_DEPTH_MM - config.hover_mm)
-    return flange_pose_for_sensor(T_sensor, config.mount.T_flange_sensor())
+    return flange_pose_for_sensor(T_sensor, config.real_env.mount.T_flange_sensor())
 
 
-def _client(endpoint: ArmEndpoint, safety: SafetyConfig, reply_timeout_s: float = 1.0):
-    from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig
+def _at(endpoint: ArmEndpoint, real_env: RealEnvConfig) -> RealEnvConfig:
+    """``real_env`` with its client at ``endpoint`` (its timeouts kept)."""
+    return replace(real_env, client=replace(real_env.client, host=endpoint.host, dashboard_port=endpoint.dashboard_port,
+                                            motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port))
+
+
+def _client(endpoint: ArmEndpoint, real_env: RealEnvConfig):
+    """An arm's client at ``endpoint``: ``real_env``'s client and safety limits."""
+    from simshear_gym.real.mg400_client import MG400Client
     from simshear_gym.real.safety import SafetyLayer
 
-    return MG400Client(MG400ClientConfig(host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                         motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port,
-                                         reply_timeout_s=reply_timeout_s, sync_timeout_s=30.0,
-                                         feedback_max_age_s=safety.max_feedback_age_s),
-                       SafetyLayer(safety))
+    return MG400Client(_at(endpoint, real_env).client_config(), SafetyLayer(real_env.safety))
 
 
 def _ready(client, what: str) -> None:
@@ -376,8 +354,8 @@ def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, c
     """Connect the leader (returned, connected and enabled, at its start pose) after lifting the follower
     ``retreat_mm`` straight up through a short-lived client of its own. Raises :class:`ExperimentError` when an
     arm is in error mode (nothing moved)."""
-    follower = _client(follower_endpoint, config.safety)
-    leader = _client(leader_endpoint, config.safety)
+    follower = _client(follower_endpoint, config.real_env)
+    leader = _client(leader_endpoint, config.real_env)
     try:
         follower.connect()
         leader.connect()
@@ -385,7 +363,7 @@ def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, c
         _ready(leader, "leader")
         _wait_feedback(follower)
         _wait_feedback(leader)
-        _lift(follower, config.retreat_mm, config.safety)
+        _lift(follower, config.retreat_mm, config.real_env.safety)
     finally:
         follower.close()
     try:
@@ -463,7 +441,7 @@ class ExperimentRun:
                                                              config.leader_start_pose_mm_deg, config.plate)
         self.on_cycle = on_cycle
         self._T_follower_leader = calibration.leader_in_follower.T_follower_leader()
-        self._T_flange_sensor = config.mount.T_flange_sensor()
+        self._T_flange_sensor = config.real_env.mount.T_flange_sensor()
         self.rows: list[dict[str, Any]] = []
         self.late_cycles = 0  # tracking cycles whose plan clock advanced less than the wall clock
         self.plan_behind_s = 0.0  # how far the plan's clock fell behind the wall clock, s
@@ -472,26 +450,19 @@ class ExperimentRun:
 
     def _build(self, leader) -> _Arms:
         from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
-        from simshear_gym.real.env import RealEnvConfig, RealTactileEnv, env_client
+        from simshear_gym.real.env import RealTactileEnv
 
         cfg = self.config
-        endpoint = self.follower_endpoint
-        policy = None
+        observed = {}
         if self.controller_spec != "servo":
             from simshear_gym.control.policy import PolicySettings
 
             policy = PolicySettings.of_model(self.controller_spec)  # the observation it was trained on
-        env_config = RealEnvConfig(
-            client=env_client(endpoint.host, endpoint.dashboard_port, endpoint.motion_port, endpoint.feedback_port),
-            control_period_s=cfg.control_period_s,
-            servo_margin_s=cfg.servo_margin_s, preprocess=cfg.preprocess,
-            image_size_px=policy.image_size_px if policy else cfg.image_size_px,
-            observation=policy.observation if policy else "tactile", history=policy.history if policy else 1,
-            reference_depth_mm=cfg.reference_depth_mm, posenet=self.posenet,
+            observed = dict(image_size_px=policy.image_size_px, observation=policy.observation, history=policy.history)
+        env_config = self.env_config = replace(
+            _at(self.follower_endpoint, cfg.real_env), posenet=self.posenet,
             start_pose_mm_deg=tuple(follower_hover_pose(cfg, self.calibration.leader_in_follower)),
-            action_scale=cfg.action_scale, mount=cfg.mount,
-            safety=replace(cfg.safety, stop_on_lost_contact=cfg.min_depth_mm is not None),
-            frozen_frame_limit=cfg.frozen_frame_limit)
+            safety=replace(cfg.real_env.safety, stop_on_lost_contact=cfg.min_depth_mm is not None), **observed)
         estimator = TactileEstimator(EstimatorConfig(posenet=self.posenet))
 
         def read_depth(tactile: np.ndarray) -> float:
@@ -502,9 +473,9 @@ class ExperimentRun:
         if self.controller_spec == "servo":
             from simshear_gym.control.servo import ServoController
 
-            controller = ServoController(cfg.reference_depth_mm, cfg.action_scale,
+            controller = ServoController(env_config.reference_depth_mm, env_config.action_scale,
                                          estimator=EstimatorConfig(posenet=self.posenet,
-                                                                   process_std_mm=cfg.estimator_process_std_mm))
+                                                                   process_std_mm=env_config.estimator_process_std_mm))
         else:
             from simshear_gym.control.policy import SB3Controller
 
@@ -567,10 +538,10 @@ class ExperimentRun:
             now = time.monotonic()
             if phase == "track":
                 advance_s = now - plan_wall_s
-                if advance_s > cfg.servo_time_s:
+                if advance_s > cfg.real_env.servo_time_s:
                     self.late_cycles += 1
-                    self.plan_behind_s += advance_s - cfg.servo_time_s
-                    advance_s = cfg.servo_time_s
+                    self.plan_behind_s += advance_s - cfg.real_env.servo_time_s
+                    advance_s = cfg.real_env.servo_time_s
                 plan_s, plan_wall_s = plan_s + advance_s, now
                 trajectory_s = plan_s
                 leader_target = self.plan.flange_target(trajectory_s)
@@ -580,7 +551,7 @@ class ExperimentRun:
                 trajectory_s = math.nan
             leader_error = None
             try:
-                leader.servo_p(*leader_target, t_s=cfg.servo_time_s)
+                leader.servo_p(*leader_target, t_s=cfg.real_env.servo_time_s)
             except Exception as error:  # noqa: BLE001 - classified below; anything unknown is re-raised there
                 leader_error = error
             leader_stop = _leader_stop(leader, leader_error) if leader_error is not None else None
@@ -603,7 +574,7 @@ class ExperimentRun:
                     return ("no_contact", f"no touch read after descending {descended_mm:.1f} mm (the GDNN reads "
                             f"{depth:.2f} mm < touch_depth_mm = {cfg.touch_depth_mm:g})", phase)
                 else:
-                    action = np.array([0.0, 0.0, cfg.approach_step_mm / cfg.action_scale.step_mm, 0.0])
+                    action = np.array([0.0, 0.0, cfg.approach_step_mm / cfg.real_env.action_scale.step_mm, 0.0])
                     descended_mm += cfg.approach_step_mm
             if phase != "approach":
                 try:
@@ -618,7 +589,7 @@ class ExperimentRun:
                 turn_deg = wrap_deg(float(leader_target[3]) - previous_target_r)  # about the vertical, up
                 action = np.asarray(action, dtype=np.float64).copy()
                 # the action's dRz turns about the sensor's axis, which points down
-                action[3] = float(np.clip(action[3] - turn_deg / cfg.action_scale.step_deg, -1.0, 1.0))
+                action[3] = float(np.clip(action[3] - turn_deg / cfg.real_env.action_scale.step_deg, -1.0, 1.0))
             previous_target_r = float(leader_target[3])
             compute_ms = 1000.0 * (time.perf_counter() - compute_start)
             if action is None:
@@ -738,8 +709,8 @@ class ExperimentRun:
     def _finish(self, arms: _Arms) -> None:
         """After a finished run: the follower lifts off the plate (the leader stays)."""
         client = arms.env.client
-        time.sleep(self.config.servo_time_s)  # the last servo target reached
-        _lift(client, self.config.retreat_mm, self.config.safety)
+        time.sleep(self.config.real_env.servo_time_s)  # the last servo target reached
+        _lift(client, self.config.retreat_mm, self.config.real_env.safety)
 
     def _summary(self, stop: str, why: str, phase: str, command: str, wall_s: float) -> dict[str, Any]:
         cfg = self.config
@@ -757,7 +728,7 @@ class ExperimentRun:
             "leader": str(self.leader_endpoint),
             "follower": str(self.follower_endpoint),
             "calibration": self.calibration.to_dict(),
-            "config": cfg.to_dict(),
+            "config": cfg.to_dict() | {"real_env": self.env_config.to_dict()},  # the follower's env as built
             "stop": stop,
             "stop_reason": why,
             "stop_phase": phase if stop else "",
@@ -897,7 +868,7 @@ def add_loop_arguments(parser: argparse.ArgumentParser, gdnn: str = "surface", o
     parser.add_argument("--controller", default="servo", metavar="servo|MODEL.zip",
                         help="'servo' (GDNN + filter + PI law) or an SB3 model of simshear train rl")
     parser.add_argument("--posenet", default=None, help=f"GDNN weights (default: the shipped {gdnn} GDNN)")
-    parser.add_argument("--period-s", type=float, default=ExperimentConfig.control_period_s,
+    parser.add_argument("--period-s", type=float, default=ExperimentConfig.real_env.control_period_s,
                         help="control period, s (default %(default)g: 10 Hz)")
     parser.add_argument("--max-feedback-age-s", type=float, default=None,
                         help="feedback (and camera frames) older than this stop both arms (default 0.1 and the "
@@ -915,7 +886,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the leader's path")
     parser.add_argument("--speed-mm-s", type=float, default=ExperimentConfig.speed_mm_s,
                         help="the leader's speed along its path, mm/s")
-    parser.add_argument("--reference-depth-mm", type=float, default=ExperimentConfig.reference_depth_mm,
+    parser.add_argument("--reference-depth-mm", type=float, default=ExperimentConfig.real_env.reference_depth_mm,
                         help="depth to hold (default %(default).1f)")
     add_loop_arguments(parser)
 
@@ -1008,9 +979,9 @@ def start_run(args: argparse.Namespace) -> SafetyConfig:
 def run(args: argparse.Namespace) -> int:
     """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
     safety = start_run(args)
-    config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s, control_period_s=args.period_s,
-                              reference_depth_mm=args.reference_depth_mm, safety=safety,
-                              preprocess=_preprocess(args.preprocess))
+    config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s).with_env(
+        control_period_s=args.period_s, reference_depth_mm=args.reference_depth_mm, safety=safety,
+        preprocess=_preprocess(args.preprocess))
     command = recorded_command("simshear experiment tracking", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None

@@ -256,8 +256,9 @@ class RigConfig:
     def for_run(cls, config, **changes) -> RigConfig:
         """The rig laid out as a run's ``config`` (an :class:`~simshear_gym.lab.experiment.ExperimentConfig`) has
         it: its plate, mount, leader start pose and camera preprocessing (``changes``: the rest)."""
-        return cls(plate=config.plate, mount=config.mount, leader_start_pose_mm_deg=config.leader_start_pose_mm_deg,
-                   preprocess=config.preprocess, **changes)
+        return cls(plate=config.plate, mount=config.real_env.mount,
+                   leader_start_pose_mm_deg=config.leader_start_pose_mm_deg, preprocess=config.real_env.preprocess,
+                   **changes)
 
     def follower_start_pose(self) -> np.ndarray:
         """The follower flange pose with the sensor ``hover_mm`` above the plate's centre at the leader's start."""

@@ -218,6 +218,9 @@ class RealEnvConfig:
         observation, history: what the policy sees (see the module docstring; the sim envs' arguments).
         reference_depth_mm: the depth the task holds (labels' convention): the estimate's depth is relative to it.
         posenet: the GDNN of the estimate observation (None: the shipped ``surface`` one, as the servo controller).
+        estimator_process_std_mm: the estimator's process noise, mm per step (the env's
+            :class:`~simshear_gym.contract.ServoHints`: the estimate observation's and the servo controller's;
+            None: the estimator's default).
         start_pose_mm_deg: flange pose ``(x, y, z mm, R deg)`` in the base frame that ``reset`` moves to (with
             one MovJ, so the robot must be within ``safety.max_move_mm`` of it), checked against the arm's limits
             and the safety workspace on construction.
@@ -242,6 +245,7 @@ class RealEnvConfig:
     history: int = 1
     reference_depth_mm: float = 4.0
     posenet: str | None = None
+    estimator_process_std_mm: float | None = None
     start_pose_mm_deg: tuple[float, float, float, float] = (300.0, 0.0, 0.0, 0.0)
     action_scale: ActionScale = ActionScale()
     mount: TacTipMount = TacTipMount()
@@ -262,6 +266,9 @@ class RealEnvConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and 0.0 <= value <= 1.0):
                 raise ValueError(f"RealEnvConfig.{name} must be in [0, 1] s, got {value!r}")
+        noise = self.estimator_process_std_mm
+        if noise is not None and not (math.isfinite(noise) and noise > 0.0):
+            raise ValueError(f"RealEnvConfig.estimator_process_std_mm must be None or > 0 mm, got {noise!r}")
         if not (math.isfinite(self.camera_stall_timeout_s) and self.camera_stall_timeout_s > 0.0):
             raise ValueError(f"RealEnvConfig.camera_stall_timeout_s must be finite and > 0 s, got "
                              f"{self.camera_stall_timeout_s!r}")
@@ -312,9 +319,9 @@ class RealEnvConfig:
             "preprocess": None if self.preprocess is None else self.preprocess.to_dict(),
             "image_size_px": self.image_size_px, "observation": self.observation, "history": self.history,
             "reference_depth_mm": self.reference_depth_mm, "posenet": self.posenet,
+            "estimator_process_std_mm": self.estimator_process_std_mm,
             "start_pose_mm_deg": list(self.start_pose_mm_deg),
-            "action_scale": {"step_mm": self.action_scale.step_mm, "step_deg": self.action_scale.step_deg},
-            "mount": {"tcp_offset_mm": self.mount.tcp_offset_mm, "mount_rz_deg": self.mount.mount_rz_deg},
+            "action_scale": dict(vars(self.action_scale)), "mount": dict(vars(self.mount)),  # a horizontal one's drop
             "safety": {key: (list(value) if isinstance(value, tuple) else value)
                        for key, value in vars(self.safety).items() if key not in ("geometry", "limits")},
             "safety_unsafe": list(self.safety.loosened()),
@@ -357,7 +364,8 @@ class RealTactileEnv(gym.Env):
                                                                   config.history)
         self.action_scale = config.action_scale
         self.reference_depth_mm = config.reference_depth_mm
-        self.servo_hints = ServoHints(posenet=config.posenet or "surface")  # what ServoController.for_env reads
+        self.servo_hints = ServoHints(posenet=config.posenet or "surface",  # what ServoController.for_env reads
+                                      process_std_mm=config.estimator_process_std_mm)
         if config.observation in ESTIMATE_OBSERVATIONS and estimator is None:
             from simshear_gym.control.env_estimator import env_estimator
 
