@@ -74,6 +74,10 @@ class RigTruth:
 class RigCamera:
     """A frame source: the simulated TacTip at the follower's flange, touching a flat face (module docstring).
 
+    It renders on read (:func:`~simshear_gym.real.camera.renders_on_read`): each ``read()`` makes the frame of the
+    arms' poses at that moment, however long the render takes on this computer, so the follower's env does not age
+    its frames by the wall clock; its stalls are the injected ones (:meth:`cut`, :meth:`freeze`).
+
     Args:
         follower_pose: returns the follower's flange pose ``(x, y, z mm, R deg)`` in its base frame.
         T_follower_face: returns the face frame in the follower's base frame (origin on the face, +z out of it).
@@ -88,6 +92,8 @@ class RigCamera:
         stimulus: what the face is (default: a flat box of ``face_size_mm``; a
             :class:`~simshear_gym.sim.stimuli.StraightEdge` for edge contacts, its frame ``T_follower_face``).
     """
+
+    renders_on_read = True
 
     def __init__(self, follower_pose: Callable[[], object], T_follower_face: Callable[[], np.ndarray],
                  face_size_mm: tuple[float, float, float] = PlateMount().size_mm, mount: TacTipMount = TacTipMount(),
