@@ -931,7 +931,9 @@ def _preprocess(value: str) -> PreprocessConfig | None:
 def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: float = 1.0) -> SafetyConfig:
     """The safe defaults with the feedback and camera-frame ages the rehearsal allows: two emulators, the render
     and the networks share one process (on a loaded 2-core machine a 0.5 s stall is the machine's, not the link's
-    or the camera's; the stale-feedback and camera faults have their own tests)."""
+    or the camera's; the stale-feedback and camera faults have their own tests). The rig's camera renders on read
+    and has no frame age (:func:`~simshear_gym.real.camera.renders_on_read`): ``max_camera_frame_age_s`` binds a
+    real camera only."""
     return SafetyConfig(max_feedback_age_s=max_feedback_age_s, max_camera_frame_age_s=max_camera_frame_age_s)
 
 
