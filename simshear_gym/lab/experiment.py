@@ -635,8 +635,8 @@ class ExperimentRun:
                 if leader_pose is not None and info["flange_pose_mm_deg"] is not None:
                     sensor = self._sensor(info["flange_pose_mm_deg"])
                     q_face = (invert(self._face(leader_pose)) @ np.append(sensor, 1.0))[:3]
-                if self.truth is not None:
-                    self.truth.mark_target()
+                if self.truth is not None:  # at the fed-back pose marked above (the leader holds still)
+                    self.truth.mark_target(info["flange_pose_mm_deg"])
             stop = None
             if terminated:
                 stop = (f"follower_{info['termination']}", info.get("safety_event", ""))

@@ -148,9 +148,18 @@ class RigCamera:
 
     # -- truth -----------------------------------------------------------------------------------------------------
 
-    def mark_target(self) -> None:
-        """Take the sensor's place on the face at the last frame as the target of the true contact error."""
+    def mark_target(self, flange_pose_mm_deg=None) -> None:
+        """Take the sensor's place on the face as the target of the true contact error: where the sensor stands
+        with the follower's flange at ``flange_pose_mm_deg`` on the face where it is now (the pose a run marks its
+        own target at, so that both marks are of one instant however long a render takes), or at the last frame
+        (None)."""
         with self._lock:
+            if flange_pose_mm_deg is not None:
+                T_base_sensor = pose_to_T_base_flange(np.asarray(flange_pose_mm_deg, dtype=np.float64)[:4]) \
+                    @ self._T_flange_sensor
+                T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
+                self._target_face_mm = (invert(T_base_face) @ T_base_sensor)[:3, 3].copy()
+                return
             if self._last_sensor_face_mm is None:
                 raise RuntimeError("RigCamera.mark_target() before the first read()")
             self._target_face_mm = self._last_sensor_face_mm.copy()
