@@ -148,7 +148,7 @@ class RigCamera:
 
     # -- truth -----------------------------------------------------------------------------------------------------
 
-    def mark_target(self, flange_pose_mm_deg=None) -> None:
+    def mark_target(self, flange_pose_mm_deg: object | None = None) -> None:
         """Take the sensor's place on the face as the target of the true contact error: where the sensor stands
         with the follower's flange at ``flange_pose_mm_deg`` on the face where it is now (the pose a run marks its
         own target at, so that both marks are of one instant however long a render takes), or at the last frame
