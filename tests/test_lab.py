@@ -287,11 +287,20 @@ def _late_cycle(rig, kind: str) -> None:
     if kind == "feedback_held":  # 0.5 s late while the leader's feedback is held back (0.8 s: within the 1 s)
         rig.leader.pause_feedback(0.8)
         time.sleep(0.5)
-    else:  # the whole process stalls 0.9 s (the feedback readers too), as on a machine whose CPU is taken
+    elif kind == "slow_render":  # the camera's next frame takes 1.5 s to render, as on a slow or busy machine
+        read = rig.camera.read
+
+        def slow_read():
+            rig.camera.read = read
+            time.sleep(1.5)  # longer than rehearsal_safety()'s 1 s camera frame age: the render is no stall
+            return read()
+
+        rig.camera.read = slow_read
+    else:  # the whole process stalls 0.6 s (the feedback readers too), as on a machine whose CPU is taken
         switch_s = sys.getswitchinterval()
         sys.setswitchinterval(5.0)
-        try:
-            end_s = time.monotonic() + 0.9
+        try:  # 0.6 s: well within rehearsal_safety()'s 1 s feedback age, however slow the cycles around it
+            end_s = time.monotonic() + 0.6
             while time.monotonic() < end_s:
                 pass
         finally:
@@ -299,11 +308,12 @@ def _late_cycle(rig, kind: str) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["feedback_held", "process_stalled"])
+@pytest.mark.parametrize("kind", ["feedback_held", "slow_render", "process_stalled"])
 def test_a_late_cycle_slows_the_leader_instead_of_stopping_the_run(kind, tmp_path, torch_one_thread):
     """One tracking cycle half a second or more late: the plan's clock waits, so the leader goes on from where its
     last target left it. (Jumping ahead by the time lost asked the arm, from rest, for more than the stream's
-    acceleration bound or the step limit: a busy machine's late cycle used to stop the run.)"""
+    acceleration bound or the step limit: a busy machine's late cycle used to stop the run.) The lateness is
+    injected, never the machine's: a slow render of the rig's camera (which renders on read) is no camera stall."""
     from simshear_gym.lab.experiment import run_on_rig
     from simshear_gym.lab.rig import RehearsalRig
 

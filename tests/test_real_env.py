@@ -402,6 +402,33 @@ def test_an_action_that_is_not_finite_is_refused_and_never_sent(emulator):
         env.close()
 
 
+class _RendersOnRead(VirtualCamera):
+    renders_on_read = True
+
+
+def test_a_camera_that_renders_on_read_is_not_aged_by_the_wall_clock(emulator):
+    """A slow render (the computer's speed, as on a loaded machine) is no camera stall for a source that makes its
+    frame when read; its frames carry no age. The same render from a camera on its own clock stops (above)."""
+    slow = {"delay": 0.0}
+
+    def render():
+        time.sleep(slow["delay"])
+        return np.zeros((128, 128), np.uint8)
+
+    # the feedback's age is not this test's: generous, so that only the camera could stop the episode
+    env = make_env(emulator, camera=_RendersOnRead(render),
+                   safety=SafetyConfig(max_camera_frame_age_s=0.2, max_feedback_age_s=5.0))
+    try:
+        env.reset()
+        slow["delay"] = 0.3
+        for _ in range(2):
+            _, _, terminated, _, info = env.step(np.zeros(4))
+            assert not terminated, info.get("safety_event")
+            assert info["camera_frame_age_s"] is None
+    finally:
+        env.close()
+
+
 def test_frozen_camera_frames_stop_the_episode(emulator):
     frame = np.full((128, 128), 90, np.uint8)
     env = make_env(emulator, camera=VirtualCamera(lambda: frame.copy()), frozen_frame_limit=3)

@@ -606,8 +606,8 @@ class ExperimentRun:
                 if leader_pose is not None and info["flange_pose_mm_deg"] is not None:
                     sensor = self._sensor(info["flange_pose_mm_deg"])
                     q_face = (invert(self._face(leader_pose)) @ np.append(sensor, 1.0))[:3]
-                if self.truth is not None:
-                    self.truth.mark_target()
+                if self.truth is not None:  # at the fed-back pose marked above (the leader holds still)
+                    self.truth.mark_target(info["flange_pose_mm_deg"])
             stop = None
             if terminated:
                 stop = (f"follower_{info['termination']}", info.get("safety_event", ""))
@@ -902,7 +902,9 @@ def _preprocess(value: str) -> PreprocessConfig | None:
 def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: float = 1.0) -> SafetyConfig:
     """The safe defaults with the feedback and camera-frame ages the rehearsal allows: two emulators, the render
     and the networks share one process (on a loaded 2-core machine a 0.5 s stall is the machine's, not the link's
-    or the camera's; the stale-feedback and camera faults have their own tests)."""
+    or the camera's; the stale-feedback and camera faults have their own tests). The rig's camera renders on read
+    and has no frame age (:func:`~simshear_gym.real.camera.renders_on_read`): ``max_camera_frame_age_s`` binds a
+    real camera only."""
     return SafetyConfig(max_feedback_age_s=max_feedback_age_s, max_camera_frame_age_s=max_camera_frame_age_s)
 
 

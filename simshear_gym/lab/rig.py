@@ -74,6 +74,10 @@ class RigTruth:
 class RigCamera:
     """A frame source: the simulated TacTip at the follower's flange, touching a flat face (module docstring).
 
+    It renders on read (:func:`~simshear_gym.real.camera.renders_on_read`): each ``read()`` makes the frame of the
+    arms' poses at that moment, however long the render takes on this computer, so the follower's env does not age
+    its frames by the wall clock; its stalls are the injected ones (:meth:`cut`, :meth:`freeze`).
+
     Args:
         follower_pose: returns the follower's flange pose ``(x, y, z mm, R deg)`` in its base frame.
         T_follower_face: returns the face frame in the follower's base frame (origin on the face, +z out of it).
@@ -88,6 +92,8 @@ class RigCamera:
         stimulus: what the face is (default: a flat box of ``face_size_mm``; a
             :class:`~simshear_gym.sim.stimuli.StraightEdge` for edge contacts, its frame ``T_follower_face``).
     """
+
+    renders_on_read = True
 
     def __init__(self, follower_pose: Callable[[], object], T_follower_face: Callable[[], np.ndarray],
                  face_size_mm: tuple[float, float, float] = PlateMount().size_mm, mount: TacTipMount = TacTipMount(),
@@ -142,9 +148,18 @@ class RigCamera:
 
     # -- truth -----------------------------------------------------------------------------------------------------
 
-    def mark_target(self) -> None:
-        """Take the sensor's place on the face at the last frame as the target of the true contact error."""
+    def mark_target(self, flange_pose_mm_deg: object | None = None) -> None:
+        """Take the sensor's place on the face as the target of the true contact error: where the sensor stands
+        with the follower's flange at ``flange_pose_mm_deg`` on the face where it is now (the pose a run marks its
+        own target at, so that both marks are of one instant however long a render takes), or at the last frame
+        (None)."""
         with self._lock:
+            if flange_pose_mm_deg is not None:
+                T_base_sensor = pose_to_T_base_flange(np.asarray(flange_pose_mm_deg, dtype=np.float64)[:4]) \
+                    @ self._T_flange_sensor
+                T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
+                self._target_face_mm = (invert(T_base_face) @ T_base_sensor)[:3, 3].copy()
+                return
             if self._last_sensor_face_mm is None:
                 raise RuntimeError("RigCamera.mark_target() before the first read()")
             self._target_face_mm = self._last_sensor_face_mm.copy()

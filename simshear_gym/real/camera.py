@@ -8,7 +8,10 @@ Preprocessing follows the Bristol ``tactile_image_processing`` pipeline that pro
 calibrated against the published images (``simshear evaluate camera``); it reproduces them pixel for pixel.
 
 Frame sources share one small interface, ``read() -> frame`` and ``close()``, so a simulated camera
-(``VirtualCamera``) and the real one (``CameraSource``) are interchangeable.
+(``VirtualCamera``) and the real one (``CameraSource``) are interchangeable. A source whose class sets
+``renders_on_read = True`` makes each frame when ``read()`` asks for it, in lockstep with its reader (the rehearsal
+rig's simulated TacTip): its frames are as new as the read, and how long a read takes is the computer's speed, not
+a camera's delay, so a reader does not age its frames by the wall clock (:func:`renders_on_read`).
 """
 
 from __future__ import annotations
@@ -232,6 +235,12 @@ class FrameSource(Protocol):
     def close(self) -> None:
         """Release the source; safe to call twice."""
         ...
+
+
+def renders_on_read(source: object) -> bool:
+    """Whether ``source`` makes each frame when read (the module docstring): False for a camera that runs on its
+    own clock (``CameraSource``, ``VirtualCamera``) and for any source that does not say."""
+    return getattr(type(source), "renders_on_read", False) is True
 
 
 class _SourceBase:

@@ -33,7 +33,9 @@ too fast, or an action that is not finite), ``feedback_mismatch`` (the robot's j
 pose disagree: where it is is not known), ``robot_error`` (the controller refused a command or is in error mode),
 ``lost_connection`` (a connection dropped, a reply timed out, or the feedback is older than
 ``SafetyConfig.max_feedback_age_s``), ``camera_stall`` (no new frame, one older than
-``SafetyConfig.max_camera_frame_age_s``, or ``frozen_frame_limit`` identical frames in a row), ``camera_ended`` (a
+``SafetyConfig.max_camera_frame_age_s``, or ``frozen_frame_limit`` identical frames in a row; a source that renders
+on read, :func:`~simshear_gym.real.camera.renders_on_read`, has no frame age: its stalls are its errors and frozen
+frames), ``camera_ended`` (a
 recording ran out) and ``lost_contact`` (the optional ``contact_check`` callback says so and
 ``SafetyConfig.stop_on_lost_contact``); ``controller_error`` when the loop driving the env could not compute an
 action (the controller refused a NaN estimate) and ended the episode with :meth:`RealTactileEnv.end_episode`. After
@@ -84,6 +86,7 @@ from simshear_gym.real.camera import (
     PreprocessConfig,
     default_config,
     preprocess,
+    renders_on_read,
     to_gray,
 )
 from simshear_gym.real.mg400_client import (
@@ -351,7 +354,8 @@ class RealTactileEnv(gym.Env):
     ``info`` of every step: ``time_s`` (since reset), ``flange_pose_mm_deg`` (measured), ``tcp_pose`` (measured,
     as the ``tactile`` observation's ``tcp_pose``, whatever the observation), ``flange_target_mm_deg``
     and ``tcp_target`` (the last target sent, or that would have been sent in a dry run), ``action``,
-    ``robot_mode``, ``feedback_age_s``, ``camera_frame_age_s``, ``in_contact`` (None without a contact check),
+    ``robot_mode``, ``feedback_age_s``, ``camera_frame_age_s`` (None for a camera that renders on read),
+    ``in_contact`` (None without a contact check),
     ``overrun_s``, ``commands_sent``, ``termination`` and, when something stopped the episode, ``safety_event``.
     """
 
@@ -581,8 +585,10 @@ class RealTactileEnv(gym.Env):
         except CameraError as error:
             frame, stop = None, ("camera_stall", str(error))
         # The camera's frame age: how old the newest frame had become when this one arrived (or now, without one).
+        # A source that renders on read makes its frame when asked: the time between reads is the computer's.
         now = time.monotonic()
-        frame_age_s = None if self._last_frame_time is None else now - self._last_frame_time
+        aged = self._last_frame_time is not None and not renders_on_read(self._camera)
+        frame_age_s = now - self._last_frame_time if aged else None
         if frame is not None:
             self._last_frame_time = now
             stop = stop or self._frozen(frame)
