@@ -130,6 +130,8 @@ class SimTacTipCamera:
         clock: monotonic time source, s.
     """
 
+    renders_on_read = True  # each read() renders the arm's pose now: no wall-clock frame age (real.camera)
+
     def __init__(self, flange_pose: Callable[[], object], contact: str, translate: bool, mount: TacTipMount,
                  raw_frame_layout: PreprocessConfig | None, clock: Callable[[], float], name: str) -> None:
         if not callable(flange_pose):
