@@ -28,6 +28,9 @@ class FakeConfig:
     seed: int = 0
     rows: int = 8
     batch_size: int = 2
+    reference_batch: int = 2
+    lr_scaling: str = "none"
+    warmup_epochs: float = 0.0
     holdout_script: tuple[float, ...] = ()  # the holdout metric of each epoch; () -> measured on the weight
     step_s: float = 0.0  # the training time a step takes on the trainer's clock
 

@@ -53,13 +53,11 @@ def warmup_factor(progress: float, warmup_share: float) -> float:
 
 
 def run_lr(config, progress: float) -> float:
-    """The learning rate of a training run (a trainer config: ``lr``, ``lr_schedule``, ``batch_size``, and where
-    it has them ``lr_scaling``, ``reference_batch`` and ``warmup_epochs``, ``epochs``) after ``progress`` (0..1) of
-    it: the schedule of the batch-scaled peak rate, times the warm-up."""
-    scaling = getattr(config, "lr_scaling", "none")
-    peak = (config.lr if scaling == "none" else
-            batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, scaling))
-    share = getattr(config, "warmup_epochs", 0.0) / config.epochs
+    """The learning rate of a training run (a trainer config: ``lr``, ``lr_schedule``, ``batch_size``,
+    ``lr_scaling``, ``reference_batch``, ``warmup_epochs``, ``epochs``) after ``progress`` (0..1) of it: the
+    schedule of the batch-scaled peak rate, times the warm-up."""
+    peak = batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, config.lr_scaling)
+    share = config.warmup_epochs / config.epochs
     return scheduled_lr(peak, config.lr_schedule, progress) * warmup_factor(progress, share)
 
 
