@@ -309,6 +309,40 @@ reader_seed = 1
         PoolGenerator("tilt", reader_seed=-1, overrides={"pose_weight": 1.0})
 
 
+def test_a_pool_generator_may_start_from_another_translators_weights(tmp_path):
+    from simshear_gym.pipelines.config import PoolGenerator, Profile, TranslatorStage
+    from simshear_gym.pipelines.run import training_steps
+
+    tuned = POOLED.replace('[profiles.smoke.posenet]', """[[profiles.smoke.pool]]
+name = "tuned"
+contact = "surface"
+start_from = "shpix2pix"
+pose_weight = 1.0
+[[profiles.smoke.pool]]
+name = "tuned2"
+start_from = "tuned"
+[profiles.smoke.posenet]""")
+    with pytest.raises(ValueError, match="starts from 'tuned', trained for surface contacts only"):
+        load_config(write_lab(tmp_path, config=tuned))  # tuned2 trains for every contact type
+    config = load_config(write_lab(tmp_path, config=tuned.replace('name = "tuned2"', 'name = "tuned2"\ncontact = "surface"')))
+    names = contacts_of(config)
+    paired = {name: {"train": f"collect/{name}/train"} for contact in names for name in names[contact]}
+    steps = {step.name: step for step in training_steps(config, config.profile("smoke"), {}, paired, {},
+                                                        {"surface": "z_mm"}, STAGES)}
+    assert steps["translator/surface_tuned"].needs == ("posenet/surface_real", "translator/surface_shpix2pix")
+    assert steps["translator/surface_tuned2"].needs == ("translator/surface_tuned",)
+    with pytest.raises(ValueError, match="start_from names the generator itself"):
+        PoolGenerator("tuned", start_from="tuned")
+    for pool in ((PoolGenerator("a", start_from="b"), PoolGenerator("b", start_from="a")),
+                 (PoolGenerator("a", start_from="missing"),)):
+        with pytest.raises(ValueError, match="must be 'shpix2pix' or another pool generator's name, without a loop"):
+            Profile(pool=pool)
+    with pytest.raises(ValueError, match=r"'wide' starts from 'shpix2pix', another architecture .*'decoder_scale': "
+                                         r"\(1.0, 0.5\)"):
+        Profile(translator=TranslatorStage(overrides={"decoder_scale": 0.5}),
+                pool=(PoolGenerator("wide", start_from="shpix2pix", overrides={"decoder_scale": 1.0}),))
+
+
 def test_stages_need_the_ones_before_them(tmp_path):
     config = load_config(write_lab(tmp_path))
     with pytest.raises(ValueError, match=r"need the stages before them too: add \['collect'\]"):

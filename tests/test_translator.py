@@ -329,3 +329,26 @@ def test_a_distilled_student_learns_the_teachers_images_not_the_real_ones(tmp_pa
         tiny_config(teacher="t.pt", density_weight=1.0)
     with pytest.raises(FileNotFoundError, match="teacher translator .*missing.pt not found"):
         teacher_targets(blank, tmp_path / "missing.pt", "shpix2pix")
+
+
+def test_a_fine_tuning_run_starts_from_a_translators_weights(tmp_path):
+    """init_weights: the generator starts as the given translator (its holdout L1 before training is that
+    translator's), read relative to files_root; another architecture is refused naming the file and the fields."""
+    pairs = toy_pairs()
+    first = TranslatorTrainer(tiny_config(epochs=4), tmp_path / "first", pairs)
+    first.fit(progress=False)
+    save_generator(tmp_path / "start.pt", first.generator.eval())
+    tuned = TranslatorTrainer(tiny_config(epochs=1, init_weights="start.pt"), tmp_path / "tuned", pairs,
+                              files_root=tmp_path)
+    fresh = TranslatorTrainer(tiny_config(epochs=1), tmp_path / "fresh", pairs)
+    start = Translator.load(tmp_path / "start.pt").generator.state_dict()
+    for key, value in tuned.generator.state_dict().items():
+        torch.testing.assert_close(value, start[key].to(value.dtype))
+    assert tuned.holdout_l1() < fresh.holdout_l1()
+    assert tuned.holdout_l1() == pytest.approx(first.holdout_l1(), abs=2e-3)  # the fp16-stored weights
+    with pytest.raises(ValueError, match=r"init_weights .*start.pt: its generator is not the architecture .*"
+                                         r"'base_channels': \(8, 4\)"):
+        TranslatorTrainer(tiny_config(base_channels=8, init_weights=str(tmp_path / "start.pt")),
+                          tmp_path / "wide", pairs)
+    with pytest.raises(ValueError, match="give init_weights or teacher, not both"):
+        tiny_config(init_weights="a.pt", teacher="b.pt")

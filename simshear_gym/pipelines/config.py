@@ -92,10 +92,13 @@ class CheckConfig:
             raise ValueError(f"min_contact_share must be in (0, 1], got {self.min_contact_share!r}")
 
 
-TRANSLATOR_SET_BY_PIPELINE = ("arch", "paired_dirs", "image_size_px", "device", "pose_net", "teacher", "max_minutes")
+TRANSLATOR_SET_BY_PIPELINE = ("arch", "paired_dirs", "image_size_px", "device", "pose_net", "teacher", "init_weights",
+                              "max_minutes")
 """:class:`~simshear_gym.train.translator_config.TranslatorTrainConfig` fields the pipeline sets itself (the
 architecture of each step, its paired sets, the sensor's image size, the profile's device, a pool generator's pose
-reader); it distils nothing, and its budgets are epochs, not minutes."""
+reader and the weights it starts from); it distils nothing, and its budgets are epochs, not minutes."""
+GENERATOR_ARCH_KNOBS = ("base_channels", "max_channels", "template", "shear_decoder", "decoder_scale", "flow_px")
+"""Translator knobs that shape the generator: a fine-tuned pool generator (``start_from``) shares them."""
 POSE_KNOBS = ("pose_weight", "pose_variables")
 """Translator knobs only a pool generator sets (its pose-consistency loss needs a reader the pipeline trains)."""
 POSENET_SET_BY_PIPELINE = ("source", "contact", "paired_dirs", "translators", "variables", "device", "max_minutes")
@@ -288,12 +291,16 @@ class PoolGenerator:
     a generator listed once. Architecture and schedule knobs (``decoder_scale``, ``shear_decoder``, ``flow_px``,
     ``lr_schedule``...) may differ too, so that the pool's generators differ in more than their seed.
     ``reader_seed`` > 0 reads the pose consistency with a second real-image GDNN trained with that seed (the
-    reference's settings otherwise), so that the generators do not all learn one network's quirks."""
+    reference's settings otherwise), so that the generators do not all learn one network's quirks.
+    ``start_from`` fine-tunes: the generator starts from the weights of the contact type's ``shpix2pix`` or of
+    another pool generator (by name; the same architecture), so it runs after that one and needs fewer epochs
+    than one trained from random weights."""
 
     name: str
     contact: str = ""
     draws: int = 1
     reader_seed: int = 0
+    start_from: str = ""
     overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -312,6 +319,10 @@ class PoolGenerator:
             raise ValueError(f"reader_seed must be an integer >= 0 (0: the reference GDNN), got {self.reader_seed!r}")
         if self.reader_seed and self.pose_weight == 0:
             raise ValueError(f"reader_seed {self.reader_seed} needs pose_weight > 0 (it names the pose reader)")
+        if self.start_from:
+            check_name("pool generator start_from", self.start_from)
+            if self.start_from == self.name:
+                raise ValueError(f"pool generator {self.name!r}: start_from names the generator itself")
         TranslatorTrainConfig(paired_dirs=("set",), pose_net="reader" if self.pose_weight > 0 else "",
                               **{**EPOCH_BUDGET, **self.overrides})  # the trainer checks the values
 
@@ -438,6 +449,32 @@ class Profile:
             raise ValueError(f"pool: generator names must differ, got {names}")
         if "pix2pix" in self.posenet.baselines and "pix2pix" not in self.translator.archs:
             raise ValueError("posenet.baselines names pix2pix, but translator.archs trains no pix2pix")
+        for generator in self.pool:
+            self._check_start(generator)
+
+    def _check_start(self, generator: PoolGenerator) -> None:
+        """A pool generator's ``start_from`` names a translator the profile trains (the shPix2pix always) for every
+        contact type the generator is trained for, and no chain of starts loops."""
+        start, seen = generator.start_from, [generator.name]
+        while start and start != "shpix2pix":
+            found = next((g for g in self.pool if g.name == start), None)
+            if found is None or start in seen:
+                raise ValueError(f"pool generator {generator.name!r}: start_from {generator.start_from!r} must be "
+                                 f"'shpix2pix' or another pool generator's name, without a loop (pool: "
+                                 f"{[g.name for g in self.pool]})")
+            if found.contact not in ("", generator.contact):
+                raise ValueError(f"pool generator {generator.name!r} ({generator.contact or 'every'} contact) "
+                                 f"starts from {start!r}, trained for {found.contact} contacts only")
+            seen.append(start)
+            start = found.start_from
+        if generator.start_from:
+            start = next((g for g in self.pool if g.name == generator.start_from), None)
+            ours, theirs = (self.translator.settings_for("") | (g.replaced() if g else {}) for g in (generator, start))
+            differ = {knob: (ours.get(knob), theirs.get(knob)) for knob in GENERATOR_ARCH_KNOBS
+                      if ours.get(knob) != theirs.get(knob)}
+            if differ:
+                raise ValueError(f"pool generator {generator.name!r} starts from {generator.start_from!r}, another "
+                                 f"architecture (its, the start's: {differ})")
 
     def pool_for(self, contact: str) -> tuple[PoolGenerator, ...]:
         """The pool's generators of a contact type."""

@@ -263,13 +263,16 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
                     reader: str | None = None) -> StageResult:
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
     (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``: the step
-    ``reader``, by default the generator's own), trained on ``device``."""
+    ``reader``, by default the generator's own; the weights it starts from: its ``start_from`` step's), trained on
+    ``device``."""
     settings = _translator_settings(stage, contact, generator)
     pose_net = ""
     if generator is not None and generator.pose_weight > 0:
         pose_net = done[reader or f"posenet/{contact}_{generator.reader_step}"].outputs["weights"]
         settings |= {"pose_weight": generator.pose_weight, "pose_net": pose_net,
                      "pose_variables": tuple(generator.pose_variables)}
+    if generator is not None and generator.start_from:
+        settings |= {"init_weights": done[f"translator/{contact}_{generator.start_from}"].outputs["weights"]}
     key = {"paired": train_sets, "arch": arch, "settings": settings}
     label = generator.name if generator else arch
     name = f"translator/{contact}_{label}"
@@ -286,7 +289,7 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
         torch.set_num_threads(train_config.threads)
         pose = (PoseConsistency(runner.root / pose_net, train_config.pose_variables) if pose_net else None)
         pairs = load_pairs([str(runner.root / d) for d in train_sets], str(runner.root), pose=pose)
-        trainer = TranslatorTrainer(train_config, folder / "run", pairs, pose=pose)
+        trainer = TranslatorTrainer(train_config, folder / "run", pairs, pose=pose, files_root=runner.root)
         trainer.resume()
         runner.log(training_start_line(name, train_config.epochs, folder / "run" / "tb"))
         report_epochs(trainer, name, runner.log)
@@ -301,12 +304,14 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
 def pool_step(config: ExperimentConfig, stage, contact: str, names: list[str], train_sets: list[str], generator,
               device: str, reader: str | None = None) -> Step:
     """The training step of a pool generator on ``train_sets``; with the pose-consistency loss it needs its reader's
-    step (``reader``, by default the generator's own real-image GDNN)."""
+    step (``reader``, by default the generator's own real-image GDNN), with ``start_from`` the step of the
+    translator it starts from."""
     needs = ((reader or f"posenet/{contact}_{generator.reader_step}"),) if generator.pose_weight > 0 else ()
+    start = (f"translator/{contact}_{generator.start_from}",) if generator.start_from else ()
     settings = _translator_settings(stage, contact, generator)
     return Step(f"translator/{contact}_{generator.name}", partial(
         translator_step, config, stage, contact, "shpix2pix", train_sets, generator, device=device,
-        reader=needs[0] if needs else None), needs=needs,
+        reader=needs[0] if needs else None), needs=needs + start,
         cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
         work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names))
 

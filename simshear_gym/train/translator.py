@@ -11,6 +11,7 @@ pooled term asks for the right amount of marker there instead; plus
 :mod:`simshear_gym.train.pose_consistency`) when ``--pose-weight`` is above 0. ``--teacher W.pt`` distils: the
 targets are that translator's images of the rows (sim render, shear) instead of the real images, L1 alone, so
 that a smaller generator (``--base-channels 8``) learns the shipped one's mapping for the envs' fast path.
+``--init-weights W.pt`` fine-tunes: the generator starts from that translator's weights (the same architecture).
 Learning rate: constant, or ``--lr-schedule cosine``: ``lr * (1 + cos(pi * p)) / 2`` where ``p`` is the share of
 the time budget (``--max-minutes``) used so far, or of the epochs when there is no budget, so a budgeted run ends
 at a small learning rate whenever its time runs out.
@@ -70,6 +71,8 @@ FLAG_HELP = {
     "pose_variables": "pose-consistency loss on these of the GDNN's variables only (default: all)",
     "teacher": "distil: learn this translator's images (its .pt weights, same architecture kind) of the paired "
                "rows' sim renders and shear instead of the real images (a smaller, faster student; L1 alone)",
+    "init_weights": "fine-tune: start the generator from this translator's weights (its .pt, the same architecture) "
+                    "instead of random ones",
     "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
               "CUDA); under torchrun each process takes GPU LOCAL_RANK",
     "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "

@@ -30,7 +30,9 @@ class TranslatorTrainConfig:
     epochs (:func:`~simshear_gym.train.runs.run_lr`); ``data_on_device`` (``auto``, ``on``, ``off``) keeps the
     training pairs on the training device, batches gathered there (``auto``: on a GPU); ``compile`` runs the
     generator through ``torch.compile`` (the eager generator, with one warning, where it cannot compile);
-    ``tf32``: on CUDA, float32 matrix products and convolutions in TF32 (:mod:`simshear_gym.train.precision`)."""
+    ``tf32``: on CUDA, float32 matrix products and convolutions in TF32 (:mod:`simshear_gym.train.precision`).
+    ``init_weights``: the generator starts from this translator's weights (its ``.pt``, the same architecture)
+    instead of random ones: a fine-tuning run (its holdout split and batch order are still ``seed``'s)."""
 
     reference_batch: ClassVar[int] = 16
     """The batch size ``lr`` was tuned at (the default ``batch_size``): what ``lr_scaling`` scales from."""
@@ -61,6 +63,7 @@ class TranslatorTrainConfig:
     pose_net: str = ""
     pose_variables: tuple[str, ...] = ()
     teacher: str = ""
+    init_weights: str = ""
     device: str = "auto"
     amp: bool = True
     lr_scaling: str = "none"
@@ -92,6 +95,9 @@ class TranslatorTrainConfig:
             raise ValueError("a distilled generator (teacher) learns the teacher's images with L1 alone: it takes no "
                              f"pose, density or GAN loss, got pose_weight {self.pose_weight}, density_weight "
                              f"{self.density_weight}, gan_weight {self.gan_weight}")
+        if self.init_weights and self.teacher:
+            raise ValueError("a distilled generator (teacher) starts from random weights: give init_weights or "
+                             f"teacher, not both (got {self.init_weights!r}, {self.teacher!r})")
         if self.pose_weight < 0 or (self.pose_weight > 0) != bool(self.pose_net):
             raise ValueError(f"pose_weight {self.pose_weight} must be >= 0, and above 0 exactly when a pose_net "
                              f"(real-image GDNN) is given, got pose_net {self.pose_net!r}")

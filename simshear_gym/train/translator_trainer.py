@@ -123,6 +123,18 @@ def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch:
     return PairedTensors(pairs.sim, pairs.shear, torch.from_numpy(images), pairs.pose_labels)
 
 
+def start_from(generator: UNetGenerator, weights: str | Path) -> None:
+    """Load a translator's generator weights (``weights``, its ``.pt``) into ``generator``, which must be the same
+    architecture: the start of a fine-tuning run (``init_weights``)."""
+    start, _ = load_generator(weights)
+    if start.config != generator.config:
+        differ = {name: (value, getattr(start.config, name)) for name, value in asdict(generator.config).items()
+                  if getattr(start.config, name) != value}
+        raise ValueError(f"init_weights {weights}: its generator is not the architecture this run trains "
+                         f"(this run, the file: {differ})")
+    generator.load_state_dict(start.state_dict())
+
+
 class TranslatorTrainer(EpochTrainer):
     """Owns the models, optimisers and run directory of one training run; :meth:`fit` trains it.
 
@@ -131,12 +143,15 @@ class TranslatorTrainer(EpochTrainer):
     device (:class:`DevicePairs`) and each batch is gathered there, the same rows in the same order. The networks
     run in ``channels_last`` (faster on the CPU too) and on CUDA, with ``config.amp``, their forward passes in
     mixed precision (the losses in float32), with ``config.tf32`` their float32 products in TF32; with
-    ``config.compile`` the generator runs through ``torch.compile`` (one process only)."""
+    ``config.compile`` the generator runs through ``torch.compile`` (one process only). A fine-tuning run's start
+    (``config.init_weights``) is read relative to ``files_root`` (the pipeline's run folder; None: the working
+    directory)."""
 
     metric = "l1"  # history: train_l1, holdout_l1 (mean absolute pixel error, images in [0, 1])
 
     def __init__(self, config: TranslatorTrainConfig, run_dir: Path, pairs: PairedTensors,
-                 pose: PoseConsistency | None = None, distributed: Distributed | None = None) -> None:
+                 pose: PoseConsistency | None = None, distributed: Distributed | None = None,
+                 files_root: Path | None = None) -> None:
         if (pose is not None) != (config.pose_weight > 0) or (pose is not None and pairs.pose_labels is None):
             raise ValueError("a pose-consistency run (pose_weight > 0) needs its PoseConsistency and pairs loaded "
                              "with it (load_pairs(..., pose=...)); a run without one takes neither")
@@ -152,7 +167,9 @@ class TranslatorTrainer(EpochTrainer):
         train_rows, holdout_rows = split_holdout(len(pairs), config.holdout, config.seed)
         self.train_pairs, self.holdout_pairs = pairs.subset(train_rows), pairs.subset(holdout_rows)
         self.generator = UNetGenerator(config.generator_config())
-        if config.template:
+        if config.init_weights:
+            start_from(self.generator, Path(files_root or ".") / config.init_weights)
+        elif config.template:
             self.generator.init_template(self.train_pairs.real.to(torch.float32).mean(0) / 255.0)
         self.discriminator = PatchDiscriminator(PatchDiscriminatorConfig()) if config.gan_weight > 0 else None
         self.generator.to(self.device, memory_format=self.memory_format)
