@@ -324,7 +324,8 @@ start_from = "tuned"
 [profiles.smoke.posenet]""")
     with pytest.raises(ValueError, match="starts from 'tuned', trained for surface contacts only"):
         load_config(write_lab(tmp_path, config=tuned))  # tuned2 trains for every contact type
-    config = load_config(write_lab(tmp_path, config=tuned.replace('name = "tuned2"', 'name = "tuned2"\ncontact = "surface"')))
+    surface_only = tuned.replace('name = "tuned2"', 'name = "tuned2"\ncontact = "surface"')
+    config = load_config(write_lab(tmp_path, config=surface_only))
     names = contacts_of(config)
     paired = {name: {"train": f"collect/{name}/train"} for contact in names for name in names[contact]}
     steps = {step.name: step for step in training_steps(config, config.profile("smoke"), {}, paired, {},
