@@ -344,6 +344,25 @@ start_from = "tuned"
                 pool=(PoolGenerator("wide", start_from="shpix2pix", overrides={"decoder_scale": 1.0}),))
 
 
+def test_a_fine_tuned_pool_generator_trains_from_the_shpix2pix_it_names(tmp_path):
+    data = tmp_path / "data"
+    tuned = GOOD + """
+[[profiles.smoke.pool]]
+name = "tuned"
+contact = "surface"
+start_from = "shpix2pix"
+"""
+    config = load_config(write_lab(data, rows=12, config=tuned))
+    out = tmp_path / "run"
+    manifest = run_pipeline(config, out, data, "smoke", ("adapt", "collect", "translator"), workers=1)
+    translators = manifest["models"]["translators"]["surface"]
+    records = {r["stage"]: r for r in manifest["results"]}
+    run = json.loads((out / records["translator/surface_tuned"]["folder"] / "run" / "config.json").read_text())
+    assert run["init_weights"] == translators["shpix2pix"]  # relative to the run folder, as the stage key
+    key = json.loads((out / records["translator/surface_tuned"]["folder"] / "stage.json").read_text())["key"]
+    assert key["settings"]["init_weights"] == translators["shpix2pix"]
+
+
 def test_stages_need_the_ones_before_them(tmp_path):
     config = load_config(write_lab(tmp_path))
     with pytest.raises(ValueError, match=r"need the stages before them too: add \['collect'\]"):
