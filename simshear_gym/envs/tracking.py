@@ -47,6 +47,15 @@ class PlateTrackingEnv(SimShearEnv):
         self._plate_body = stimuli.spawn(self.world, PLATE, self._T_world_plate_start)
         self.face_half_extents_mm = (PLATE.size_mm[0] / 2.0, PLATE.size_mm[1] / 2.0)
 
+    def _sensor_start(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
+        """The sensor on the level start plate at ``offset`` (work frame), at the reference depth."""
+        return self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0], offset_work_mm[1],
+                                           self.reference_depth_mm)
+
+    def _follower_pose_at(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
+        """The MG400 follower's flange pose that puts the sensor at :meth:`_sensor_start`."""
+        return self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, self._sensor_start(offset_work_mm))
+
     def _draw_path(self, rng: np.random.Generator) -> tuple[TrajectoryConfig, tuple[float, float]]:
         """The reset's path (``random``: one of :data:`TRAJECTORIES`) and the follower's start place on the plate
         (work frame, mm); with ``randomise``, the scale, speed, rotation and start place drawn from ``rng``."""
@@ -196,14 +205,7 @@ class SimShearTrackingEnv(PlateTrackingEnv):
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:
         self._build_plate()
-        follower_pose = self._follower_pose_at((0.0, 0.0))
-        self._add_follower(FOLLOWER_T_WORLD_BASE, follower_pose)
-
-    def _follower_pose_at(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
-        """Follower flange pose that puts the sensor on the start plate at ``offset`` at the reference depth."""
-        T_world_sensor = self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0],
-                                                     offset_work_mm[1], self.reference_depth_mm)
-        return self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor)
+        self._add_follower(FOLLOWER_T_WORLD_BASE, self._follower_pose_at((0.0, 0.0)))
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
         config, offset = self._draw_path(rng)

@@ -136,20 +136,13 @@ class SimShearTracking6DEnv(PlateTrackingEnv):
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:
         self._build_plate()
-        T_world_sensor = self._sensor_start((0.0, 0.0))
         if self.follower_name == "mg400":
-            self._add_follower(FOLLOWER_T_WORLD_BASE, self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE,
-                                                                                  T_world_sensor))
+            self._add_follower(FOLLOWER_T_WORLD_BASE, self._follower_pose_at((0.0, 0.0)))
         else:
             T_flange_sensor = pose_to_matrix(np.array([0.0, 0.0, self.mount.tcp_offset_mm, 0.0, 0.0,
                                                        PANDA_MOUNT_RZ_DEG + self.mount.mount_rz_deg]))
-            self._use_follower(SimPanda(self.world, PANDA_T_WORLD_BASE, T_world_sensor, T_flange_sensor,
-                                        self.panda_config, bodies=self.render_mode is not None))
-
-    def _sensor_start(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
-        """The sensor on the level start plate at ``offset`` (work frame), at the reference depth."""
-        return self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0], offset_work_mm[1],
-                                           self.reference_depth_mm)
+            self._use_follower(SimPanda(self.world, PANDA_T_WORLD_BASE, self._sensor_start((0.0, 0.0)),
+                                        T_flange_sensor, self.panda_config, bodies=self.render_mode is not None))
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
         config, offset = self._draw_path(rng)  # then the tilt amplitudes, from the same rng
