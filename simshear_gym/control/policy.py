@@ -465,6 +465,6 @@ class SB3Controller:
         return action
 
 
-__all__ = ["Controller", "EstimatingController", "PolicySettings", "ResidualServo", "ResidualSettings", "SB3Controller",
-           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "stale_estimator_models",
-           "vecnormalize_path"]
+__all__ = ["Controller", "EstimateThenLaw", "EstimatingController", "PolicySettings", "ResidualServo",
+           "ResidualSettings", "SB3Controller", "as_action_scale", "estimator_for_env", "load_normalizer",
+           "sb3_algorithm", "sb3_class", "stale_estimator_models", "vecnormalize_path"]
