@@ -30,9 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.contract import ActionScale, servo_hints
+from simshear_gym.contract import ActionScale
 from simshear_gym.control.estimator import EstimatorConfig, SlotEstimates, TactileEstimator
-from simshear_gym.control.policy import as_action_scale
+from simshear_gym.control.policy import EstimateThenLaw, as_action_scale, estimator_for_env
 
 EDGE_STATE: tuple[str, ...] = ("y_mm", "z_mm", "edge_angle_deg")
 """The estimated state, in order (GDNN variable names)."""
@@ -166,7 +166,7 @@ class EdgeReadingEstimator(SlotEstimates, EdgeEstimator):
     slots = staticmethod(edge_estimate_slots)
 
 
-class EdgeServoController:
+class EdgeServoController(EstimateThenLaw):
     """Tactile image -> action: :class:`EdgeEstimator` then :class:`EdgeLaw`. Call :meth:`reset` per episode.
 
     Args:
@@ -178,6 +178,7 @@ class EdgeServoController:
     """
 
     name = "edge_servo"
+    who = "the edge servo controller"
     state_names: tuple[str, ...] = ("y_mm", "depth_mm", "edge_angle_deg")
     """The state estimate's names, for logs (the GDNN's y, z and edge angle)."""
 
@@ -202,28 +203,13 @@ class EdgeServoController:
         """A controller matched to an edge env's reference depth, action scale, speed and GDNN and process noise
         (its :class:`~simshear_gym.contract.ServoHints`)."""
         base = env.unwrapped
-        hints = servo_hints(env)
-        if estimator.posenet is None and hints.posenet.endswith(".pt"):  # a sensor's own GDNN
-            estimator = replace(estimator, posenet=hints.posenet)
-        if estimator.process_std_mm is None and hints.process_std_mm is not None:
-            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
+        estimator = estimator_for_env(env, estimator, shipped=False)
         return cls(base.reference_depth_mm, base.action_scale, base.speed_mm_s * base.dt_s, gains, estimator)
 
-    def reset(self) -> None:
-        self.estimator.reset()
-        self.law.reset()
-        self._last_move = None
-        self.last_estimate = None
-
     def __call__(self, observation: dict) -> np.ndarray:
-        if "tactile" not in observation:
-            raise ValueError(f"the edge servo controller needs the observation's 'tactile' image; got "
-                             f"{sorted(observation)}")
-        mean, std = self.estimator(observation["tactile"], self._last_move)
+        mean, std = self._estimate(observation)
         self.last_estimate = (mean, std)
-        action = self.law(np.array([mean[0] - EDGE_Y_MM, mean[1], mean[2]]))
-        self._last_move = action.astype(np.float64) * self._scale
-        return action
+        return self._command(self.law(np.array([mean[0] - EDGE_Y_MM, mean[1], mean[2]])))
 
 
 class EdgeOracleController:

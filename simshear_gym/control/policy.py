@@ -32,7 +32,7 @@ import json
 import re
 import warnings
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
@@ -45,6 +45,7 @@ from simshear_gym.contract import (
     check_image_size,
     check_observation,
     filter_mean_from_estimate,
+    servo_hints,
 )
 from simshear_gym.control.pi_law import PIGains, PILaw
 from simshear_gym.control.policy_files import (
@@ -75,6 +76,52 @@ class EstimatingController(Controller, Protocol):
     shear y mm, shear Rz deg) after the last call, or None before the first."""
 
     last_estimate: tuple[np.ndarray, np.ndarray] | None
+
+
+class EstimateThenLaw:
+    """What the image-driven controllers (servo, 6-DoF servo, edge, push) share: their ``estimator`` reads each
+    ``tactile`` image, predicted forward by the move commanded since the last (the action times ``_scale``), and
+    their ``law`` turns the estimate into the action; both restart at :meth:`reset`."""
+
+    who = "the controller"
+    """Names the controller in its errors."""
+
+    def reset(self) -> None:
+        self.estimator.reset()
+        self.law.reset()
+        self._last_move = None
+        self.last_estimate = None
+
+    def _check_tactile(self, observation: dict) -> None:
+        if "tactile" not in observation:
+            raise ValueError(f"{self.who} needs the observation's 'tactile' image; got {sorted(observation)}")
+
+    def _estimate(self, observation: dict) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, std) of the estimator on the observation's image (checked), fed the move commanded last."""
+        self._check_tactile(observation)
+        return self.estimator(observation["tactile"], self._last_move)
+
+    def _command(self, action: np.ndarray) -> np.ndarray:
+        """``action``, remembered as the move commanded (for the next estimate's prediction)."""
+        self._last_move = action.astype(np.float64) * self._scale
+        return action
+
+
+def estimator_for_env(env, estimator: Any, shipped: bool = True, process: bool = True) -> Any:
+    """``estimator`` (an :class:`~simshear_gym.control.estimator.EstimatorConfig`) with what it leaves open (None)
+    from the env's :class:`~simshear_gym.contract.ServoHints` (wrappers looked through): the GDNN, a sensor's own
+    ``.pt`` (with ``shipped``, also a shipped one by its name) and, with ``process``, the process noise."""
+    if not (process or estimator.posenet is None):
+        return estimator
+    hints = servo_hints(env)
+    if estimator.posenet is None and (shipped or hints.posenet.endswith(".pt")):
+        from simshear_gym.models.zoo import posenet_weights
+
+        name = hints.posenet  # a shipped GDNN's name, or a sensor's weights
+        estimator = replace(estimator, posenet=name if name.endswith(".pt") else str(posenet_weights(name)))
+    if process and estimator.process_std_mm is None and hints.process_std_mm is not None:
+        estimator = replace(estimator, process_std_mm=hints.process_std_mm)
+    return estimator
 
 
 def as_action_scale(action_scale: Any, owner: str) -> ActionScale:
@@ -418,6 +465,6 @@ class SB3Controller:
         return action
 
 
-__all__ = ["Controller", "EstimatingController", "PolicySettings", "ResidualServo", "ResidualSettings", "SB3Controller",
-           "as_action_scale", "load_normalizer", "sb3_algorithm", "sb3_class", "stale_estimator_models",
-           "vecnormalize_path"]
+__all__ = ["Controller", "EstimateThenLaw", "EstimatingController", "PolicySettings", "ResidualServo",
+           "ResidualSettings", "SB3Controller", "as_action_scale", "estimator_for_env", "load_normalizer",
+           "sb3_algorithm", "sb3_class", "stale_estimator_models", "vecnormalize_path"]

@@ -42,9 +42,9 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy, servo_hints
+from simshear_gym.contract import ActionScale, TacTipMount, push_goal, sensor_axes_xy
 from simshear_gym.control.estimator import EstimatorConfig
-from simshear_gym.control.policy import as_action_scale
+from simshear_gym.control.policy import EstimateThenLaw, as_action_scale, estimator_for_env
 from simshear_gym.data.labels import SURFACE_DEPTH_MM
 
 PUSH_PROCESS_STD_MM = 0.5
@@ -277,7 +277,7 @@ class PushGoalObservation(gym.Wrapper):
         return self._with_goal(observation, info), reward, terminated, truncated, info
 
 
-class PushServoController:
+class PushServoController(EstimateThenLaw):
     """Tactile image and goal -> action: the surface GDNN + filter (depth, shear x, face yaw), then
     :class:`PushLaw`. Call :meth:`reset` per episode.
 
@@ -291,6 +291,7 @@ class PushServoController:
     """
 
     name = "push_servo"
+    who = "the push servo controller"
     state_names: tuple[str, ...] = ("depth_mm", "shear_x_mm", "face_yaw_deg")
 
     def __init__(self, action_scale: ActionScale = ActionScale(), step_mm: float = 0.5,
@@ -315,35 +316,22 @@ class PushServoController:
                 estimator: EstimatorConfig = EstimatorConfig()) -> PushServoController:
         """A controller matched to a pushing env's action scale, speed, GDNN and process noise (its
         :class:`~simshear_gym.contract.ServoHints`)."""
-        from dataclasses import replace
-
         base = env.unwrapped
-        hints = servo_hints(env)
-        if estimator.posenet is None and hints.posenet.endswith(".pt"):  # a sensor's own GDNN
-            estimator = replace(estimator, posenet=hints.posenet)
-        if estimator.process_std_mm is None:
-            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
+        estimator = estimator_for_env(env, estimator, shipped=False)
         return cls(base.action_scale, base.speed_mm_s * base.dt_s, gains, use_shear, estimator)
 
     def reset(self) -> None:
-        self.estimator.reset()
-        self.law.reset()
+        super().reset()
         self._goal.reset()
-        self._last_move = None
-        self.last_estimate = None
 
     def __call__(self, observation: dict) -> np.ndarray:
-        if "tactile" not in observation:
-            raise ValueError(f"the push servo controller needs the observation's 'tactile' image; got "
-                             f"{sorted(observation)}")
+        self._check_tactile(observation)
         goal = self._goal(observation)
         mean, std = self.estimator(observation["tactile"], self._last_move)
         # TiltEstimator's state: depth, shear x, y, Rz, Rx, Ry
         state = np.array([mean[0], mean[1], mean[5]])
         self.last_estimate = (state, np.array([std[0], std[1], std[5]]))
-        action = self.law(state, goal)
-        self._last_move = action.astype(np.float64) * self._scale
-        return action
+        return self._command(self.law(state, goal))
 
 
 class PushOracleController:

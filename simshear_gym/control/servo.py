@@ -27,7 +27,7 @@ import numpy as np
 from simshear_gym.contract import ActionScale, servo_hints
 from simshear_gym.control.estimator import EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
-from simshear_gym.control.policy import as_action_scale
+from simshear_gym.control.policy import EstimateThenLaw, as_action_scale, estimator_for_env
 
 LAW_VARIABLES = ("shear_x_mm", "shear_y_mm", "z_mm", "shear_rz_deg")
 """The estimated variable each of the law's components (x, y, depth, Rz) steers on."""
@@ -59,7 +59,7 @@ def servo_law_for_env(env, gains: PIGains | None = None, hold_load: bool | None 
     return gains, bool(hold_load), margin
 
 
-class ServoController:
+class ServoController(EstimateThenLaw):
     """Tactile image -> action: :class:`TactileEstimator` then :class:`PILaw`. Call :meth:`reset` per episode.
 
     A :class:`~simshear_gym.control.policy.Controller` that keeps a state estimate (``last_estimate``).
@@ -75,6 +75,7 @@ class ServoController:
 
     name = "servo"
     """For logs (the real rollout's ``controller``)."""
+    who = "the servo controller"
 
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  gains: PIGains = SERVO_GAINS, estimator: EstimatorConfig = EstimatorConfig(),
@@ -109,37 +110,17 @@ class ServoController:
         ``surface``); without ``estimator.process_std_mm`` it takes the env's ``process_std_mm`` (how far its
         contact moves in a step unknown to the follower; None: the estimator's default); the law's gains (None: the
         defaults, or the env's), load hold and margin (None: the env's) as :func:`servo_law_for_env` gives them."""
-        from dataclasses import replace
-
-        from simshear_gym.models.zoo import posenet_weights
-
         base = env.unwrapped
-        hints = servo_hints(env)
-        if estimator.posenet is None:
-            name = hints.posenet  # a shipped GDNN's name, or a sensor's weights
-            posenet = name if name.endswith(".pt") else str(posenet_weights(name))
-            estimator = replace(estimator, posenet=posenet)
-        if estimator.process_std_mm is None and hints.process_std_mm is not None:
-            estimator = replace(estimator, process_std_mm=hints.process_std_mm)
+        estimator = estimator_for_env(env, estimator)
         gains, hold_load, margin = servo_law_for_env(env, gains, hold_load)
         if load_margin_mm is not None:
             margin = np.asarray(load_margin_mm, dtype=np.float64).reshape(2)
         return cls(base.reference_depth_mm, base.action_scale, gains, estimator, hold_load, tuple(margin))
 
-    def reset(self) -> None:
-        self.estimator.reset()
-        self.law.reset()
-        self._last_move = None
-        self.last_estimate = None
-
     def __call__(self, observation: dict) -> np.ndarray:
-        if "tactile" not in observation:
-            raise ValueError(f"the servo controller needs the observation's 'tactile' image; got {sorted(observation)}")
         first = self.last_estimate is None
-        mean, std = self.estimator(observation["tactile"], self._last_move)
+        mean, std = self._estimate(observation)
         self.last_estimate = (mean, std)
         if first and self.hold_load:
             self.law.shear_reference_mm = np.asarray(mean[1:3], dtype=np.float64) + self.load_margin_mm
-        action = self.law(mean)
-        self._last_move = action.astype(np.float64) * self._scale
-        return action
+        return self._command(self.law(mean))

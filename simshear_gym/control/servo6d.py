@@ -21,15 +21,15 @@ The action is the 6-D one of :func:`~simshear_gym.contract.action_space_6d`: ``(
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.contract import TILT_STEP_DEG, ActionScale, servo_hints
+from simshear_gym.contract import TILT_STEP_DEG, ActionScale
 from simshear_gym.control.estimator import STATE_VARIABLES, EstimatorConfig, TactileEstimator
 from simshear_gym.control.pi_law import PIGains, PILaw
-from simshear_gym.control.policy import as_action_scale
+from simshear_gym.control.policy import EstimateThenLaw, as_action_scale, estimator_for_env
 from simshear_gym.control.servo import SERVO_GAINS
 
 STATE_VARIABLES_6D: tuple[str, ...] = STATE_VARIABLES + ("rx_deg", "ry_deg")
@@ -98,7 +98,7 @@ class TiltEstimator(TactileEstimator):
         return np.array([dz, dx, dy, drz, drx, dry])
 
 
-class Servo6DController:
+class Servo6DController(EstimateThenLaw):
     """Tactile image -> 6-D action: :class:`TiltEstimator` then the two PI laws (module docstring). Call
     :meth:`reset` per episode; ``last_estimate`` holds the last (mean (6,), std (6,)).
 
@@ -111,6 +111,7 @@ class Servo6DController:
     """
 
     name = "servo6d"
+    who = "the 6-DoF servo controller"
 
     def __init__(self, reference_depth_mm: float = 4.0, action_scale: ActionScale = ActionScale(),
                  tilt_step_deg: float = TILT_STEP_DEG, gains: Servo6DGains = Servo6DGains(),
@@ -130,32 +131,20 @@ class Servo6DController:
     def for_env(cls, env, gains: Servo6DGains = Servo6DGains(),
                 estimator: EstimatorConfig = EstimatorConfig()) -> Servo6DController:
         """A controller matched to a 6-DoF env's reference depth, action scale, tilt rate and shipped GDNN."""
-        from simshear_gym.models.zoo import posenet_weights
-
         base = env.unwrapped
         if getattr(base, "action_space", None) is not None and base.action_space.shape != (6,):
             raise ValueError(f"Servo6DController needs a 6-D action space (a 6-DoF follower), the env has "
                              f"{base.action_space.shape}: use ServoController for a 4-DoF one")
-        if estimator.posenet is None:
-            name = servo_hints(env).posenet
-            estimator = replace(estimator, posenet=name if name.endswith(".pt") else str(posenet_weights(name)))
+        estimator = estimator_for_env(env, estimator, process=False)
         return cls(base.reference_depth_mm, base.action_scale, base.tilt_step_deg, gains, estimator)
 
     def reset(self) -> None:
-        self.estimator.reset()
-        self.law.reset()
+        super().reset()
         self.tilt_law.reset()
-        self._last_move = None
-        self.last_estimate = None
 
     def __call__(self, observation: dict) -> np.ndarray:
-        if "tactile" not in observation:
-            raise ValueError(f"the 6-DoF servo controller needs the observation's 'tactile' image; got "
-                             f"{sorted(observation)}")
-        mean, std = self.estimator(observation["tactile"], self._last_move)
+        mean, std = self._estimate(observation)
         self.last_estimate = (mean, std)
         planar = self.law(mean[:4])
         tilt = self.tilt_law(np.array([0.0, mean[4], mean[5], 0.0]))[:2]
-        action = np.concatenate([planar, tilt]).astype(np.float32)
-        self._last_move = action.astype(np.float64) * self._scale
-        return action
+        return self._command(np.concatenate([planar, tilt]).astype(np.float32))

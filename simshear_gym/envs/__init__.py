@@ -19,41 +19,16 @@ from gymnasium.envs.registration import register, registry
 
 ENV_IDS: tuple[str, ...] = ("SimShearTracking-v0", "SimShearCoLift-v0", "SimShearEdgeFollow-v0", "SimShearPush-v0")
 
-if "SimShearTracking-v0" not in registry:
-    register(
-        id="SimShearTracking-v0",
-        entry_point="simshear_gym.envs.tracking:SimShearTrackingEnv",
-        vector_entry_point="simshear_gym.envs.vector:make_tracking_vector_env",
-        max_episode_steps=500,
-    )
+# id, env entry point, vector entry point (None: gymnasium's own vector envs), max_episode_steps
+_REGISTRATIONS: tuple[tuple[str, str, str | None, int], ...] = (
+    ("SimShearTracking-v0", "tracking:SimShearTrackingEnv", "vector:make_tracking_vector_env", 500),
+    ("SimShearCoLift-v0", "colift:SimShearCoLiftEnv", "colift:make_colift_vector_env", 500),
+    ("SimShearTracking6D-v0", "tracking6d:SimShearTracking6DEnv", None, 500),
+    ("SimShearEdgeFollow-v0", "edge_follow:SimShearEdgeFollowEnv", "edge_follow:make_edge_follow_vector_env", 1000),
+    ("SimShearPush-v0", "push:SimShearPushEnv", "push:make_push_vector_env", 800),
+)
 
-if "SimShearCoLift-v0" not in registry:
-    register(
-        id="SimShearCoLift-v0",
-        entry_point="simshear_gym.envs.colift:SimShearCoLiftEnv",
-        vector_entry_point="simshear_gym.envs.colift:make_colift_vector_env",
-        max_episode_steps=500,
-    )
-
-if "SimShearTracking6D-v0" not in registry:
-    register(
-        id="SimShearTracking6D-v0",
-        entry_point="simshear_gym.envs.tracking6d:SimShearTracking6DEnv",
-        max_episode_steps=500,
-    )
-
-if "SimShearEdgeFollow-v0" not in registry:
-    register(
-        id="SimShearEdgeFollow-v0",
-        entry_point="simshear_gym.envs.edge_follow:SimShearEdgeFollowEnv",
-        vector_entry_point="simshear_gym.envs.edge_follow:make_edge_follow_vector_env",
-        max_episode_steps=1000,
-    )
-
-if "SimShearPush-v0" not in registry:
-    register(
-        id="SimShearPush-v0",
-        entry_point="simshear_gym.envs.push:SimShearPushEnv",
-        vector_entry_point="simshear_gym.envs.push:make_push_vector_env",
-        max_episode_steps=800,
-    )
+for _id, _entry, _vector_entry, _max_steps in _REGISTRATIONS:
+    if _id not in registry:
+        register(id=_id, entry_point=f"simshear_gym.envs.{_entry}", max_episode_steps=_max_steps,
+                 vector_entry_point=None if _vector_entry is None else f"simshear_gym.envs.{_vector_entry}")

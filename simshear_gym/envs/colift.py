@@ -22,7 +22,7 @@ from simshear_gym.envs.trajectories import (
     Trajectory,
     TrajectoryConfig,
 )
-from simshear_gym.sim.colift_scene import FIRM_TIP, CoLiftScene, CoLiftSceneConfig, upright_plate
+from simshear_gym.sim.colift_scene import FIRM_TIP, CoLiftScene, CoLiftSceneConfig, translation_matrix, upright_plate
 from simshear_gym.sim.mg400_arm import SimMG400
 from simshear_gym.sim.objects import OBJECTS, PAYLOADS, spawn_object
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
@@ -276,13 +276,13 @@ class SimShearCoLiftEnv(SimShearEnv):
         spec = self.scene.spec
         # the nominal start (the exact one comes from the scene at reset): object against the plate, squeezed
         T_world_plate = self.leader.T_world_tool()
-        T_world_sensor = T_world_plate @ _translation(z_mm=spec.size_mm[2] - self.scene_config.squeeze_mm)
+        T_world_sensor = T_world_plate @ translation_matrix(z_mm=spec.size_mm[2] - self.scene_config.squeeze_mm)
         start_pose = self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor @ _T_SENSOR_TURN)
         self._add_follower(FOLLOWER_T_WORLD_BASE, start_pose)
         self.face_half_extents_mm = (spec.size_mm[0] / 2.0, spec.size_mm[1] / 2.0)
         # Visual copies of the physics bodies in the env's world: the TacTip renders the object's copy; the
         # plate's copy is drawn only in the scene view. This world is never stepped.
-        self._object_copy = spawn_object(self.world, spec, T_world_plate @ _translation(z_mm=500.0))
+        self._object_copy = spawn_object(self.world, spec, T_world_plate @ translation_matrix(z_mm=500.0))
         self._plate_copy = -1
         if self.render_mode is not None:
             import pybullet
@@ -321,7 +321,7 @@ class SimShearCoLiftEnv(SimShearEnv):
                              f"{error}") from error
         # the object's face under the sensor, carried with the plate: the sensor sits at the reference depth in
         # its work frame (see the base module's frames)
-        T_world_face = T_world_sensor @ _translation(z_mm=-self.reference_depth_mm) @ self.T_work_face
+        T_world_face = T_world_sensor @ translation_matrix(z_mm=-self.reference_depth_mm) @ self.T_work_face
         self._T_plate_face = invert(T_world_plate) @ T_world_face
         self._fresh_scene = True  # the scene has just settled: the base's _sync_scene must not step it again
 
@@ -394,12 +394,6 @@ class SimShearCoLiftEnv(SimShearEnv):
     def close(self) -> None:
         self.scene.close()
         super().close()
-
-
-def _translation(x_mm: float = 0.0, y_mm: float = 0.0, z_mm: float = 0.0) -> np.ndarray:
-    transform = np.eye(4)
-    transform[:3, 3] = [x_mm, y_mm, z_mm]
-    return transform
 
 
 def make_colift_vector_env(num_envs: int = 1, max_episode_steps: int | None = 500, workers: int | None = None,

@@ -10,7 +10,7 @@ from gymnasium.utils import EzPickle
 
 from simshear_gym.contract import TRUE_POSE_SHEAR_LIMIT, ServoHints
 from simshear_gym.data.labels import wrap_deg
-from simshear_gym.envs.base import ContactState, SimShearEnv
+from simshear_gym.envs.base import ContactState, SimShearEnv, pybullet_pose_fast
 from simshear_gym.envs.tracking import FOLLOWER_T_WORLD_BASE
 from simshear_gym.sim.contours import OUTLINES, Contour, ContourObject, edge_contact, spawn_contour_object
 from simshear_gym.sim.replay import ReplayGeometry
@@ -129,7 +129,7 @@ class SimShearEdgeFollowEnv(SimShearEnv):
             self._contours[key] = (contour, spawn_contour_object(self.world, contour, _PARKED))
         for other, (_, body) in self._contours.items():
             placed = T_WORLD_OBJECT if other == key else _PARKED
-            self.world.client.resetBasePositionAndOrientation(body, *_pybullet(placed))
+            self.world.client.resetBasePositionAndOrientation(body, *pybullet_pose_fast(placed))
         self.contour = self._contours[key][0]
 
     def T_world_sensor_on_edge(self, arc_mm: float, offset_mm: float, depth_mm: float,
@@ -235,12 +235,6 @@ class SimShearEdgeFollowEnv(SimShearEnv):
 
 
 _PARKED = pose_to_matrix(np.array([0.0, 0.0, -5000.0, 0.0, 0.0, 0.0]))  # out of every camera's sight
-
-
-def _pybullet(T_world: np.ndarray):
-    from simshear_gym.transforms import matrix_to_pybullet_fast
-
-    return matrix_to_pybullet_fast(T_world)
 
 
 def make_edge_follow_vector_env(num_envs: int = 1, max_episode_steps: int | None = 1000, workers: int | None = None,

@@ -29,7 +29,70 @@ T_FLANGE_PLATE = pose_to_matrix(np.array([70.0, 0.0, -20.0, 0.0, 0.0, 180.0]))
 PLATE = stimuli.FlatSurface(size_mm=(120.0, 120.0, 10.0))
 
 
-class SimShearTrackingEnv(SimShearEnv):
+def check_speed_mm_s(speed_mm_s) -> float:
+    """The plate's speed as a float; raises ``ValueError`` unless it is a finite number > 0."""
+    if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
+        raise ValueError(f"speed_mm_s must be > 0, got {speed_mm_s!r}")
+    return float(speed_mm_s)
+
+
+class PlateTrackingEnv(SimShearEnv):
+    """What the tracking envs share: the leader MG400 moving :data:`PLATE` along a trajectory (the subclasses set
+    ``trajectory_name``, ``speed_mm_s`` and ``randomise``, and place the follower)."""
+
+    def _build_plate(self) -> None:
+        """The leader with the plate at its start pose, and the plate's body."""
+        self.leader: SimMG400 = self._add_arm(LEADER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE)
+        self._T_world_plate_start = self.leader.T_world_tool()
+        self._plate_body = stimuli.spawn(self.world, PLATE, self._T_world_plate_start)
+        self.face_half_extents_mm = (PLATE.size_mm[0] / 2.0, PLATE.size_mm[1] / 2.0)
+
+    def _sensor_start(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
+        """The sensor on the level start plate at ``offset`` (work frame), at the reference depth."""
+        return self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0], offset_work_mm[1],
+                                           self.reference_depth_mm)
+
+    def _follower_pose_at(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
+        """The MG400 follower's flange pose that puts the sensor at :meth:`_sensor_start`."""
+        return self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, self._sensor_start(offset_work_mm))
+
+    def _draw_path(self, rng: np.random.Generator) -> tuple[TrajectoryConfig, tuple[float, float]]:
+        """The reset's path (``random``: one of :data:`TRAJECTORIES`) and the follower's start place on the plate
+        (work frame, mm); with ``randomise``, the scale, speed, rotation and start place drawn from ``rng``."""
+        name = self.trajectory_name
+        if name == "random":
+            name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))]
+        scale, speed, rotation, offset = 1.0, self.speed_mm_s, TrajectoryConfig().rotation_deg, (0.0, 0.0)
+        if self.randomise:
+            scale = float(rng.uniform(0.7, 1.3))
+            speed *= float(rng.uniform(0.7, 1.3))
+            rotation *= float(rng.uniform(-1.0, 1.0))
+            offset = tuple(float(v) for v in rng.uniform(-10.0, 10.0, 2))
+        return TrajectoryConfig(name, scale=scale, speed_mm_s=speed, rotation_deg=rotation), offset
+
+    @staticmethod
+    def _start_offset(options: dict | None, offset: tuple[float, float]) -> tuple[float, float]:
+        """``options["start_offset_mm"]`` (checked) where given, else ``offset``."""
+        if options and "start_offset_mm" in options:
+            offset = tuple(float(v) for v in options["start_offset_mm"])
+            if len(offset) != 2 or not all(math.isfinite(v) and abs(v) <= 40.0 for v in offset):
+                raise ValueError(f"options['start_offset_mm'] must be (x, y) within +-40 mm, got {offset}")
+        return offset
+
+    def _T_world_plate_at(self, time_s: float) -> np.ndarray:
+        dx, dy, dz, dr = self.trajectory.offset_at(time_s)
+        T_world_plate = self._T_world_plate_start @ rz_matrix(dr)
+        T_world_plate[:3, 3] = self._T_world_plate_start[:3, 3] + (dx, dy, dz)
+        return T_world_plate
+
+    def _sync_scene(self) -> None:
+        # stimuli.move without its scipy conversion (this runs every step)
+        T_world_box = self._T_world_face()
+        T_world_box[:3, 3] += T_world_box[:3, :3] @ PLATE.box_centre_mm()
+        self.world.client.resetBasePositionAndOrientation(self._plate_body, *pybullet_pose_fast(T_world_box))
+
+
+class SimShearTrackingEnv(PlateTrackingEnv):
     """Keep a TacTip in contact with a plate that a leader MG400 moves along a trajectory.
 
     Two MG400s face each other 690 mm apart. The **leader** holds a flat 120 x 120 mm plate, top face up, on a
@@ -132,10 +195,8 @@ class SimShearTrackingEnv(SimShearEnv):
                           **base_kwargs)
         if trajectory not in TRAJECTORY_CHOICES:
             raise ValueError(f"unknown trajectory {trajectory!r}; expected one of {TRAJECTORY_CHOICES}")
-        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
-            raise ValueError(f"speed_mm_s must be > 0, got {speed_mm_s!r}")
         self.trajectory_name = trajectory
-        self.speed_mm_s = float(speed_mm_s)
+        self.speed_mm_s = check_speed_mm_s(speed_mm_s)
         self.randomise = bool(randomise)
         self.trajectory: Trajectory | None = None
         super().__init__(obs_mode=obs_mode, image_size_px=image_size_px, control_rate_hz=control_rate_hz,
@@ -143,52 +204,18 @@ class SimShearTrackingEnv(SimShearEnv):
 
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:
-        self.leader: SimMG400 = self._add_arm(LEADER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE)
-        self._T_world_plate_start = self.leader.T_world_tool()
-        self._plate_body = stimuli.spawn(self.world, PLATE, self._T_world_plate_start)
-        self.face_half_extents_mm = (PLATE.size_mm[0] / 2.0, PLATE.size_mm[1] / 2.0)
-        follower_pose = self._follower_pose_at((0.0, 0.0))
-        self._add_follower(FOLLOWER_T_WORLD_BASE, follower_pose)
-
-    def _follower_pose_at(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
-        """Follower flange pose that puts the sensor on the start plate at ``offset`` at the reference depth."""
-        T_world_sensor = self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0],
-                                                     offset_work_mm[1], self.reference_depth_mm)
-        return self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE, T_world_sensor)
+        self._build_plate()
+        self._add_follower(FOLLOWER_T_WORLD_BASE, self._follower_pose_at((0.0, 0.0)))
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
-        options = options or {}
-        name = self.trajectory_name
-        if name == "random":
-            name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))]
-        scale, speed, rotation, offset = 1.0, self.speed_mm_s, TrajectoryConfig().rotation_deg, (0.0, 0.0)
-        if self.randomise:
-            scale = float(rng.uniform(0.7, 1.3))
-            speed *= float(rng.uniform(0.7, 1.3))
-            rotation *= float(rng.uniform(-1.0, 1.0))
-            offset = tuple(float(v) for v in rng.uniform(-10.0, 10.0, 2))
-        if "start_offset_mm" in options:
-            offset = tuple(float(v) for v in options["start_offset_mm"])
-            if len(offset) != 2 or not all(math.isfinite(v) and abs(v) <= 40.0 for v in offset):
-                raise ValueError(f"options['start_offset_mm'] must be (x, y) within +-40 mm, got {offset}")
-        self.trajectory = Trajectory(TrajectoryConfig(name, scale=scale, speed_mm_s=speed, rotation_deg=rotation))
+        config, offset = self._draw_path(rng)
+        offset = self._start_offset(options, offset)
+        self.trajectory = Trajectory(config)
         self.leader.reset(LEADER_START_POSE_MM_DEG)
         self.follower.reset(self._follower_pose_at(offset))
 
-    def _T_world_plate_at(self, time_s: float) -> np.ndarray:
-        dx, dy, dz, dr = self.trajectory.offset_at(time_s)
-        T_world_plate = self._T_world_plate_start @ rz_matrix(dr)
-        T_world_plate[:3, 3] = self._T_world_plate_start[:3, 3] + (dx, dy, dz)
-        return T_world_plate
-
     def _command_scene(self, time_s: float, dt_s: float) -> None:
         self.leader.servo_tool(self._T_world_plate_at(time_s), dt_s)
-
-    def _sync_scene(self) -> None:
-        # stimuli.move without its scipy conversion (this runs every step)
-        T_world_box = self.leader.T_world_tool()
-        T_world_box[:3, 3] += T_world_box[:3, :3] @ PLATE.box_centre_mm()
-        self.world.client.resetBasePositionAndOrientation(self._plate_body, *pybullet_pose_fast(T_world_box))
 
     def _T_world_face(self) -> np.ndarray:
         return self.leader.T_world_tool()

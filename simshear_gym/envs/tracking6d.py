@@ -10,19 +10,16 @@ import numpy as np
 from gymnasium.utils import EzPickle
 
 from simshear_gym.contract import TILT_STEP_DEG, action_space_6d, action_to_move_6d
-from simshear_gym.envs.base import ContactState, SimShearEnv, pybullet_pose_fast
+from simshear_gym.envs.base import ContactState
 from simshear_gym.envs.tracking import (
     FOLLOWER_T_WORLD_BASE,
     LEADER_START_POSE_MM_DEG,
-    LEADER_T_WORLD_BASE,
-    PLATE,
-    T_FLANGE_PLATE,
+    PlateTrackingEnv,
+    check_speed_mm_s,
 )
-from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, TRAJECTORIES, Trajectory, TrajectoryConfig
-from simshear_gym.sim import stimuli
-from simshear_gym.sim.mg400_arm import SimMG400
+from simshear_gym.envs.trajectories import COLIFT_TRAJECTORIES, TRAJECTORIES, Trajectory
 from simshear_gym.sim.panda_arm import PandaArmConfig, SimPanda, axis_angle_matrix
-from simshear_gym.transforms import pose_to_matrix, rz_matrix
+from simshear_gym.transforms import pose_to_matrix
 
 TRAJECTORIES_6D: tuple[str, ...] = TRAJECTORIES + COLIFT_TRAJECTORIES
 """The tracking paths, plus the co-lift env's ``circular_wave`` and ``star`` (held out for testing)."""
@@ -44,7 +41,7 @@ def tilt_matrix(rx_deg: float, ry_deg: float) -> np.ndarray:
     return matrix
 
 
-class SimShearTracking6DEnv(SimShearEnv):
+class SimShearTracking6DEnv(PlateTrackingEnv):
     """Keep a TacTip in contact with, and normal to, a plate that a leader moves along a path while tilting it.
 
     The scene of ``SimShearTracking-v0`` (:class:`~simshear_gym.envs.tracking.SimShearTrackingEnv`): a leader MG400
@@ -116,15 +113,14 @@ class SimShearTracking6DEnv(SimShearEnv):
             raise ValueError(f"unknown trajectory {trajectory!r}; expected one of {TRAJECTORY_CHOICES_6D}")
         if follower not in FOLLOWERS:
             raise ValueError(f"unknown follower {follower!r}; expected one of {FOLLOWERS}")
-        if not (isinstance(speed_mm_s, (int, float)) and math.isfinite(speed_mm_s) and speed_mm_s > 0):
-            raise ValueError(f"speed_mm_s must be > 0, got {speed_mm_s!r}")
+        speed_mm_s = check_speed_mm_s(speed_mm_s)
         if not (isinstance(tilt_deg, (int, float)) and 0.0 <= tilt_deg <= 20.0):
             raise ValueError(f"tilt_deg must be within [0, 20] deg, got {tilt_deg!r}")
         if not (isinstance(tilt_step_deg, (int, float)) and math.isfinite(tilt_step_deg) and tilt_step_deg > 0):
             raise ValueError(f"tilt_step_deg must be > 0, got {tilt_step_deg!r}")
         self.trajectory_name = trajectory
         self.follower_name = follower
-        self.speed_mm_s = float(speed_mm_s)
+        self.speed_mm_s = speed_mm_s
         self.tilt_deg = float(tilt_deg)
         self.tilt_step_deg = float(tilt_step_deg)
         self.randomise = bool(randomise)
@@ -139,43 +135,22 @@ class SimShearTracking6DEnv(SimShearEnv):
 
     # ------------------------------------------------------------------ hooks
     def _build_scene(self) -> None:
-        self.leader: SimMG400 = self._add_arm(LEADER_T_WORLD_BASE, LEADER_START_POSE_MM_DEG, T_FLANGE_PLATE)
-        self._T_world_plate_start = self.leader.T_world_tool()
-        self._plate_body = stimuli.spawn(self.world, PLATE, self._T_world_plate_start)
-        self.face_half_extents_mm = (PLATE.size_mm[0] / 2.0, PLATE.size_mm[1] / 2.0)
-        T_world_sensor = self._sensor_start((0.0, 0.0))
+        self._build_plate()
         if self.follower_name == "mg400":
-            self._add_follower(FOLLOWER_T_WORLD_BASE, self.flange_pose_for_sensor(FOLLOWER_T_WORLD_BASE,
-                                                                                  T_world_sensor))
+            self._add_follower(FOLLOWER_T_WORLD_BASE, self._follower_pose_at((0.0, 0.0)))
         else:
             T_flange_sensor = pose_to_matrix(np.array([0.0, 0.0, self.mount.tcp_offset_mm, 0.0, 0.0,
                                                        PANDA_MOUNT_RZ_DEG + self.mount.mount_rz_deg]))
-            self._use_follower(SimPanda(self.world, PANDA_T_WORLD_BASE, T_world_sensor, T_flange_sensor,
-                                        self.panda_config, bodies=self.render_mode is not None))
-
-    def _sensor_start(self, offset_work_mm: tuple[float, float]) -> np.ndarray:
-        """The sensor on the level start plate at ``offset`` (work frame), at the reference depth."""
-        return self.T_world_sensor_on_face(self._T_world_plate_start, offset_work_mm[0], offset_work_mm[1],
-                                           self.reference_depth_mm)
+            self._use_follower(SimPanda(self.world, PANDA_T_WORLD_BASE, self._sensor_start((0.0, 0.0)),
+                                        T_flange_sensor, self.panda_config, bodies=self.render_mode is not None))
 
     def _reset_scene(self, rng: np.random.Generator, options: dict | None) -> None:
-        options = options or {}
-        name = self.trajectory_name
-        if name == "random":
-            name = TRAJECTORIES[int(rng.integers(len(TRAJECTORIES)))]
-        scale, speed, rotation, offset = 1.0, self.speed_mm_s, TrajectoryConfig().rotation_deg, (0.0, 0.0)
+        config, offset = self._draw_path(rng)  # then the tilt amplitudes, from the same rng
         amplitude = (self.tilt_deg, self.tilt_deg)
         if self.randomise:
-            scale = float(rng.uniform(0.7, 1.3))
-            speed *= float(rng.uniform(0.7, 1.3))
-            rotation *= float(rng.uniform(-1.0, 1.0))
-            offset = tuple(float(v) for v in rng.uniform(-10.0, 10.0, 2))
             amplitude = tuple(float(v) for v in self.tilt_deg * rng.uniform(0.5, 1.0, 2) * rng.choice([-1, 1], 2))
-        if "start_offset_mm" in options:
-            offset = tuple(float(v) for v in options["start_offset_mm"])
-            if len(offset) != 2 or not all(math.isfinite(v) and abs(v) <= 40.0 for v in offset):
-                raise ValueError(f"options['start_offset_mm'] must be (x, y) within +-40 mm, got {offset}")
-        self.trajectory = Trajectory(TrajectoryConfig(name, scale=scale, speed_mm_s=speed, rotation_deg=rotation))
+        offset = self._start_offset(options, offset)
+        self.trajectory = Trajectory(config)
         self._tilt_amplitude_deg = amplitude
         self._plate_tilt_deg = (0.0, 0.0)
         self.leader.reset(LEADER_START_POSE_MM_DEG)
@@ -189,16 +164,8 @@ class SimShearTracking6DEnv(SimShearEnv):
                 self._tilt_amplitude_deg[1] * math.sin(4.0 * math.pi * fraction))
 
     def _command_scene(self, time_s: float, dt_s: float) -> None:
-        dx, dy, dz, dr = self.trajectory.offset_at(time_s)
-        T_world_plate = self._T_world_plate_start @ rz_matrix(dr)
-        T_world_plate[:3, 3] = self._T_world_plate_start[:3, 3] + (dx, dy, dz)
-        self.leader.servo_tool(T_world_plate, dt_s)
+        self.leader.servo_tool(self._T_world_plate_at(time_s), dt_s)
         self._plate_tilt_deg = self.tilt_at(time_s)  # the stage reaches it within the period, as the arm
-
-    def _sync_scene(self) -> None:
-        T_world_box = self._T_world_face()
-        T_world_box[:3, 3] += T_world_box[:3, :3] @ PLATE.box_centre_mm()
-        self.world.client.resetBasePositionAndOrientation(self._plate_body, *pybullet_pose_fast(T_world_box))
 
     def _T_world_face(self) -> np.ndarray:
         return self.leader.T_world_tool() @ tilt_matrix(*self._plate_tilt_deg)

@@ -94,11 +94,7 @@ def path_points_mm(config: TrajectoryConfig, s: np.ndarray) -> np.ndarray:
         return _polyline(_star_corners_yz(25.0 * k), s)
     # tilted_square: corners (0,0) (a,0) (a,a) (0,a) in the plane's (u, v), v tilted about world x
     side = 40.0 * k
-    corners = np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side], [0.0, 0.0]])
-    position = np.clip(s, 0.0, 1.0) * 4.0
-    edge = np.minimum(position.astype(int), 3)
-    fraction = (position - edge)[..., None]
-    uv = corners[edge] + fraction * (corners[edge + 1] - corners[edge])
+    uv = _polyline(np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side], [0.0, 0.0]]), s)
     tilt = math.radians(config.tilt_deg)
     return np.stack([uv[..., 0], uv[..., 1] * math.cos(tilt), uv[..., 1] * math.sin(tilt)], axis=-1)
 

@@ -318,9 +318,12 @@ class GDNN(nn.Module):
         size = self.config.image_size_px
         if image.dim() != 4 or image.shape[1:] != (1, size, size):
             raise ValueError(f"image must be (B, 1, {size}, {size}) in [0, 1], got {tuple(image.shape)}")
+        return self._run(image)
+
+    def _run(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`forward` without its input check."""
         hidden = self.dense(self.features(image))
-        std = self.config.min_std + F.softplus(self.std_head(hidden))
-        return self.mean_head(hidden), std
+        return self.mean_head(hidden), self.config.min_std + F.softplus(self.std_head(hidden))
 
     def decode(self, mean: torch.Tensor, std: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(mean, std) (B, D) of :meth:`forward` -> per-variable (mean, std) (B, V) in mm / deg."""
@@ -333,24 +336,10 @@ class GDNN(nn.Module):
         Input shapes are not checked: give (B, 1, H, W) in [0, 1]."""
         import copy
 
-        from simshear_gym.models.torchscript import frozen_copy
+        from simshear_gym.models.torchscript import Unchecked, frozen_copy
 
         size = self.config.image_size_px
-        return frozen_copy(_GDNNCore(copy.deepcopy(self).eval()), (torch.zeros(1, 1, size, size),))
-
-
-class _GDNNCore(nn.Module):
-    """The GDNN's computation without the input check (what :meth:`GDNN.frozen` traces)."""
-
-    def __init__(self, gdnn: GDNN) -> None:
-        super().__init__()
-        self.features, self.dense = gdnn.features, gdnn.dense
-        self.mean_head, self.std_head = gdnn.mean_head, gdnn.std_head
-        self.min_std = gdnn.config.min_std
-
-    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        hidden = self.dense(self.features(image))
-        return self.mean_head(hidden), self.min_std + F.softplus(self.std_head(hidden))
+        return frozen_copy(Unchecked(copy.deepcopy(self).eval()), (torch.zeros(1, 1, size, size),))
 
 
 def decode(mean: torch.Tensor, std: torch.Tensor,

@@ -8,6 +8,17 @@ import torch
 from torch import nn
 
 
+class Unchecked(nn.Module):
+    """A model's computation without its input checks (its ``_run``): what :func:`frozen_copy` traces."""
+
+    def __init__(self, model: nn.Module) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, *inputs: torch.Tensor):
+        return self.model._run(*inputs)
+
+
 def frozen_copy(core: nn.Module, example: tuple[torch.Tensor, ...]) -> nn.Module:
     """``core`` (an eval-mode module without input checks) traced on ``example`` and frozen by TorchScript:
     batch norm folded into the convolutions, weights pre-packed. TorchScript is deprecated in favour of

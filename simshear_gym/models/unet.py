@@ -165,7 +165,7 @@ class UNetGenerator(nn.Module):
             raise ValueError(f"shear must be (B, {config.shear_dim}) for shPix2pix, got {got}")
         return self._run(sim, shear)
 
-    def _run(self, sim: torch.Tensor, shear: torch.Tensor | None) -> torch.Tensor:
+    def _run(self, sim: torch.Tensor, shear: torch.Tensor | None = None) -> torch.Tensor:
         """:meth:`forward` without its input checks."""
         config = self.config
         x = torch.cat([sim, self.template.expand(sim.shape[0], -1, -1, -1)], dim=1) if config.template else sim
@@ -208,7 +208,7 @@ class UNetGenerator(nn.Module):
         :class:`_ColumnTransposedConv`. Input shapes are not checked."""
         import copy
 
-        from simshear_gym.models.torchscript import frozen_copy
+        from simshear_gym.models.torchscript import Unchecked, frozen_copy
 
         config = self.config
         example = (torch.zeros(1, 1, config.image_size_px, config.image_size_px),) + (
@@ -218,7 +218,7 @@ class UNetGenerator(nn.Module):
             upsample = level[0]
             if config.bottleneck_px << index <= _COLUMN_MAX_INPUT_PX or upsample.out_channels == 1:
                 level[0] = _ColumnTransposedConv(upsample)
-        return frozen_copy(_UNetCore(twin), example)
+        return frozen_copy(Unchecked(twin), example)
 
     @torch.no_grad()
     def init_template(self, mean_real: torch.Tensor) -> None:
@@ -263,17 +263,6 @@ class _ColumnTransposedConv(nn.Module):
         columns = torch.matmul(self.patches, x.flatten(2))  # (B, out_channels * k * k, H * W)
         size = (2 * height + self.kernel - 2 - 2 * self.padding, 2 * width + self.kernel - 2 - 2 * self.padding)
         return F.fold(columns, size, self.kernel, stride=2, padding=self.padding) + self.bias
-
-
-class _UNetCore(nn.Module):
-    """The generator's computation without the input checks (what :meth:`UNetGenerator.frozen` traces)."""
-
-    def __init__(self, generator: UNetGenerator) -> None:
-        super().__init__()
-        self.generator = generator
-
-    def forward(self, sim: torch.Tensor, shear: torch.Tensor | None = None) -> torch.Tensor:
-        return self.generator._run(sim, shear)
 
 
 @dataclass(frozen=True)

@@ -191,15 +191,11 @@ def shipped_translator(contact: str, arch: str = "shpix2pix", runtime: str | Non
 def load_shipped_translator(contact: str = "surface", arch: str = "shpix2pix"):
     """The shipped torch translator of ``arch`` for ``contact``
     (a :class:`~simshear_gym.models.translator.Translator`)."""
-    from simshear_gym.models.translator import Translator
-
-    return Translator.load(translator_weights(contact, arch))
+    return load_translator(translator_weights(contact, arch))
 
 
 def load_shipped_posenet(name: str = "surface"):
     """(GDNN in eval mode, card) of the shipped GDNN ``name``."""
-    from simshear_gym.models.posenet_io import load_posenet
-
     return load_posenet(posenet_weights(name))
 
 

@@ -56,4 +56,47 @@ class Arm(Protocol):
         ...
 
 
-__all__ = ["Arm"]
+class ServoMotion:
+    """What the simulated arms share: the servo motion they follow, ``(start, end, duration s, end joints)`` in the
+    arm's own terms, started by :meth:`_start_motion` and followed by :meth:`advance`; the arm places itself at a
+    fraction of the way (``_pass_through(start, end, fraction)``, which checks the pose and raises at a limit) and at
+    the end (``_arrive(end, end_joints)``: the end was checked when the motion was commanded)."""
+
+    _motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None
+    _elapsed_s = 0.0
+
+    @property
+    def moving(self) -> bool:
+        return self._motion is not None
+
+    def _start_motion(self, start: np.ndarray, end: np.ndarray, duration_s: float, end_joints: np.ndarray) -> float:
+        """Replace any motion by this one; returns its duration, s."""
+        self._motion = (start, end, duration_s, end_joints)
+        self._elapsed_s = 0.0
+        return duration_s
+
+    def advance(self, dt_s: float) -> None:
+        """Move on by ``dt_s`` along the current servo motion, checking (solving) the pose reached.
+
+        Raises:
+            LimitError, UnreachableError: the path left the limits; the arm stops at its last good pose.
+        """
+        if dt_s < 0.0:
+            raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
+        if self._motion is None:
+            return
+        start, end, duration, end_joints = self._motion
+        self._elapsed_s += dt_s
+        fraction = 1.0 if duration <= 0.0 else min(1.0, self._elapsed_s / duration)
+        if fraction >= 1.0:  # the target itself was checked when the motion was commanded
+            self._arrive(end, end_joints)
+            self._motion = None
+            return
+        try:
+            self._pass_through(start, end, fraction)
+        except ValueError:
+            self._motion = None
+            raise
+
+
+__all__ = ["Arm", "ServoMotion"]

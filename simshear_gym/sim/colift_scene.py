@@ -229,7 +229,8 @@ def upright_plate(position_world_mm: np.ndarray, yaw_deg: float = 0.0) -> np.nda
     return transform
 
 
-def _translation(x_mm: float = 0.0, y_mm: float = 0.0, z_mm: float = 0.0) -> np.ndarray:
+def translation_matrix(x_mm: float = 0.0, y_mm: float = 0.0, z_mm: float = 0.0) -> np.ndarray:
+    """4x4 (mm) a pure translation."""
     transform = np.eye(4)
     transform[:3, 3] = [x_mm, y_mm, z_mm]
     return transform
@@ -349,7 +350,7 @@ class CoLiftScene:
         self._plate = self._create_plate()
         self._tip = self._create_tip()
         client.setCollisionFilterPair(self._plate, self._tip, -1, -1, 0)  # two driven bodies do not collide
-        far = _translation(z_mm=_FAR_MM)
+        far = translation_matrix(z_mm=_FAR_MM)
         self._place(self._tip, T_world_plate @ far @ far @ _T_PLATE_SENSOR_TURN)
         self._place(self._plate, T_world_plate)
         self._object = spawn_object(self._world, self.spec, T_world_plate @ far)
@@ -358,24 +359,24 @@ class CoLiftScene:
 
         # the object touches the plate: move it in by its distance to the face
         gap_mm = self._distance_mm(self._plate, self._object)
-        T_world_object = T_world_plate @ _translation(z_mm=_FAR_MM - gap_mm)
+        T_world_object = T_world_plate @ translation_matrix(z_mm=_FAR_MM - gap_mm)
         self._place(self._object, T_world_object)
         # the tip comes in along the grip axis until it overlaps the object by squeeze_mm (a few Newton steps:
         # on a curved surface the distance changes more slowly than the axial offset)
         offset_mm = _FAR_MM
         for _ in range(20):
-            self._place(self._tip, T_world_object @ _translation(z_mm=offset_mm) @ _T_PLATE_SENSOR_TURN)
+            self._place(self._tip, T_world_object @ translation_matrix(z_mm=offset_mm) @ _T_PLATE_SENSOR_TURN)
             error_mm = self._distance_mm(self._tip, self._object) + squeeze_mm
             if abs(error_mm) < 1e-3:
                 break
             offset_mm -= error_mm
-        T_world_sensor = T_world_object @ _translation(z_mm=offset_mm) @ _T_PLATE_SENSOR_TURN
+        T_world_sensor = T_world_object @ translation_matrix(z_mm=offset_mm) @ _T_PLATE_SENSOR_TURN
 
         self._T_world_plate_cmd, self._T_world_sensor_cmd = T_world_plate, T_world_sensor
         self._sensor_step_m = T_world_sensor[:3, 3] / 1000.0
         self._T_plate_sensor0 = invert(T_world_plate) @ T_world_sensor
-        self._T_object_work = invert(T_world_object) @ T_world_sensor @ _translation(z_mm=-squeeze_mm)
-        self._T_skin_work = _translation(z_mm=-squeeze_mm)  # the skin body sits at the sensor pose at placement
+        self._T_object_work = invert(T_world_object) @ T_world_sensor @ translation_matrix(z_mm=-squeeze_mm)
+        self._T_skin_work = translation_matrix(z_mm=-squeeze_mm)  # the skin body sits at the sensor pose at placement
         self._shear.reset()
         self._dropped = False
         if self.config.shear_from_placement:

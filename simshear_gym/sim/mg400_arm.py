@@ -46,6 +46,7 @@ from simshear_gym.robots.mg400.kinematics import (
     check_pose_reachable,
 )
 from simshear_gym.robots.mg400.protocol import SERVO_TIME_RANGE_S
+from simshear_gym.sim.arm import ServoMotion
 from simshear_gym.sim.world import World
 from simshear_gym.transforms import invert, matrix_to_pybullet
 
@@ -77,7 +78,7 @@ class MG400ArmConfig:
                 raise ValueError(f"MG400ArmConfig.{name} must be finite and > 0, got {value!r}")
 
 
-class SimMG400:
+class SimMG400(ServoMotion):
     """One simulated MG400 in a :class:`World` (see the module docstring for the motion model and frames).
 
     Args:
@@ -107,8 +108,6 @@ class SimMG400:
         self._T_tool_flange = invert(self.T_flange_tool)
         self._pose = np.zeros(4)
         self._joints = np.zeros(4)
-        self._motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None  # start, end, s, end joints
-        self._elapsed_s = 0.0
         self._body_ids: dict[str, int] = self._create_bodies() if bodies else {}
         self.reset(pose_mm_deg)
 
@@ -127,10 +126,6 @@ class SimMG400:
     def target_mm_deg(self) -> np.ndarray:
         """The pose the arm is moving to (the current pose when idle)."""
         return self._pose.copy() if self._motion is None else self._motion[1].copy()
-
-    @property
-    def moving(self) -> bool:
-        return self._motion is not None
 
     def T_world_flange(self) -> np.ndarray:
         return self.T_world_base @ pose_to_T_base_flange(self._pose)
@@ -183,37 +178,19 @@ class SimMG400:
         turn_deg = abs(float(target[3] - self._pose[3]))
         duration = max(duration_s, distance_mm / self.config.max_linear_speed_mm_s,
                        turn_deg / self.config.max_angular_speed_deg_s)
-        self._motion = (self._pose.copy(), target, duration, target_joints)
-        self._elapsed_s = 0.0
-        return duration
+        return self._start_motion(self._pose.copy(), target, duration, target_joints)
 
     def servo_tool(self, T_world_tool: np.ndarray, duration_s: float) -> float:
         """``ServoP`` to the flange pose that puts the tool at ``T_world_tool``; see :meth:`servo_p`."""
         return self.servo_p(self.flange_pose_for_tool(T_world_tool), duration_s)
 
-    def advance(self, dt_s: float) -> None:
-        """Move on by ``dt_s`` along the current servo motion, checking the pose reached.
+    def _arrive(self, end: np.ndarray, end_joints: np.ndarray) -> None:  # the target was checked by servo_p
+        self._pose, self._joints = end.copy(), end_joints.copy()
 
-        Raises:
-            LimitError, UnreachableError: the path left the limits; the arm stops at its last good pose.
-        """
-        if dt_s < 0.0:
-            raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
-        if self._motion is None:
-            return
-        start, end, duration, end_joints = self._motion
-        self._elapsed_s += dt_s
-        fraction = 1.0 if duration <= 0.0 else min(1.0, self._elapsed_s / duration)
-        if fraction >= 1.0:  # the target itself was checked by servo_p
-            self._pose, self._joints, self._motion = end.copy(), end_joints.copy(), None
-            return
+    def _pass_through(self, start: np.ndarray, end: np.ndarray, fraction: float) -> None:
         pose = start + fraction * (end - start)
-        try:
-            joints = check_pose_reachable(pose, self.config.geometry, self.config.limits)
-        except ValueError:
-            self._motion = None
-            raise
-        self._pose, self._joints = pose, joints
+        self._joints = check_pose_reachable(pose, self.config.geometry, self.config.limits)
+        self._pose = pose
 
     # ---------------------------------------------------------------- bodies
     def joint_points_world_mm(self) -> dict[str, np.ndarray]:

@@ -48,6 +48,7 @@ import pybullet
 import pybullet_data
 
 from simshear_gym.robots.mg400.kinematics import LimitError, UnreachableError
+from simshear_gym.sim.arm import ServoMotion
 from simshear_gym.sim.mg400_arm import _segment_frame
 from simshear_gym.sim.world import World
 from simshear_gym.transforms import invert, matrix_to_pybullet_fast
@@ -91,7 +92,7 @@ class PandaArmConfig:
             raise ValueError(f"PandaArmConfig.ik_iterations must be an int >= 1, got {self.ik_iterations!r}")
 
 
-class SimPanda:
+class SimPanda(ServoMotion):
     """One simulated Panda (see the module docstring for the motion model, limits and the real-driver interface).
 
     Args:
@@ -132,8 +133,6 @@ class SimPanda:
         self.lower_deg = np.degrees([i[8] for i in info])
         self.upper_deg = np.degrees([i[9] for i in info])
         self._q = np.radians(READY_JOINTS_DEG)
-        self._motion: tuple[np.ndarray, np.ndarray, float, np.ndarray] | None = None  # start, end, s, end joints
-        self._elapsed_s = 0.0
         self._body_ids: list[int] = self._create_bodies() if bodies else []
         self.reset_tool(T_world_tool)
 
@@ -142,10 +141,6 @@ class SimPanda:
     def joints_deg(self) -> np.ndarray:
         """Current joints 1-7, deg (a copy)."""
         return np.degrees(self._q)
-
-    @property
-    def moving(self) -> bool:
-        return self._motion is not None
 
     def T_world_flange(self) -> np.ndarray:
         return self.T_world_base @ self._forward(self._q)
@@ -182,31 +177,13 @@ class SimPanda:
         distance_mm = float(np.linalg.norm(target[:3, 3] - start[:3, 3]))
         duration = max(duration_s, distance_mm / self.config.max_linear_speed_mm_s,
                        _rotation_angle_deg(start[:3, :3].T @ target[:3, :3]) / self.config.max_angular_speed_deg_s)
-        self._motion = (start, target, duration, end_q)
-        self._elapsed_s = 0.0
-        return duration
+        return self._start_motion(start, target, duration, end_q)
 
-    def advance(self, dt_s: float) -> None:
-        """Move on by ``dt_s`` along the current motion, solving the IK at the pose reached.
+    def _arrive(self, end: np.ndarray, end_joints: np.ndarray) -> None:  # the target was solved by servo_tool
+        self._q = end_joints.copy()
 
-        Raises:
-            LimitError, UnreachableError: the path left the limits; the arm stops at its last good pose.
-        """
-        if dt_s < 0.0:
-            raise ValueError(f"dt_s must be >= 0, got {dt_s!r}")
-        if self._motion is None:
-            return
-        start, end, duration, end_q = self._motion
-        self._elapsed_s += dt_s
-        fraction = 1.0 if duration <= 0.0 else min(1.0, self._elapsed_s / duration)
-        if fraction >= 1.0:  # the target itself was solved by servo_tool
-            self._q, self._motion = end_q.copy(), None
-            return
-        try:
-            self._q = self.solve(_interpolate(start, end, fraction), self._q)
-        except ValueError:
-            self._motion = None
-            raise
+    def _pass_through(self, start: np.ndarray, end: np.ndarray, fraction: float) -> None:
+        self._q = self.solve(_interpolate(start, end, fraction), self._q)
 
     # ------------------------------------------------------------- kinematics
     def solve(self, T_world_tool: np.ndarray, start_q: np.ndarray) -> np.ndarray:

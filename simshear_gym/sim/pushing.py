@@ -85,13 +85,6 @@ class PushShape:
         """The centre's distance from a face (the cylinder's radius, a polygon's inradius)."""
         return self.radius_mm if self.radius_mm > 0.0 else min(h for _, _, h in self.faces)
 
-    def face_length_mm(self) -> float:
-        """The length of a face (for a cylinder, a nominal 2 r sin 45 deg: the part a dome can push straight)."""
-        if self.radius_mm > 0.0:
-            return self.radius_mm * math.sqrt(2.0)
-        corners = self.outline_mm()
-        return float(np.linalg.norm(corners[1] - corners[0]))
-
 
 def push_shape(name: str) -> PushShape:
     """The shape named ``name`` (:data:`PUSH_SHAPES`); its face at angle 0 (normal +x) is the one pushed at reset."""
@@ -191,12 +184,6 @@ class PushedObject:
         c, s = math.cos(yaw), math.sin(yaw)
         return np.array([[c, -s, 0.0, x], [s, c, 0.0, y], [0.0, 0.0, 1.0, self.table_z_mm + HEIGHT_MM],
                          [0.0, 0.0, 0.0, 1.0]])
-
-    def centre_of_pressure_world_mm(self) -> np.ndarray:
-        x, y, yaw = self.pose
-        cx, cy = self.config.centre_of_pressure_mm
-        c, s = math.cos(yaw), math.sin(yaw)
-        return np.array([x + c * cx - s * cy, y + s * cx + c * cy])
 
     def _to_object(self, pose, point) -> tuple[float, float]:
         x, y, yaw = pose
@@ -338,12 +325,6 @@ class PushedObject:
             shear[0] = float(stretch_world @ T_world_sensor[:3, 0])
             shear[1] = float(stretch_world @ T_world_sensor[:3, 1])
         return shear
-
-    def anchor_world_mm(self) -> np.ndarray | None:
-        """The skin's anchor in the world (None: not touching)."""
-        if self._anchor is None:
-            return None
-        return (self.T_world_object() @ np.array([*self._anchor, 1.0]))[:3]
 
 
 def spawn_push_object(world, shape: PushShape, T_world_object: np.ndarray) -> int:

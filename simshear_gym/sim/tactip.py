@@ -120,11 +120,6 @@ class TacTip:
         self._near_m, self._far_m = near, far
         self._coarse_projection = world.client.computeProjectionMatrixFOV(config.fov_deg, 1.0, near, far)
 
-    @property
-    def disc_mask(self) -> np.ndarray:
-        """(H, W) bool: pixels that see the dome."""
-        return self._dome_depth > 0
-
     def render(self, T_world_sensor: np.ndarray) -> np.ndarray:
         """uint8 (H, W) tactile image at the sensor pose ``T_world_sensor`` (4x4, mm)."""
         penetration = self.render_penetration_mm(T_world_sensor)
