@@ -30,6 +30,7 @@ import numpy as np
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.data.tactile_set import decode_image
+from simshear_gym.evaluate.figures import pyplot
 from simshear_gym.real.camera import (
     DEFAULT_CONFIG_PATH,
     PreprocessConfig,
@@ -180,13 +181,9 @@ def evaluate(pairs: PairSet, config: PreprocessConfig) -> dict:
 
 def save_montage(path: Path, pairs: PairSet, config: PreprocessConfig, n_rows: int = 4) -> Path:
     """Figure with rows of (raw crop | ours | published | difference) for the first ``n_rows`` pairs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from simshear_gym.io import atomic_write
 
+    plt = pyplot()
     n_rows = min(n_rows, len(pairs.ids))
     figure, axes = plt.subplots(n_rows, 4, figsize=(10, 2.6 * n_rows), squeeze=False)
     x0, y0, x1, y1 = config.crop_bbox_px

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -115,10 +115,7 @@ def figure(panels: dict[str, dict[str, tuple]], outlines_world: dict[str, np.nda
            title: str) -> None:
     """Per outline (columns): the outline (black) and each variant's nominal path from above; below, each
     variant's offset from the edge along the way."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(panels)
     fig, axes = plt.subplots(2, len(names), figsize=(3.3 * len(names), 6.0), squeeze=False,

@@ -28,7 +28,7 @@ import numpy as np
 from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.model_specs import parse_models
 from simshear_gym.io import write_json
 from simshear_gym.models.device import DEVICES
@@ -91,10 +91,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
 
 def figure(arrays: dict, path: Path) -> None:
     """One row per model, one panel per variable: predicted mean against truth."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(arrays)
     n_variables = max(variables.dim for variables, *_ in arrays.values())

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.model_specs import parse_contact_paths
 from simshear_gym.io import recorded_path, write_json
 
@@ -203,10 +203,7 @@ def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: Filter
 
 def figure(series: dict, path: Path) -> None:
     """One row per (contact, speed), one panel per variable: truth, raw and filtered over the steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     keys = list(series)
     columns = max(variables.dim for variables, *_ in series.values())

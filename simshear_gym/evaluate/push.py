@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -108,10 +108,7 @@ def summarise(runs: list[dict]) -> dict:
 def figure(paths: dict[str, list[tuple]], distances: dict[str, np.ndarray], path: Path, title: str) -> None:
     """Left: the objects' paths (first episodes) of each variant from above, the targets as crosses; right: the
     final distances from the target per variant (sorted)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (top, right) = plt.subplots(1, 2, figsize=(9.0, 4.2))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]

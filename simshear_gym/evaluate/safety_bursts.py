@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 
 READY_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
@@ -358,10 +359,7 @@ def run_bursts(config: BurstConfig, guarded: bool = True) -> dict[str, Any]:
 
 
 def _figure(guarded: dict[str, Any], baseline: dict[str, Any] | None, limit_mm_s: float, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7.0, 3.6))
     top = max([limit_mm_s * 1.5] + guarded["_speeds_mm_s"] + (baseline["_speeds_mm_s"] if baseline else []))
@@ -377,9 +375,7 @@ def _figure(guarded: dict[str, Any], baseline: dict[str, Any] | None, limit_mm_s
     ax.set_ylabel("motions")
     ax.set_title("Bursts of individually valid ServoP / MovL, two arms")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -415,7 +411,6 @@ def run(args: argparse.Namespace) -> int:
         baseline = run_bursts(BurstConfig(sequences=args.baseline_sequences, seed=args.seed, arms=args.arms),
                               guarded=False)
     limits = SafetyConfig()
-    args.out.mkdir(parents=True, exist_ok=True)
     figure = args.out / "safety_bursts.png"
     _figure(guarded, baseline, limits.max_speed_mm_s, figure)
     strip = {"_speeds_mm_s"}

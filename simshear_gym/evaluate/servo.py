@@ -39,7 +39,7 @@ from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, SB3Controller, sb3_algorithm
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -148,10 +148,7 @@ def path_panel(axis, target: np.ndarray, sensor: np.ndarray, title: str) -> None
 
 def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str) -> None:
     """One 3D panel per run: target path red, follower blue, mean error in the title."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(paths)
     columns = min(4, len(names))

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -97,10 +97,7 @@ contact.max() <= TARGET_CONTACT_ERROR_MM and normal.max() <= TARGET_NORMAL_ERROR
 def figure(traces: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]], trajectories, path: Path,
            dt_s: float) -> None:
     """Per trajectory (rows): contact error and normal error against time, one line per controller row."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(len(trajectories), 2, figsize=(9.0, 2.2 * len(trajectories)), squeeze=False)
     colours = {"panda_servo6d": "tab:blue", "mg400_servo": "tab:red"}

@@ -38,6 +38,7 @@ from simshear_gym.command_line import recorded_command
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.evaluate.figures import pyplot
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
 from simshear_gym.io import atomic_write, recorded_path, write_json
 from simshear_gym.models.device import DEVICES
@@ -163,10 +164,7 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
 
 def figure(stacks: dict, path: Path, per_set: int = 3) -> None:
     """Rows of (sim | models... | real) for a few contacts of each set, like the paper's figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = [(set_name, i) for set_name in stacks for i in np.linspace(0, len(stacks[set_name]["sim"]) - 1,
                                                                        per_set).astype(int)]
