@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.closed_loop import TimedEpisode
 from simshear_gym.io import write_json
 
 GOAL_MEAN_MM = 0.5
@@ -40,17 +41,13 @@ def run_episode(trajectory: str, seed: int, randomise: bool, obs_mode: str = "or
 
     env = gym.make(env_id, trajectory=trajectory, obs_mode=obs_mode, randomise=randomise, **env_kwargs)
     controller = OracleController.for_env(env)
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    errors, out_of_contact, termination, slip_mm = [], 0, "", 0.0
-    while True:
-        observation, _, terminated, truncated, info = env.step(controller(observation))
+    episode = TimedEpisode(env, controller, seed)
+    errors, out_of_contact, slip_mm = [], 0, 0.0
+    for info in episode:
         errors.append(info["contact_error_mm"])
         slip_mm = max(slip_mm, info.get("object_slip_mm", 0.0))  # co-lift: the object's drift on the plate
         out_of_contact += int(not info["in_contact"])
-        if terminated or truncated:
-            termination = info["termination"]
-            break
+    termination = episode.info["termination"]
     env.close()
     return {"errors_mm": np.asarray(errors), "steps_out_of_contact": out_of_contact, "termination": termination,
             "max_object_slip_mm": slip_mm}

@@ -39,6 +39,7 @@ from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, SB3Controller, sb3_algorithm
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
+from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, env_kwargs
 from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
@@ -47,7 +48,6 @@ TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 TRACKING_CHOICES = TRACKING_TRAJECTORIES + ("circular_wave", "star")
 TASKS = ("tracking", "colift", "colift-heavy")
 VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy", "ppo", "sac", "tqc")
-POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
 
 def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None,
@@ -68,45 +68,31 @@ def make_controller(variant: str, env, posenets: dict[str, str | None], policy: 
 def env_kwargs_of(variant: str, policy: str | None) -> dict:
     """Observation settings of a variant: a policy runs in the settings of its run's ``config.json`` (a bare zip:
     translated images at 128 px and the TCP pose)."""
-    if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import policy_env_kwargs
-
-        return policy_env_kwargs(policy)
-    return {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
+    return env_kwargs(variant, policy, {"sim": "sim", "oracle": "oracle"}.get(variant, "real"))
 
 
 def run_episode(env, controller: Controller, seed: int, max_steps: int | None = None) -> dict:
     """One episode of ``controller`` in a sim env; returns its figures and the paths (target and sensor, world mm)
     for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    errors, targets, sensors = [info["contact_error_mm"]], [], []
-    control_s, step_s = [], []
-    out_of_contact, termination, dropped, slip_mm = 0, "", False, 0.0
-    steps = 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        started = time.perf_counter()
-        observation, _, terminated, truncated, info = env.step(action)
-        step_s.append(time.perf_counter() - started)
-        steps += 1
+    episode = TimedEpisode(env, controller, seed, max_steps)
+    errors, targets, sensors = [episode.info["contact_error_mm"]], [], []
+    out_of_contact, dropped, slip_mm = 0, False, 0.0
+    for info in episode:
         errors.append(info["contact_error_mm"])
         targets.append(np.asarray(info["target_world_mm"], dtype=np.float64))
         sensors.append(np.asarray(info["sensor_world_mm"], dtype=np.float64))
         out_of_contact += int(not info["in_contact"])
         dropped = dropped or bool(info.get("dropped", False))
         slip_mm = max(slip_mm, float(info.get("object_slip_mm", 0.0)))
-        if terminated or truncated or (max_steps is not None and steps >= max_steps):
-            termination = info.get("termination", "") if terminated else ""
-            break
+    termination = episode.info.get("termination", "") if episode.terminated else ""
     errors = np.asarray(errors)
     return {
-        "steps": steps, "contact_error_mean_mm": float(errors.mean()), "contact_error_std_mm": float(errors.std()),
-        "contact_error_max_mm": float(errors.max()), "steps_out_of_contact": out_of_contact,
+        "steps": episode.steps, "contact_error_mean_mm": float(errors.mean()),
+        "contact_error_std_mm": float(errors.std()), "contact_error_max_mm": float(errors.max()),
+        "steps_out_of_contact": out_of_contact,
         "termination": termination, "dropped": dropped, "object_slip_max_mm": slip_mm,
-        "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
+        "control_ms_median": 1000 * float(np.median(episode.control_s)),
+        "env_step_ms_median": 1000 * float(np.median(episode.step_s)),
         "_paths": (np.stack(targets), np.stack(sensors)), "_errors_mm": errors[1:],
     }
 

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.closed_loop import TimedEpisode
 from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 
@@ -48,29 +49,21 @@ def make_controller(row: str, env, gains=None):
 
 def run_episode(env, controller, seed: int | None, randomise_seed: bool, max_steps: int | None = None) -> dict:
     """One episode; returns its figures and the per-step errors (``_trace``) for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    contact, normal = [info["contact_error_mm"]], [info["normal_error_deg"]]
-    control_s, out_of_contact, termination, steps = [], 0, "", 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        observation, _, terminated, truncated, info = env.step(action)
-        steps += 1
+    episode = TimedEpisode(env, controller, seed, max_steps)
+    contact, normal = [episode.info["contact_error_mm"]], [episode.info["normal_error_deg"]]
+    out_of_contact = 0
+    for info in episode:
         contact.append(info["contact_error_mm"])
         normal.append(info["normal_error_deg"])
         out_of_contact += int(not info["in_contact"])
-        if terminated or truncated or (max_steps is not None and steps >= max_steps):
-            termination = info.get("termination", "") if terminated else ""
-            break
+    termination = episode.info.get("termination", "") if episode.terminated else ""
     contact, normal = np.asarray(contact), np.asarray(normal)
     return {
-        "seed": seed if randomise_seed else "nominal", "steps": steps,
+        "seed": seed if randomise_seed else "nominal", "steps": episode.steps,
         "contact_error_mean_mm": float(contact.mean()), "contact_error_max_mm": float(contact.max()),
         "normal_error_mean_deg": float(normal.mean()), "normal_error_max_deg": float(normal.max()),
         "steps_out_of_contact": out_of_contact, "termination": termination,
-        "control_ms_median": 1000.0 * float(np.median(control_s)),
+        "control_ms_median": 1000.0 * float(np.median(episode.control_s)),
         "_trace": (contact, normal),
     }
 
