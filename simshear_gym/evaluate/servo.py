@@ -198,8 +198,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="file name stem: <name>.json and <name>_<task>_<variant>.png (default servo)")
 
 
-def check_args(args: argparse.Namespace) -> None:
-    """The options' checks that need neither torch nor PyBullet (run before either is imported)."""
+def check_args(args: argparse.Namespace) -> tuple[dict[str, str | None], dict[str, str | None]]:
+    """The options' checks that need neither torch nor PyBullet (run before either is imported); returns the GDNN
+    of each estimator variant and the model of each policy variant, as given."""
     posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
     policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     if args.threads < 1 or (args.max_steps is not None and args.max_steps < 1):
@@ -216,18 +217,17 @@ def check_args(args: argparse.Namespace) -> None:
             algorithm = sb3_algorithm(policies[variant])
             if variant != "policy" and algorithm != variant:
                 raise ValueError(f"{flag} {policies[variant]} is a {algorithm.upper()} model, not {variant.upper()}")
+    return posenets, policies
 
 
 def run(args: argparse.Namespace) -> int:
-    check_args(args)
+    posenets, policies = check_args(args)
     import gymnasium as gym
     import torch
 
     import simshear_gym.envs  # noqa: F401  (registers the envs)
 
     torch.set_num_threads(args.threads)
-    posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
-    policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
