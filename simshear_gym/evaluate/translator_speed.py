@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from simshear_gym.models.device import OnDevice, resolve_device
+    from simshear_gym.evaluate.translation import on_device
+    from simshear_gym.models.device import resolve_device
     from simshear_gym.models.translator import Translator
     from simshear_gym.models.zoo import shipped_translators
 
@@ -68,9 +69,7 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(0)
     rows = []
     for (arch, contact), path in sorted(shipped_translators().items()):
-        translator = Translator.load(path)
-        if device.type != "cpu":  # the generator on the GPU behind the same uint8 interface
-            translator = Translator(OnDevice(translator.generator, device), translator.card, fast=False)
+        translator = on_device(Translator.load(path), device)  # on a GPU: the generator there, the same uint8 calls
         row = {"model": arch, "contact": contact, "weights": path.name}
         for size in args.batch_sizes:
             repeats = args.repeats if size == 1 else max(args.repeats // 5, 3)
