@@ -26,9 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 RANGES = {
@@ -194,8 +193,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{result['row_wall_s_median']:.3f} median)")
             results.append(result)
     figure = plot(results, args.out / "collect_real.png")
-    write_json(args.out / "collect_real.json", {
-        "command": recorded_command("simshear evaluate collect-real", add_arguments, args),
+    write_record("simshear evaluate collect-real", add_arguments, args, args.out / "collect_real.json", {
         "machine": machine_info(), "seconds": round(time.monotonic() - started, 1),
         "figure": figure.name, "results": results})
     return 0

@@ -26,10 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, check_policy, env_kwargs
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 ENV_ID = "SimShearEdgeFollow-v0"
@@ -198,8 +197,8 @@ def run(args: argparse.Namespace) -> int:
                                   and s["depth_error_mean_worst_run_mm"] <= GOAL_DEPTH_MM
                                   for s in results[variant].values())}
              for variant in args.variants}
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate edge-follow", add_arguments, args), "env": ENV_ID,
+    write_record("simshear evaluate edge-follow", add_arguments, args, args.out / f"{args.name}.json", {
+        "env": ENV_ID,
         "metrics": "offset = the dome apex's distance from the object's outline in the top face's plane (mm), every "
                    "step; depth error = |labels' z - reference depth| (mm), every step; per run their means and "
                    "maxima; lap_completed: once round the edge without an early end; summaries over the nominal run "

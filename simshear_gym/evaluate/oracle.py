@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.closed_loop import TimedEpisode
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 
 GOAL_MEAN_MM = 0.5
 COLIFT_GOAL_MEAN_MM = 1.0
@@ -108,7 +107,6 @@ def run_colift(args: argparse.Namespace) -> int:
                   f"{row['drops']} drops, object slip <= {row['max_object_slip_mm']:.2f} mm, "
                   f"{summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearCoLift-v0, obs_mode='oracle', 500 steps at 10 Hz, 30 g objects; nominal trajectory (seed 0) "
                "plus seeds 0.. with randomise=True (scale, speed x0.7-1.3, leader start +-10 mm; no turn of the plate)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
@@ -116,7 +114,7 @@ def run_colift(args: argparse.Namespace) -> int:
         "all_goals_met": all(row["goal_met"] for row in rows.values()),
         "seconds": round(time.perf_counter() - start, 1), "objects_trajectories": rows,
     }
-    write_json(args.out / "oracle_colift.json", payload)
+    write_record("simshear evaluate oracle", add_arguments, args, args.out / "oracle_colift.json", payload)
     print(f"wrote {args.out / 'oracle_colift.json'}")
     return 0 if payload["all_goals_met"] else 1
 
@@ -140,13 +138,12 @@ def run_tracking(args: argparse.Namespace) -> int:
               f"{summary['std_mm']:.3f} mm (max {summary['max_mm']:.3f}), contact lost on "
               f"{summary['contact_losses_steps']} steps, {summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearTracking-v0, obs_mode='oracle', 500 steps at 10 Hz; nominal trajectory (seed 0) plus "
                "seeds 0.. with randomise=True (scale, speed x0.7-1.3, rotation, start place +-10 mm)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
         "goal_mean_mm": GOAL_MEAN_MM, "all_goals_met": all(row["goal_met"] for row in rows.values()),
         "seconds": round(time.perf_counter() - start, 1), "trajectories": rows,
     }
-    write_json(args.out / "oracle.json", payload)
+    write_record("simshear evaluate oracle", add_arguments, args, args.out / "oracle.json", payload)
     print(f"wrote {args.out / 'oracle.json'}")
     return 0 if payload["all_goals_met"] else 1

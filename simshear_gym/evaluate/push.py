@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, check_policy, env_kwargs
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 ENV_ID = "SimShearPush-v0"
@@ -177,9 +176,8 @@ def run(args: argparse.Namespace) -> int:
                        "met": results[variant]["within_10mm"] >= GOAL_SUCCESS
                        and results[variant]["path_deviation_mean_mm"] <= GOAL_DEVIATION_MM}
              for variant in args.variants}
-    command = recorded_command("simshear evaluate push", add_arguments, args)
-    write_json(args.out / f"{args.name}.json", {
-        "command": command, "env": ENV_ID,
+    write_record("simshear evaluate push", add_arguments, args, args.out / f"{args.name}.json", {
+        "env": ENV_ID,
         "metrics": "target distance = the object's centre's distance from its target when the episode ends (mm); "
                    "path deviation = the centre's distance from the straight path start-target, every step (mm), "
                    "per episode its mean and max; within_10mm = share of episodes ending within 10 mm; "

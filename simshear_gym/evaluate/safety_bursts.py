@@ -36,9 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 
 READY_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
 BOX_HALF_MM = 20.0  # targets stay within this box around the ready pose
@@ -415,7 +414,6 @@ def run(args: argparse.Namespace) -> int:
     _figure(guarded, baseline, limits.max_speed_mm_s, figure)
     strip = {"_speeds_mm_s"}
     payload = {
-        "command": recorded_command("simshear evaluate safety-bursts", add_arguments, args),
         "config": asdict(config),
         "limits": {"max_speed_mm_s": limits.max_speed_mm_s, "max_speed_deg_s": limits.max_speed_deg_s,
                    "max_accel_mm_s2": limits.max_accel_mm_s2, "max_accel_deg_s2": limits.max_accel_deg_s2,
@@ -425,7 +423,8 @@ def run(args: argparse.Namespace) -> int:
         "baseline_raw": None if baseline is None else {k: v for k, v in baseline.items() if k not in strip},
         "figure": str(figure),
     }
-    path = write_json(args.out / "safety_bursts.json", payload)
+    path = write_record("simshear evaluate safety-bursts", add_arguments, args, args.out / "safety_bursts.json",
+                        payload)
     print(f"{guarded['sequences']} sequences x {config.arms} arms through the client: "
           f"{guarded['motions_faster_than_the_limit']} motions faster than the limit in "
           f"{guarded['arm_sequences_with_a_motion_faster_than_the_limit']} of {guarded['arm_sequences']} "

@@ -33,7 +33,6 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, SB3Controller, sb3_algorithm
@@ -41,7 +40,7 @@ from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
 from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, env_kwargs
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
@@ -279,8 +278,7 @@ def run(args: argparse.Namespace) -> int:
         png = args.out / f"{args.name}_{task}_{variant}.png"
         figure(first_seed, png, f"{task}, {variant} estimator (nominal runs)")
         figures.append(str(png))
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate servo", add_arguments, args),
+    write_record("simshear evaluate servo", add_arguments, args, args.out / f"{args.name}.json", {
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
                    "filter + law per step (ms, median); env step = one env.step including rendering/translation; "

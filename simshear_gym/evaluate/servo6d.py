@@ -25,10 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.closed_loop import TimedEpisode
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 ROWS = ("panda_servo6d", "mg400_servo")
@@ -177,8 +176,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{s['runs_ended_early']} {s['terminations']}, control {s['control_ms_median']:.2f} ms", flush=True)
     png = args.out / f"{args.name}.png"
     figure(traces, args.trajectories, png, dt_s)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate servo6d", add_arguments, args),
+    write_record("simshear evaluate servo6d", add_arguments, args, args.out / f"{args.name}.json", {
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point carried with "
                    "the tilting plate, every step; normal error = angle (deg) between the sensor's axis and the "
                    "plate's inward normal, every step; per trajectory the mean over runs of the per-run means (runs: "

@@ -10,9 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.evaluate.figures import pyplot, save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -46,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
     ax.legend(fontsize=7)
     png = args.out / f"{args.name}.png"
     save_figure(fig, png, dpi=120)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate training-curve", add_arguments, args),
+    write_record("simshear evaluate training-curve", add_arguments, args, args.out / f"{args.name}.json", {
         "note": "holdout = a share of the paired training rows kept out of training (never the real val sets)",
         "runs": curves, "figure": str(png)})
     for name, curve in curves.items():

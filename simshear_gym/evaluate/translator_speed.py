@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 
@@ -78,8 +77,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{arch:10s} {contact:8s} " + "   ".join(f"batch {size}: {row[f'ms_per_image_batch{size}']:.3f} ms/image"
                                                     for size in args.batch_sizes))
     name = "translator_speed.json" if device.type == "cpu" else f"translator_speed_{device.type}.json"
-    write_json(args.out / name, {
-        "command": recorded_command("simshear evaluate translator-speed", add_arguments, args),
+    write_record("simshear evaluate translator-speed", add_arguments, args, args.out / name, {
         "machine": machine, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / name}")
