@@ -26,7 +26,7 @@ def check_policy(variants: list[str], policy: str | None, task: str | None = Non
 
 def env_kwargs(variant: str, policy: str | None, obs_mode: str) -> dict:
     """``gym.make`` arguments of a variant's env: an agent's in the settings it was trained on (its run's
-    ``config.json``), else ``obs_mode``."""
+    ``config.json``; a bare zip: translated images at 128 px and the TCP pose), else ``obs_mode``."""
     if variant in POLICY_VARIANTS:
         from simshear_gym.control.env_estimator import policy_env_kwargs
 

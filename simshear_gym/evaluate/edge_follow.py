@@ -50,10 +50,6 @@ def make_controller(variant: str, env, posenet: str | None, policy: str | None):
     return EdgeServoController.for_env(env, estimator=EstimatorConfig(posenet=posenet))
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    return env_kwargs(variant, policy, "oracle" if variant == "oracle" else "real")
-
-
 def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dict:
     """One episode; its figures, and the sensor's path (world mm) and offsets for the figure."""
     episode = TimedEpisode(env, controller, seed, max_steps)
@@ -168,10 +164,12 @@ def run(args: argparse.Namespace) -> int:
     outlines_world: dict[str, np.ndarray] = {}
     for variant in args.variants:
         results[variant] = {}
+        obs_mode = "oracle" if variant == "oracle" else "real"
         for outline in args.outlines:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(ENV_ID, outline=outline, randomise=randomise, **env_kwargs_of(variant, args.policy))
+                env = gym.make(ENV_ID, outline=outline, randomise=randomise,
+                               **env_kwargs(variant, args.policy, obs_mode))
                 controller = make_controller(variant, env, args.posenet, args.policy)
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)

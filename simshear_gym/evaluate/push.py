@@ -51,11 +51,6 @@ def make_controller(variant: str, env, posenet: str | None, policy: str | None =
     return PushServoController.for_env(env, use_shear=use_shear, estimator=EstimatorConfig(posenet=posenet))
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    """``gym.make`` arguments of a variant's env: an agent's in the settings it was trained on."""
-    return env_kwargs(variant, policy, "oracle" if variant.startswith("oracle") else "real")
-
-
 def run_episode(env, controller, seed: int) -> dict:
     """One episode's figures, and the object's path (world x, y mm) for the figure."""
     episode = TimedEpisode(env, controller, seed)
@@ -152,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
     paths: dict[str, list[tuple]] = {}
     distances: dict[str, np.ndarray] = {}
     for variant in args.variants:
-        env = gym.make(ENV_ID, shape="random", randomise=True, **env_kwargs_of(variant, args.policy))
+        obs_mode = "oracle" if variant.startswith("oracle") else "real"
+        env = gym.make(ENV_ID, shape="random", randomise=True, **env_kwargs(variant, args.policy, obs_mode))
         controller = make_controller(variant, env, args.posenet, args.policy)
         runs = []
         for episode in range(args.episodes):

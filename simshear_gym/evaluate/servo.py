@@ -64,12 +64,6 @@ def make_controller(variant: str, env, posenets: dict[str, str | None], policy: 
                                    hold_load=hold_load, load_margin_mm=load_margin_mm)
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    """Observation settings of a variant: a policy runs in the settings of its run's ``config.json`` (a bare zip:
-    translated images at 128 px and the TCP pose)."""
-    return env_kwargs(variant, policy, {"sim": "sim", "oracle": "oracle"}.get(variant, "real"))
-
-
 def run_episode(env, controller: Controller, seed: int, max_steps: int | None = None) -> dict:
     """One episode of ``controller`` in a sim env; returns its figures and the paths (target and sensor, world mm)
     for the figure."""
@@ -247,11 +241,12 @@ def run(args: argparse.Namespace) -> int:
     paths: dict[tuple[str, str], dict] = {}
     for variant in args.variants:
         results[variant] = {}
+        obs_mode = {"sim": "sim", "oracle": "oracle"}.get(variant, "real")  # a policy: its run's (env_kwargs)
         for task, label, kwargs in settings:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, policies.get(variant)),
-                               **kwargs)
+                env = gym.make(env_ids[task], randomise=randomise,
+                               **env_kwargs(variant, policies.get(variant), obs_mode), **kwargs)
                 controller = make_controller(variant, env, posenets, policies.get(variant), hold_load,
                                              args.load_margin_mm, args.shear_gains)
                 for seed in seeds:
