@@ -28,8 +28,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.data.tactile_set import decode_image
+from simshear_gym.evaluate.figures import pyplot
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.real.camera import (
     DEFAULT_CONFIG_PATH,
     PreprocessConfig,
@@ -180,13 +181,9 @@ def evaluate(pairs: PairSet, config: PreprocessConfig) -> dict:
 
 def save_montage(path: Path, pairs: PairSet, config: PreprocessConfig, n_rows: int = 4) -> Path:
     """Figure with rows of (raw crop | ours | published | difference) for the first ``n_rows`` pairs."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from simshear_gym.io import atomic_write
 
+    plt = pyplot()
     n_rows = min(n_rows, len(pairs.ids))
     figure, axes = plt.subplots(n_rows, 4, figsize=(10, 2.6 * n_rows), squeeze=False)
     x0, y0, x1, y1 = config.crop_bbox_px
@@ -333,7 +330,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Calibrate, evaluate on all pairs, write the report and figure; print a short summary."""
     from simshear_gym.data.paths import data_root
-    from simshear_gym.io import write_json
 
     if args.search_stride < 1:
         raise ValueError(f"--search-stride must be >= 1, got {args.search_stride}")
@@ -347,7 +343,6 @@ def run(args: argparse.Namespace) -> int:
     report = evaluate(pairs, result.config)
     held_out = [row for row in report["per_image"] if row["image"] not in set(search_pairs.ids)]
     payload = {
-        "command": recorded_command("simshear evaluate camera", add_arguments, args),
         "config": result.config.to_dict(),
         "search": {
             "pairs": list(search_pairs.ids),
@@ -361,7 +356,7 @@ def run(args: argparse.Namespace) -> int:
         "held_out_pixel_agreement_mean": float(np.mean([r["pixel_agreement"] for r in held_out])) if held_out else None,
         **report,
     }
-    write_json(out / "camera_calibration.json", payload)
+    write_record("simshear evaluate camera", add_arguments, args, out / "camera_calibration.json", payload)
     save_montage(out / "camera_calibration.png", pairs.subset(25), result.config)
     if args.write_config:
         result.config.save(args.write_config)

@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 RANGES = {
@@ -151,10 +151,7 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
 
 
 def plot(results: list[dict], path: Path) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     figure, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 3.4), squeeze=False)
     for ax, result in zip(axes[0], results):
@@ -165,9 +162,7 @@ def plot(results: list[dict], path: Path) -> Path:
         ax.set_title(f"{result['contact']}: {result['rows']} rows, killed at row {result['killed_at_row']}")
         ax.set_xlabel("wall time per row on the emulator, s")
         ax.legend(fontsize=7)
-    figure.tight_layout()
-    figure.savefig(path, dpi=90)
-    plt.close(figure)
+    save_figure(figure, path, dpi=90)
     return path
 
 
@@ -197,10 +192,8 @@ def run(args: argparse.Namespace) -> int:
                   f" robot time {result['robot_row_s']:.3f} s a row (planned {result['planned_row_s_mean']:.3f}; wall "
                   f"{result['row_wall_s_median']:.3f} median)")
             results.append(result)
-    args.out.mkdir(parents=True, exist_ok=True)
     figure = plot(results, args.out / "collect_real.png")
-    write_json(args.out / "collect_real.json", {
-        "command": recorded_command("simshear evaluate collect-real", add_arguments, args),
+    write_record("simshear evaluate collect-real", add_arguments, args, args.out / "collect_real.json", {
         "machine": machine_info(), "seconds": round(time.monotonic() - started, 1),
         "figure": figure.name, "results": results})
     return 0

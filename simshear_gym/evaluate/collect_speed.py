@@ -21,9 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 # pybullet (via simshear_gym.sim.collect) is imported inside run, so that --help stays light.
@@ -61,11 +60,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"{contact} shear val, {workers} worker(s): {rows} tuples in {seconds:.2f} s "
                   f"= {rows / seconds:.0f} tuples/s")
     payload = {
-        "command": recorded_command("simshear evaluate collect-speed", add_arguments, args),
         "machine": machine_info(),
         "goal_tuples_per_s": 500, "paper_reference": "5000 tuples in 60 s (83/s)", "runs": runs,
     }
-    write_json(args.out / "collect_speed.json", payload)
+    write_record("simshear evaluate collect-speed", add_arguments, args, args.out / "collect_speed.json", payload)
     print(f"wrote {args.out / 'collect_speed.json'}")
     return 0
 
@@ -103,13 +101,12 @@ def run_ray(args: argparse.Namespace) -> int:
                         print(f"{contact}, {executor}, {workers} worker(s): {rows} rows in {seconds:.2f} s "
                               f"= {rows / seconds:.0f} rows/s")
     payload = {
-        "command": recorded_command("simshear evaluate collect-speed", add_arguments, args),
         "machine": {**machine_info(),
                     "load_average_1_5_15_min_before": [round(x, 2) for x in load_before]},
         "ray_address": args.ray, "source": "random contacts over the tactip331 shear ranges, seed 0",
         **warmup, "runs": runs,
     }
-    write_json(args.out / "collect_ray.json", payload)
+    write_record("simshear evaluate collect-speed", add_arguments, args, args.out / "collect_ray.json", payload)
     print(f"wrote {args.out / 'collect_ray.json'}")
     return 0
 

@@ -26,14 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, check_policy, env_kwargs
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 ENV_ID = "SimShearEdgeFollow-v0"
 VARIANTS = ("servo", "oracle", "policy", "ppo", "sac", "tqc")
-POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 GOAL_OFFSET_MM = 0.5  # issue 43: mean offset from the edge per contour
 GOAL_DEPTH_MM = 0.3  # and depth error
 
@@ -51,47 +50,31 @@ def make_controller(variant: str, env, posenet: str | None, policy: str | None):
     return EdgeServoController.for_env(env, estimator=EstimatorConfig(posenet=posenet))
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import policy_env_kwargs
-
-        return policy_env_kwargs(policy)
-    return {"obs_mode": "oracle" if variant == "oracle" else "real"}
-
-
 def run_episode(env, controller, seed: int, max_steps: int | None = None) -> dict:
     """One episode; its figures, and the sensor's path (world mm) and offsets for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
+    episode = TimedEpisode(env, controller, seed, max_steps)
     reference = env.unwrapped.reference_depth_mm
-    offsets, depth_errors, path = [], [], [np.asarray(info["sensor_world_mm"], dtype=np.float64)]
+    offsets, depth_errors, path = [], [], [np.asarray(episode.info["sensor_world_mm"], dtype=np.float64)]
     progress = [0.0]
-    control_s, step_s = [], []
-    out_of_contact, steps = 0, 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        started = time.perf_counter()
-        observation, _, terminated, truncated, info = env.step(action)
-        step_s.append(time.perf_counter() - started)
-        steps += 1
+    out_of_contact = 0
+    for info in episode:
         offsets.append(float(info["edge_offset_mm"]))
         depth_errors.append(float(info["depth_mm"]) - reference)
         path.append(np.asarray(info["sensor_world_mm"], dtype=np.float64))
         progress.append(float(info["progress_mm"]))
         out_of_contact += int(not info["in_contact"])
-        if terminated or truncated or (max_steps is not None and steps >= max_steps):
-            break
-    termination = info.get("termination", "") if terminated else ("time_limit" if truncated else "max_steps")
+    info = episode.info
+    termination = (info.get("termination", "") if episode.terminated
+                   else ("time_limit" if episode.truncated else "max_steps"))
     offsets, depth_errors = np.abs(offsets), np.abs(depth_errors)
     return {
-        "steps": steps, "lap_completed": termination == "lap", "termination": termination,
+        "steps": episode.steps, "lap_completed": termination == "lap", "termination": termination,
         "perimeter_mm": float(info["perimeter_mm"]), "progress_mm": float(info["progress_mm"]),
         "offset_mean_mm": float(offsets.mean()), "offset_max_mm": float(offsets.max()),
         "depth_error_mean_mm": float(depth_errors.mean()), "depth_error_max_mm": float(depth_errors.max()),
         "steps_out_of_contact": out_of_contact,
-        "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
+        "control_ms_median": 1000 * float(np.median(episode.control_s)),
+        "env_step_ms_median": 1000 * float(np.median(episode.step_s)),
         "_path": np.stack(path), "_progress": np.asarray(progress[1:]), "_offsets": offsets,
     }
 
@@ -115,10 +98,7 @@ def figure(panels: dict[str, dict[str, tuple]], outlines_world: dict[str, np.nda
            title: str) -> None:
     """Per outline (columns): the outline (black) and each variant's nominal path from above; below, each
     variant's offset from the edge along the way."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(panels)
     fig, axes = plt.subplots(2, len(names), figsize=(3.3 * len(names), 6.0), squeeze=False,
@@ -166,13 +146,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def check_args(args: argparse.Namespace) -> None:
     if args.threads < 1 or (args.max_steps is not None and args.max_steps < 1):
         raise ValueError(f"--threads and --max-steps must be >= 1, got {args.threads}, {args.max_steps}")
-    policy_variants = [v for v in args.variants if v in POLICY_VARIANTS]
-    if len(policy_variants) > 1:
-        raise ValueError(f"one policy variant a run (--policy names one agent), got {policy_variants}")
-    if policy_variants and not args.policy:
-        raise ValueError(f"--variants {policy_variants[0]} needs --policy MODEL.zip (from simshear train rl)")
-    if args.policy and not Path(args.policy).is_file():
-        raise FileNotFoundError(f"--policy {args.policy!r}: no such model file")
+    check_policy(args.variants, args.policy)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -190,10 +164,12 @@ def run(args: argparse.Namespace) -> int:
     outlines_world: dict[str, np.ndarray] = {}
     for variant in args.variants:
         results[variant] = {}
+        obs_mode = "oracle" if variant == "oracle" else "real"
         for outline in args.outlines:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(ENV_ID, outline=outline, randomise=randomise, **env_kwargs_of(variant, args.policy))
+                env = gym.make(ENV_ID, outline=outline, randomise=randomise,
+                               **env_kwargs(variant, args.policy, obs_mode))
                 controller = make_controller(variant, env, args.posenet, args.policy)
                 for seed in seeds:
                     r = run_episode(env, controller, 0 if seed == "nominal" else seed, args.max_steps)
@@ -219,8 +195,8 @@ def run(args: argparse.Namespace) -> int:
                                   and s["depth_error_mean_worst_run_mm"] <= GOAL_DEPTH_MM
                                   for s in results[variant].values())}
              for variant in args.variants}
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate edge-follow", add_arguments, args), "env": ENV_ID,
+    write_record("simshear evaluate edge-follow", add_arguments, args, args.out / f"{args.name}.json", {
+        "env": ENV_ID,
         "metrics": "offset = the dome apex's distance from the object's outline in the top face's plane (mm), every "
                    "step; depth error = |labels' z - reference depth| (mm), every step; per run their means and "
                    "maxima; lap_completed: once round the edge without an early end; summaries over the nominal run "

@@ -43,8 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 GOAL_SINGLE_STEPS_PER_S = 100.0
@@ -247,12 +246,12 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     env_ids = list(dict.fromkeys(args.env))
     sensor = getattr(args, "sensor", None)
-    head = {"command": recorded_command("simshear evaluate env-speed", add_arguments, args), "machine": machine_info()}
+    head = {"machine": machine_info()}
     if sensor is not None:
         head["sensor"] = sensor_record(sensor, env_ids)  # before measuring: a sensor without a contact type fails here
     sections = {env_id: measure(args, env_id) for env_id in env_ids}
     payload = {**head, **sections[env_ids[0]]} if len(env_ids) == 1 else {**head, "envs": sections}
-    write_json(args.out / f"{args.name}.json", payload)
+    write_record("simshear evaluate env-speed", add_arguments, args, args.out / f"{args.name}.json", payload)
     print(f"wrote {args.out / f'{args.name}.json'}")
     return 0
 

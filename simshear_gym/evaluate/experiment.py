@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 from simshear_gym.command_line import recorded_command
+from simshear_gym.evaluate.figures import pyplot
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -72,14 +73,10 @@ COLIFT_KEYS = ("dropped", "truth_dropped", "truth_object_slip_max_mm")
 def plot(runs: dict, path: Path, title: str = "two-arm tracking, rehearsed", columns: int = 4) -> Path:
     import csv
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from simshear_gym.io import atomic_write
     from simshear_gym.lab.experiment import draw_run
 
+    plt = pyplot()
     columns = min(columns, len(runs))
     lines = -(-len(runs) // columns)
     figure = plt.figure(figsize=(4.2 * columns, 4.4 * lines))
@@ -173,7 +170,6 @@ def run(args: argparse.Namespace) -> int:
         started = time.monotonic()
         result = {"tracking": _tracking, "colift": _colift}[task](args, command)
         runs = result["runs"]
-        args.out.mkdir(parents=True, exist_ok=True)
         figure = plot(runs, args.out / f"experiment_{task}.png", result["title"], result["columns"])
         payload = {
             "command": command,

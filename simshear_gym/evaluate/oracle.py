@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.closed_loop import TimedEpisode
+from simshear_gym.evaluate.records import write_record
 
 GOAL_MEAN_MM = 0.5
 COLIFT_GOAL_MEAN_MM = 1.0
@@ -40,17 +40,13 @@ def run_episode(trajectory: str, seed: int, randomise: bool, obs_mode: str = "or
 
     env = gym.make(env_id, trajectory=trajectory, obs_mode=obs_mode, randomise=randomise, **env_kwargs)
     controller = OracleController.for_env(env)
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    errors, out_of_contact, termination, slip_mm = [], 0, "", 0.0
-    while True:
-        observation, _, terminated, truncated, info = env.step(controller(observation))
+    episode = TimedEpisode(env, controller, seed)
+    errors, out_of_contact, slip_mm = [], 0, 0.0
+    for info in episode:
         errors.append(info["contact_error_mm"])
         slip_mm = max(slip_mm, info.get("object_slip_mm", 0.0))  # co-lift: the object's drift on the plate
         out_of_contact += int(not info["in_contact"])
-        if terminated or truncated:
-            termination = info["termination"]
-            break
+    termination = episode.info["termination"]
     env.close()
     return {"errors_mm": np.asarray(errors), "steps_out_of_contact": out_of_contact, "termination": termination,
             "max_object_slip_mm": slip_mm}
@@ -111,7 +107,6 @@ def run_colift(args: argparse.Namespace) -> int:
                   f"{row['drops']} drops, object slip <= {row['max_object_slip_mm']:.2f} mm, "
                   f"{summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearCoLift-v0, obs_mode='oracle', 500 steps at 10 Hz, 30 g objects; nominal trajectory (seed 0) "
                "plus seeds 0.. with randomise=True (scale, speed x0.7-1.3, leader start +-10 mm; no turn of the plate)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
@@ -119,7 +114,7 @@ def run_colift(args: argparse.Namespace) -> int:
         "all_goals_met": all(row["goal_met"] for row in rows.values()),
         "seconds": round(time.perf_counter() - start, 1), "objects_trajectories": rows,
     }
-    write_json(args.out / "oracle_colift.json", payload)
+    write_record("simshear evaluate oracle", add_arguments, args, args.out / "oracle_colift.json", payload)
     print(f"wrote {args.out / 'oracle_colift.json'}")
     return 0 if payload["all_goals_met"] else 1
 
@@ -143,13 +138,12 @@ def run_tracking(args: argparse.Namespace) -> int:
               f"{summary['std_mm']:.3f} mm (max {summary['max_mm']:.3f}), contact lost on "
               f"{summary['contact_losses_steps']} steps, {summary['episodes_ended_early']} episodes ended early")
     payload = {
-        "command": recorded_command("simshear evaluate oracle", add_arguments, args),
         "env": "SimShearTracking-v0, obs_mode='oracle', 500 steps at 10 Hz; nominal trajectory (seed 0) plus "
                "seeds 0.. with randomise=True (scale, speed x0.7-1.3, rotation, start place +-10 mm)",
         "controller": "simshear_gym.control.oracle.OracleController (PI, kp=1, ki=0.5 per variable)",
         "goal_mean_mm": GOAL_MEAN_MM, "all_goals_met": all(row["goal_met"] for row in rows.values()),
         "seconds": round(time.perf_counter() - start, 1), "trajectories": rows,
     }
-    write_json(args.out / "oracle.json", payload)
+    write_record("simshear evaluate oracle", add_arguments, args, args.out / "oracle.json", payload)
     print(f"wrote {args.out / 'oracle.json'}")
     return 0 if payload["all_goals_met"] else 1

@@ -25,12 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.model_specs import parse_models
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) is imported inside the functions that use it, so that
@@ -91,10 +90,7 @@ def evaluate(root: Path, models: dict[str, Path], contact: str, rows: int | None
 
 def figure(arrays: dict, path: Path) -> None:
     """One row per model, one panel per variable: predicted mean against truth."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(arrays)
     n_variables = max(variables.dim for variables, *_ in arrays.values())
@@ -190,8 +186,7 @@ def run(args: argparse.Namespace) -> int:
         if sections[contact]["acceptance"]:
             print(f"  shpix2pix MAE <= 1.2 x real MAE on every variable real reads: "
                   f"{sections[contact]['acceptance']['met']}")
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate posenet", add_arguments, args),
+    write_record("simshear evaluate posenet", add_arguments, args, args.out / f"{args.name}.json", {
         "metrics": "MAE in mm/deg (angles wrapped); chance = always the range centre (0 for a periodic angle); "
                    "within_k_std = share of |error| <= k predicted std; mean_nll = Gaussian NLL per row (nats); "
                    f"a variable is read where MAE <= {READ_SHARE} x chance",

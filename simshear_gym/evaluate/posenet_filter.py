@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.model_specs import parse_contact_paths
-from simshear_gym.io import recorded_path, write_json
+from simshear_gym.evaluate.records import write_record
+from simshear_gym.io import recorded_path
 
 CONTACTS = ("surface", "edge")
 
@@ -203,10 +203,7 @@ def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: Filter
 
 def figure(series: dict, path: Path) -> None:
     """One row per (contact, speed), one panel per variable: truth, raw and filtered over the steps."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     keys = list(series)
     columns = max(variables.dim for variables, *_ in series.values())
@@ -262,8 +259,7 @@ def run(args: argparse.Namespace) -> int:
                       f"max change/step {figures['max_change_per_step']:.3f}")
     png = args.out / f"{args.name}.png"
     figure(series, png)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate filter", add_arguments, args),
+    write_record("simshear evaluate filter", add_arguments, args, args.out / f"{args.name}.json", {
         "sequences": "our sim renders of a sliding, rotating contact with changing depth/tilt (surface) or "
                      "offset/depth/angle (edge), shear from the tracker, translated by the shipped shPix2pix",
         "filter": {"process_std_mm": settings.process_std_mm, "process_std_deg": settings.process_std_deg,

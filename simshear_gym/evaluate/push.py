@@ -25,14 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, check_policy, env_kwargs
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 ENV_ID = "SimShearPush-v0"
 VARIANTS = ("servo", "servo_no_shear", "oracle", "oracle_no_shear", "policy", "ppo", "sac", "tqc")
-POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 GOAL_DISTANCE_MM = 10.0  # issue 43: the object within 10 mm of its target ...
 GOAL_SUCCESS = 0.9  # ... on >= 90 % of the episodes
 GOAL_DEVIATION_MM = 5.0  # mean path deviation
@@ -52,40 +51,22 @@ def make_controller(variant: str, env, posenet: str | None, policy: str | None =
     return PushServoController.for_env(env, use_shear=use_shear, estimator=EstimatorConfig(posenet=posenet))
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    """``gym.make`` arguments of a variant's env: an agent's in the settings it was trained on."""
-    if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import policy_env_kwargs
-
-        return policy_env_kwargs(policy)
-    return {"obs_mode": "oracle" if variant.startswith("oracle") else "real"}
-
-
 def run_episode(env, controller, seed: int) -> dict:
     """One episode's figures, and the object's path (world x, y mm) for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    deviations, path = [], [np.asarray(info["object_world_mm"][:2], dtype=np.float64)]
-    control_s, steps = [], 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        observation, _, terminated, truncated, info = env.step(action)
-        steps += 1
+    episode = TimedEpisode(env, controller, seed)
+    deviations, path = [], [np.asarray(episode.info["object_world_mm"][:2], dtype=np.float64)]
+    for info in episode:
         deviations.append(float(info["path_deviation_mm"]))
         path.append(np.asarray(info["object_world_mm"][:2], dtype=np.float64))
-        if terminated or truncated:
-            break
-    base = env.unwrapped
-    termination = info.get("termination", "") if terminated else "time_limit"
+    base, info = env.unwrapped, episode.info
+    termination = info.get("termination", "") if episode.terminated else "time_limit"
     return {
-        "seed": seed, "shape": info["shape"], "steps": steps, "termination": termination,
+        "seed": seed, "shape": info["shape"], "steps": episode.steps, "termination": termination,
         "target_distance_mm": float(info["target_distance_mm"]),
         "path_deviation_mean_mm": float(np.mean(deviations)), "path_deviation_max_mm": float(np.max(deviations)),
         "path_length_mm": base.path_length_now_mm(), "mass_kg": float(info["mass_kg"]),
         "table_friction": float(info["table_friction"]), "contact_friction": float(info["contact_friction"]),
-        "control_ms_median": 1000 * float(np.median(control_s)),
+        "control_ms_median": 1000 * float(np.median(episode.control_s)),
         "_path": np.stack(path), "_target": np.asarray(info["target_world_mm"][:2], dtype=np.float64),
     }
 
@@ -108,10 +89,7 @@ def summarise(runs: list[dict]) -> dict:
 def figure(paths: dict[str, list[tuple]], distances: dict[str, np.ndarray], path: Path, title: str) -> None:
     """Left: the objects' paths (first episodes) of each variant from above, the targets as crosses; right: the
     final distances from the target per variant (sorted)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, (top, right) = plt.subplots(1, 2, figsize=(9.0, 4.2))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
@@ -157,14 +135,7 @@ def run(args: argparse.Namespace) -> int:
     if args.episodes < 1 or args.threads < 1 or args.figure_episodes < 0:
         raise ValueError(f"--episodes and --threads must be >= 1 and --figure-episodes >= 0, got {args.episodes}, "
                          f"{args.threads}, {args.figure_episodes}")
-    policy_variants = [v for v in args.variants if v in POLICY_VARIANTS]
-    if len(policy_variants) > 1:
-        raise ValueError(f"one policy variant a run (--policy names one agent), got {policy_variants}")
-    if policy_variants and not args.policy:
-        raise ValueError(f"--variants {policy_variants[0]} needs --policy MODEL.zip (from simshear train rl --task "
-                         "push)")
-    if args.policy and not Path(args.policy).is_file():
-        raise FileNotFoundError(f"--policy {args.policy!r}: no such model file")
+    check_policy(args.variants, args.policy, task="push")
     import gymnasium as gym
     import torch
 
@@ -176,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
     paths: dict[str, list[tuple]] = {}
     distances: dict[str, np.ndarray] = {}
     for variant in args.variants:
-        env = gym.make(ENV_ID, shape="random", randomise=True, **env_kwargs_of(variant, args.policy))
+        obs_mode = "oracle" if variant.startswith("oracle") else "real"
+        env = gym.make(ENV_ID, shape="random", randomise=True, **env_kwargs(variant, args.policy, obs_mode))
         controller = make_controller(variant, env, args.posenet, args.policy)
         runs = []
         for episode in range(args.episodes):
@@ -200,9 +172,8 @@ def run(args: argparse.Namespace) -> int:
                        "met": results[variant]["within_10mm"] >= GOAL_SUCCESS
                        and results[variant]["path_deviation_mean_mm"] <= GOAL_DEVIATION_MM}
              for variant in args.variants}
-    command = recorded_command("simshear evaluate push", add_arguments, args)
-    write_json(args.out / f"{args.name}.json", {
-        "command": command, "env": ENV_ID,
+    write_record("simshear evaluate push", add_arguments, args, args.out / f"{args.name}.json", {
+        "env": ENV_ID,
         "metrics": "target distance = the object's centre's distance from its target when the episode ends (mm); "
                    "path deviation = the centre's distance from the straight path start-target, every step (mm), "
                    "per episode its mean and max; within_10mm = share of episodes ending within 10 mm; "

@@ -26,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 START_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
@@ -150,7 +149,6 @@ def run(args: argparse.Namespace) -> int:
         if emulator.is_alive():
             emulator.terminate()
     payload = {
-        "command": recorded_command("simshear evaluate real-cycle", add_arguments, args),
         "machine": {**machine_info(),
                     "torch_threads": args.threads},
         "frames": f"{len(frames)} raw 640x480 frames of tactip331_raw, cycled",
@@ -164,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         "notes": "emulator in a separate process over loopback TCP; cycles back to back; 'controller' = GDNN + "
                  "Bayesian filter + PI law; 'command' = target, safety checks, ServoP formatting, send and reply",
     }
-    path = write_json(args.out / "real_cycle.json", payload)
+    path = write_record("simshear evaluate real-cycle", add_arguments, args, args.out / "real_cycle.json", payload)
     for name, stats in payload["stages"].items():
         print(f"{name:10s} median {stats['median_ms']:7.3f} ms   p95 {stats['p95_ms']:7.3f} ms")
     print(f"{'GDNN alone':10s} median {payload['gdnn_alone']['median_ms']:7.3f} ms")

@@ -17,7 +17,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.data.paths import (
     TACTIP331_TASKS,
     data_root,
@@ -25,7 +24,7 @@ from simshear_gym.data.paths import (
     real_set_dir,
 )
 from simshear_gym.data.tactile_set import read_set
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 
 # pybullet (via simshear_gym.sim) is imported inside evaluate and run, so that --help stays light.
 if TYPE_CHECKING:
@@ -133,12 +132,11 @@ def run(args: argparse.Namespace) -> int:
     figure = args.out / "render_agreement.png"
     montage(stacks, figure)
     payload = {
-        "command": recorded_command("simshear evaluate render", add_arguments, args),
         "split": args.split, "tactip": TacTipConfig().__dict__, "geometry": ReplayGeometry().__dict__,
         "goal": {"iou_median_min": 0.8, "centroid_error_px_median_max": 2.0},
         "sets": summary, "figure": str(figure), "seconds": round(time.perf_counter() - start, 1),
     }
-    write_json(args.out / "render_agreement.json", payload)
+    write_record("simshear evaluate render", add_arguments, args, args.out / "render_agreement.json", payload)
     for name, figures in summary.items():
         print(f"{name:14s} IoU median {figures['iou_median']:.3f} (p10 {figures['iou_p10']:.3f})  "
               f"centroid error median {figures['centroid_error_px_median']:.2f} px  "

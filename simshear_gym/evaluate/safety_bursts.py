@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 
 READY_POSE_MM_DEG = (300.0, 0.0, 0.0, 0.0)
 BOX_HALF_MM = 20.0  # targets stay within this box around the ready pose
@@ -358,10 +358,7 @@ def run_bursts(config: BurstConfig, guarded: bool = True) -> dict[str, Any]:
 
 
 def _figure(guarded: dict[str, Any], baseline: dict[str, Any] | None, limit_mm_s: float, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, ax = plt.subplots(figsize=(7.0, 3.6))
     top = max([limit_mm_s * 1.5] + guarded["_speeds_mm_s"] + (baseline["_speeds_mm_s"] if baseline else []))
@@ -377,9 +374,7 @@ def _figure(guarded: dict[str, Any], baseline: dict[str, Any] | None, limit_mm_s
     ax.set_ylabel("motions")
     ax.set_title("Bursts of individually valid ServoP / MovL, two arms")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 # ----------------------------------------------------------------------------------------------------------------
@@ -415,12 +410,10 @@ def run(args: argparse.Namespace) -> int:
         baseline = run_bursts(BurstConfig(sequences=args.baseline_sequences, seed=args.seed, arms=args.arms),
                               guarded=False)
     limits = SafetyConfig()
-    args.out.mkdir(parents=True, exist_ok=True)
     figure = args.out / "safety_bursts.png"
     _figure(guarded, baseline, limits.max_speed_mm_s, figure)
     strip = {"_speeds_mm_s"}
     payload = {
-        "command": recorded_command("simshear evaluate safety-bursts", add_arguments, args),
         "config": asdict(config),
         "limits": {"max_speed_mm_s": limits.max_speed_mm_s, "max_speed_deg_s": limits.max_speed_deg_s,
                    "max_accel_mm_s2": limits.max_accel_mm_s2, "max_accel_deg_s2": limits.max_accel_deg_s2,
@@ -430,7 +423,8 @@ def run(args: argparse.Namespace) -> int:
         "baseline_raw": None if baseline is None else {k: v for k, v in baseline.items() if k not in strip},
         "figure": str(figure),
     }
-    path = write_json(args.out / "safety_bursts.json", payload)
+    path = write_record("simshear evaluate safety-bursts", add_arguments, args, args.out / "safety_bursts.json",
+                        payload)
     print(f"{guarded['sequences']} sequences x {config.arms} arms through the client: "
           f"{guarded['motions_faster_than_the_limit']} motions faster than the limit in "
           f"{guarded['arm_sequences_with_a_motion_faster_than_the_limit']} of {guarded['arm_sequences']} "

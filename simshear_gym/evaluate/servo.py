@@ -33,21 +33,20 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.control.estimator import EstimatorConfig
 from simshear_gym.control.oracle import OracleController
 from simshear_gym.control.policy import Controller, SB3Controller, sb3_algorithm
 from simshear_gym.control.policy_files import has_policy_files
 from simshear_gym.control.servo import SERVO_GAINS, ServoController, with_shear_gains
-from simshear_gym.evaluate.figures import save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.closed_loop import POLICY_VARIANTS, TimedEpisode, env_kwargs
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 TRACKING_TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 TRACKING_CHOICES = TRACKING_TRAJECTORIES + ("circular_wave", "star")
 TASKS = ("tracking", "colift", "colift-heavy")
 VARIANTS = ("shpix2pix", "pix2pix", "sim", "oracle", "policy", "ppo", "sac", "tqc")
-POLICY_VARIANTS = ("policy", "ppo", "sac", "tqc")
 
 
 def make_controller(variant: str, env, posenets: dict[str, str | None], policy: str | None = None,
@@ -65,48 +64,28 @@ def make_controller(variant: str, env, posenets: dict[str, str | None], policy: 
                                    hold_load=hold_load, load_margin_mm=load_margin_mm)
 
 
-def env_kwargs_of(variant: str, policy: str | None) -> dict:
-    """Observation settings of a variant: a policy runs in the settings of its run's ``config.json`` (a bare zip:
-    translated images at 128 px and the TCP pose)."""
-    if variant in POLICY_VARIANTS:
-        from simshear_gym.control.env_estimator import policy_env_kwargs
-
-        return policy_env_kwargs(policy)
-    return {"obs_mode": {"sim": "sim", "oracle": "oracle"}.get(variant, "real")}
-
-
 def run_episode(env, controller: Controller, seed: int, max_steps: int | None = None) -> dict:
     """One episode of ``controller`` in a sim env; returns its figures and the paths (target and sensor, world mm)
     for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    errors, targets, sensors = [info["contact_error_mm"]], [], []
-    control_s, step_s = [], []
-    out_of_contact, termination, dropped, slip_mm = 0, "", False, 0.0
-    steps = 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        started = time.perf_counter()
-        observation, _, terminated, truncated, info = env.step(action)
-        step_s.append(time.perf_counter() - started)
-        steps += 1
+    episode = TimedEpisode(env, controller, seed, max_steps)
+    errors, targets, sensors = [episode.info["contact_error_mm"]], [], []
+    out_of_contact, dropped, slip_mm = 0, False, 0.0
+    for info in episode:
         errors.append(info["contact_error_mm"])
         targets.append(np.asarray(info["target_world_mm"], dtype=np.float64))
         sensors.append(np.asarray(info["sensor_world_mm"], dtype=np.float64))
         out_of_contact += int(not info["in_contact"])
         dropped = dropped or bool(info.get("dropped", False))
         slip_mm = max(slip_mm, float(info.get("object_slip_mm", 0.0)))
-        if terminated or truncated or (max_steps is not None and steps >= max_steps):
-            termination = info.get("termination", "") if terminated else ""
-            break
+    termination = episode.info.get("termination", "") if episode.terminated else ""
     errors = np.asarray(errors)
     return {
-        "steps": steps, "contact_error_mean_mm": float(errors.mean()), "contact_error_std_mm": float(errors.std()),
-        "contact_error_max_mm": float(errors.max()), "steps_out_of_contact": out_of_contact,
+        "steps": episode.steps, "contact_error_mean_mm": float(errors.mean()),
+        "contact_error_std_mm": float(errors.std()), "contact_error_max_mm": float(errors.max()),
+        "steps_out_of_contact": out_of_contact,
         "termination": termination, "dropped": dropped, "object_slip_max_mm": slip_mm,
-        "control_ms_median": 1000 * float(np.median(control_s)), "env_step_ms_median": 1000 * float(np.median(step_s)),
+        "control_ms_median": 1000 * float(np.median(episode.control_s)),
+        "env_step_ms_median": 1000 * float(np.median(episode.step_s)),
         "_paths": (np.stack(targets), np.stack(sensors)), "_errors_mm": errors[1:],
     }
 
@@ -148,10 +127,7 @@ def path_panel(axis, target: np.ndarray, sensor: np.ndarray, title: str) -> None
 
 def figure(paths: dict[str, tuple[np.ndarray, np.ndarray, float]], path: Path, title: str) -> None:
     """One 3D panel per run: target path red, follower blue, mean error in the title."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     names = list(paths)
     columns = min(4, len(names))
@@ -215,8 +191,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="file name stem: <name>.json and <name>_<task>_<variant>.png (default servo)")
 
 
-def check_args(args: argparse.Namespace) -> None:
-    """The options' checks that need neither torch nor PyBullet (run before either is imported)."""
+def check_args(args: argparse.Namespace) -> tuple[dict[str, str | None], dict[str, str | None]]:
+    """The options' checks that need neither torch nor PyBullet (run before either is imported); returns the GDNN
+    of each estimator variant and the model of each policy variant, as given."""
     posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
     policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     if args.threads < 1 or (args.max_steps is not None and args.max_steps < 1):
@@ -233,18 +210,17 @@ def check_args(args: argparse.Namespace) -> None:
             algorithm = sb3_algorithm(policies[variant])
             if variant != "policy" and algorithm != variant:
                 raise ValueError(f"{flag} {policies[variant]} is a {algorithm.upper()} model, not {variant.upper()}")
+    return posenets, policies
 
 
 def run(args: argparse.Namespace) -> int:
-    check_args(args)
+    posenets, policies = check_args(args)
     import gymnasium as gym
     import torch
 
     import simshear_gym.envs  # noqa: F401  (registers the envs)
 
     torch.set_num_threads(args.threads)
-    posenets = {"shpix2pix": args.posenet_shpix2pix, "pix2pix": args.posenet_pix2pix, "sim": args.posenet_sim}
-    policies = {"policy": args.policy, "ppo": args.policy_ppo, "sac": args.policy_sac, "tqc": args.policy_tqc}
     settings: list[tuple[str, str, dict]] = []
     if "tracking" in args.tasks:
         settings += [("tracking", trajectory, {"trajectory": trajectory}) for trajectory in args.trajectories]
@@ -265,11 +241,12 @@ def run(args: argparse.Namespace) -> int:
     paths: dict[tuple[str, str], dict] = {}
     for variant in args.variants:
         results[variant] = {}
+        obs_mode = {"sim": "sim", "oracle": "oracle"}.get(variant, "real")  # a policy: its run's (env_kwargs)
         for task, label, kwargs in settings:
             runs = []
             for randomise, seeds in ((False, ["nominal"]), (True, args.seeds)):
-                env = gym.make(env_ids[task], randomise=randomise, **env_kwargs_of(variant, policies.get(variant)),
-                               **kwargs)
+                env = gym.make(env_ids[task], randomise=randomise,
+                               **env_kwargs(variant, policies.get(variant), obs_mode), **kwargs)
                 controller = make_controller(variant, env, posenets, policies.get(variant), hold_load,
                                              args.load_margin_mm, args.shear_gains)
                 for seed in seeds:
@@ -296,8 +273,7 @@ def run(args: argparse.Namespace) -> int:
         png = args.out / f"{args.name}_{task}_{variant}.png"
         figure(first_seed, png, f"{task}, {variant} estimator (nominal runs)")
         figures.append(str(png))
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate servo", add_arguments, args),
+    write_record("simshear evaluate servo", add_arguments, args, args.out / f"{args.name}.json", {
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point on the "
                    "leader's face, every step; mean +- std over seeds of the per-run means; control = estimator + "
                    "filter + law per step (ms, median); env step = one env.step including rendering/translation; "

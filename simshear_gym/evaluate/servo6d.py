@@ -25,9 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import save_figure
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.closed_loop import TimedEpisode
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 ROWS = ("panda_servo6d", "mg400_servo")
@@ -48,29 +48,21 @@ def make_controller(row: str, env, gains=None):
 
 def run_episode(env, controller, seed: int | None, randomise_seed: bool, max_steps: int | None = None) -> dict:
     """One episode; returns its figures and the per-step errors (``_trace``) for the figure."""
-    observation, info = env.reset(seed=seed)
-    controller.reset()
-    contact, normal = [info["contact_error_mm"]], [info["normal_error_deg"]]
-    control_s, out_of_contact, termination, steps = [], 0, "", 0
-    while True:
-        started = time.perf_counter()
-        action = controller(observation)
-        control_s.append(time.perf_counter() - started)
-        observation, _, terminated, truncated, info = env.step(action)
-        steps += 1
+    episode = TimedEpisode(env, controller, seed, max_steps)
+    contact, normal = [episode.info["contact_error_mm"]], [episode.info["normal_error_deg"]]
+    out_of_contact = 0
+    for info in episode:
         contact.append(info["contact_error_mm"])
         normal.append(info["normal_error_deg"])
         out_of_contact += int(not info["in_contact"])
-        if terminated or truncated or (max_steps is not None and steps >= max_steps):
-            termination = info.get("termination", "") if terminated else ""
-            break
+    termination = episode.info.get("termination", "") if episode.terminated else ""
     contact, normal = np.asarray(contact), np.asarray(normal)
     return {
-        "seed": seed if randomise_seed else "nominal", "steps": steps,
+        "seed": seed if randomise_seed else "nominal", "steps": episode.steps,
         "contact_error_mean_mm": float(contact.mean()), "contact_error_max_mm": float(contact.max()),
         "normal_error_mean_deg": float(normal.mean()), "normal_error_max_deg": float(normal.max()),
         "steps_out_of_contact": out_of_contact, "termination": termination,
-        "control_ms_median": 1000.0 * float(np.median(control_s)),
+        "control_ms_median": 1000.0 * float(np.median(episode.control_s)),
         "_trace": (contact, normal),
     }
 
@@ -97,10 +89,7 @@ contact.max() <= TARGET_CONTACT_ERROR_MM and normal.max() <= TARGET_NORMAL_ERROR
 def figure(traces: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]], trajectories, path: Path,
            dt_s: float) -> None:
     """Per trajectory (rows): contact error and normal error against time, one line per controller row."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     fig, axes = plt.subplots(len(trajectories), 2, figsize=(9.0, 2.2 * len(trajectories)), squeeze=False)
     colours = {"panda_servo6d": "tab:blue", "mg400_servo": "tab:red"}
@@ -187,8 +176,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{s['runs_ended_early']} {s['terminations']}, control {s['control_ms_median']:.2f} ms", flush=True)
     png = args.out / f"{args.name}.png"
     figure(traces, args.trajectories, png, dt_s)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate servo6d", add_arguments, args),
+    write_record("simshear evaluate servo6d", add_arguments, args, args.out / f"{args.name}.json", {
         "metrics": "contact error = distance (mm) between the follower's sensor and its target point carried with "
                    "the tilting plate, every step; normal error = angle (deg) between the sensor's axis and the "
                    "plate's inward normal, every step; per trajectory the mean over runs of the per-run means (runs: "

@@ -63,8 +63,8 @@ from typing import Any
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.real.env import ENV_CLIENT, RealEnvConfig
 
 FAULT_KINDS: tuple[str, ...] = ("dropped_connection", "split_replies", "partial_feedback", "corrupt_feedback",
@@ -703,10 +703,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _figure(result: dict[str, Any], path: Path) -> None:
     """Each fault kind's outcomes (safe stop, ridden through) and the stops without a fault, as bars."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     kinds = list(FAULT_KINDS)
     stops = [result["fault_outcomes"][kind].get("safe_stop", 0) for kind in kinds]
@@ -724,9 +721,7 @@ def _figure(result: dict[str, Any], path: Path) -> None:
                  f"limits {result['motions_faster_than_the_limit']}, commands outside "
                  f"{result['commands_outside_limits']}", fontsize=9)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -745,13 +740,11 @@ def run(args: argparse.Namespace) -> int:
                         real_env=replace(soak_env(), control_period_s=args.period_s, posenet=args.posenet))
     frames = synthetic_frames(seed=args.seed) if args.synthetic_frames else load_raw_frames(data_root(args.data))
     result = run_soak(config, frames)
-    payload = {"command": recorded_command("simshear evaluate soak", add_arguments, args),
-               "frames": ("synthetic camera-like frames" if args.synthetic_frames
+    payload = {"frames": ("synthetic camera-like frames" if args.synthetic_frames
                           else f"{len(frames)} raw 640x480 frames of tactip331_raw, replayed in a loop"),
                **result}
-    args.out.mkdir(parents=True, exist_ok=True)
     _figure(result, args.out / "soak.png")
-    path = write_json(args.out / "soak.json", payload)
+    path = write_record("simshear evaluate soak", add_arguments, args, args.out / "soak.json", payload)
     unprovoked = sum(result["stops_without_a_fault"].values())
     print(f"{result['cycles']} cycles in {result['wall_s']} s; {result['faults_total']} faults injected, "
           f"{result['safe_stops_total']} safe stops ({unprovoked} without a fault), {result['recoveries']} "

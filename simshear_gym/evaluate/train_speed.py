@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 #: the measured trainer steps: name -> (trainer, the translator's decoder scale or None)
@@ -107,8 +106,7 @@ def run(args: argparse.Namespace) -> int:
             rows.append(row)
             print(f"{model:22s} default {row['ms_per_step_default']:7.1f} ms   channels_last "
                   f"{row['ms_per_step_channels_last']:7.1f} ms   {row['speedup']:.2f}x")
-    write_json(args.out / "train_speed.json", {
-        "command": recorded_command("simshear evaluate train-speed", add_arguments, args),
+    write_record("simshear evaluate train-speed", add_arguments, args, args.out / "train_speed.json", {
         "what": "median wall time of one training step per process (mean over the processes running side by side)"
                 ", networks and batches in each memory layout; random rows (timing only)",
         "machine": machine_info(),

@@ -10,8 +10,8 @@ import argparse
 import json
 from pathlib import Path
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.figures import pyplot, save_figure
+from simshear_gym.evaluate.records import write_record
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -23,10 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     curves = {}
     for spec in args.run:
@@ -46,13 +43,9 @@ def run(args: argparse.Namespace) -> int:
     ax.set_ylabel("holdout MAPE")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
-    fig.tight_layout()
     png = args.out / f"{args.name}.png"
-    png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(png, dpi=120)
-    plt.close(fig)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate training-curve", add_arguments, args),
+    save_figure(fig, png, dpi=120)
+    write_record("simshear evaluate training-curve", add_arguments, args, args.out / f"{args.name}.json", {
         "note": "holdout = a share of the paired training rows kept out of training (never the real val sets)",
         "runs": curves, "figure": str(png)})
     for name, curve in curves.items():

@@ -34,12 +34,13 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
 from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, published_sim_set_dir, real_set_dir
 from simshear_gym.data.tactile_set import TactileSet, read_set
+from simshear_gym.evaluate.figures import pyplot
 from simshear_gym.evaluate.model_specs import parse_contact_paths, parse_models
-from simshear_gym.io import atomic_write, recorded_path, write_json
+from simshear_gym.evaluate.records import write_record
+from simshear_gym.io import atomic_write, recorded_path
 from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) and pybullet (via sim) are imported inside the functions that use them,
@@ -163,10 +164,7 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
 
 def figure(stacks: dict, path: Path, per_set: int = 3) -> None:
     """Rows of (sim | models... | real) for a few contacts of each set, like the paper's figure."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     rows = [(set_name, i) for set_name in stacks for i in np.linspace(0, len(stacks[set_name]["sim"]) - 1,
                                                                        per_set).astype(int)]
@@ -235,8 +233,7 @@ def run(args: argparse.Namespace) -> int:
                                              readers=readers, device=getattr(args, "device", "auto"))
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
-    write_json(args.out / f"{args.name}.json", {
-        "command": recorded_command("simshear evaluate translation", add_arguments, args),
+    write_record("simshear evaluate translation", add_arguments, args, args.out / f"{args.name}.json", {
         "rows_per_set": args.rows or "all (2000)",
         "metrics": "MAPE = mean |generated - real| in [0, 1]; SSIM skimage data_range 1; real validation images",
         "models": {name: {c: recorded_path(p) for c, p in per.items()} for name, per in models.items()},

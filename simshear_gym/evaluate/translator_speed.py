@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.evaluate.records import write_record
 from simshear_gym.machine import machine_info
 
 
@@ -52,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import torch
 
-    from simshear_gym.models.device import OnDevice, resolve_device
+    from simshear_gym.evaluate.translation import on_device
+    from simshear_gym.models.device import resolve_device
     from simshear_gym.models.translator import Translator
     from simshear_gym.models.zoo import shipped_translators
 
@@ -68,9 +68,7 @@ def run(args: argparse.Namespace) -> int:
     rng = np.random.default_rng(0)
     rows = []
     for (arch, contact), path in sorted(shipped_translators().items()):
-        translator = Translator.load(path)
-        if device.type != "cpu":  # the generator on the GPU behind the same uint8 interface
-            translator = Translator(OnDevice(translator.generator, device), translator.card, fast=False)
+        translator = on_device(Translator.load(path), device)  # on a GPU: the generator there, the same uint8 calls
         row = {"model": arch, "contact": contact, "weights": path.name}
         for size in args.batch_sizes:
             repeats = args.repeats if size == 1 else max(args.repeats // 5, 3)
@@ -79,8 +77,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{arch:10s} {contact:8s} " + "   ".join(f"batch {size}: {row[f'ms_per_image_batch{size}']:.3f} ms/image"
                                                     for size in args.batch_sizes))
     name = "translator_speed.json" if device.type == "cpu" else f"translator_speed_{device.type}.json"
-    write_json(args.out / name, {
-        "command": recorded_command("simshear evaluate translator-speed", add_arguments, args),
+    write_record("simshear evaluate translator-speed", add_arguments, args, args.out / name, {
         "machine": machine, "torch_threads": args.threads, "models": rows,
     })
     print(f"wrote {args.out / name}")
