@@ -76,6 +76,7 @@ from simshear_gym.lab.frames import (
 )
 from simshear_gym.real.camera import PreprocessConfig, default_config
 from simshear_gym.real.env import RealEnvConfig
+from simshear_gym.real.mg400_client import wait_at_pose
 from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose, pose_to_T_base_flange
 from simshear_gym.transforms import invert, rz_matrix
@@ -326,17 +327,10 @@ def _wait_feedback(client, timeout_s: float = 2.0) -> np.ndarray:
 
 def _wait_still(client, pose: np.ndarray, timeout_s: float = 5.0, tolerance: float = 0.5) -> None:
     """Wait until the fed-back pose is ``pose`` and no queued move runs."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        feedback = client.latest_feedback()
-        reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)
-        if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
-                and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
-            return
-        if time.monotonic() > deadline:
-            raise ExperimentError(f"the MG400 at {client.config.host} stopped at {reached.round(3).tolist()} "
-                                  f"instead of {pose.round(3).tolist()}")
-        time.sleep(0.005)
+    reached = wait_at_pose(client, pose, tolerance, timeout_s, 0.005)
+    if reached is not None:
+        raise ExperimentError(f"the MG400 at {client.config.host} stopped at {reached.round(3).tolist()} "
+                              f"instead of {pose.round(3).tolist()}")
 
 
 def _lift(client, retreat_mm: float, safety: SafetyConfig) -> None:

@@ -96,6 +96,7 @@ from simshear_gym.real.mg400_client import (
     MG400ConnectionError,
     MG400Error,
     MG400TimeoutError,
+    wait_at_pose,
 )
 from simshear_gym.real.safety import (
     FeedbackMismatchError,
@@ -542,17 +543,10 @@ class RealTactileEnv(gym.Env):
     def _wait_until_at(self, pose: np.ndarray, tolerance: float = 0.5, timeout_s: float = 2.0) -> None:
         """Wait for a feedback packet that shows the queue done and the arm at ``pose`` (Sync answers before the
         newest packet shows it)."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            feedback = self.client.latest_feedback()
-            reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)
-            if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
-                    and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
-                return
-            if time.monotonic() > deadline:
-                raise RealEnvError(f"the MG400 stopped at {reached.round(3).tolist()} instead of the start pose "
-                                   f"{pose.tolist()} (tolerance {tolerance} mm / deg)")
-            time.sleep(0.002)
+        reached = wait_at_pose(self.client, pose, tolerance, timeout_s, 0.002)
+        if reached is not None:
+            raise RealEnvError(f"the MG400 stopped at {reached.round(3).tolist()} instead of the start pose "
+                               f"{pose.tolist()} (tolerance {tolerance} mm / deg)")
 
     def _send(self, target: np.ndarray) -> tuple[str, str] | None:
         """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""

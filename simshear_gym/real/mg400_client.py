@@ -420,6 +420,23 @@ def _four(values: Sequence[float], name: str) -> Pose:
     return out  # type: ignore[return-value]
 
 
+def wait_at_pose(client, pose: np.ndarray, tolerance: float, timeout_s: float, poll_s: float,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> np.ndarray | None:
+    """Wait until ``client``'s newest feedback shows no queued move running and the flange at ``pose`` (within
+    ``tolerance`` mm and deg): None then, or after ``timeout_s`` the fed-back pose it stopped at."""
+    deadline = clock() + timeout_s
+    while True:
+        feedback = client.latest_feedback()
+        reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)[:4]
+        if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
+                and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
+            return None
+        if clock() > deadline:
+            return reached
+        sleep(poll_s)
+
+
 class MG400Client:
     """Dashboard, motion and feedback connections to one MG400 (a context manager).
 
