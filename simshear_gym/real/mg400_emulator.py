@@ -432,7 +432,7 @@ class MG400Emulator:
             ("dashboard", "setpayload"): self._set_payload,
             ("dashboard", "payload"): self._set_payload,
             ("dashboard", "resetrobot"): lambda cmd: self._no_args(cmd, self._halt),
-            ("dashboard", "emergencystop"): self._emergency_stop,
+            ("dashboard", "emergencystop"): self._disable,  # the emulated arm stops and is disabled either way
             ("dashboard", "speedfactor"): self._set_speed_factor,
             ("dashboard", "user"): self._index_setting,
             ("dashboard", "tool"): self._index_setting,
@@ -661,16 +661,24 @@ class MG400Emulator:
         self._halt()
         self._cond.notify_all()
 
-    def _start_motion(self, item: _Queued) -> _Motion:
-        cfg, geometry, start_joints = self.config, self.config.geometry, self._joints.copy()
+    def _ends(self, target: Sequence[float], joint_target: bool
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(start joints, start pose, end joints, end pose) of a move from where the arm is to ``target``, joints
+        or a pose (whose R is unwrapped next to the start's); lock held."""
+        geometry, start_joints = self.config.geometry, self._joints.copy()
         start_pose = np.array(forward(start_joints, geometry))
-        if item.joint_target:
-            end_joints = np.array(item.target)
+        if joint_target:
+            end_joints = np.array(target)
             end_pose = np.array(forward(end_joints, geometry))
         else:
-            end_pose = np.array(item.target)
-            end_joints = check_pose_reachable(end_pose, geometry, cfg.limits)
+            end_pose = np.array(target)
+            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
             end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+        return start_joints, start_pose, end_joints, end_pose
+
+    def _start_motion(self, item: _Queued) -> _Motion:
+        cfg = self.config
+        start_joints, start_pose, end_joints, end_pose = self._ends(item.target, item.joint_target)
         kind = "l" if item.linear else "j"
         speed = self._speed_factor / 100.0 * (item.speed_ratio or self._ratios["speed" + kind]) / 100.0
         accel = (item.accel_ratio or self._ratios["acc" + kind]) / 100.0
@@ -878,12 +886,6 @@ class MG400Emulator:
             self._halt()
         return self._no_args(cmd, action)
 
-    def _emergency_stop(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        def action() -> None:
-            self._halt()
-            self._enabled = False
-        return self._no_args(cmd, action)
-
     def _set_speed_factor(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         error_id, numbers, _ = self._numbers(cmd, 1)
         if error_id != ERROR_OK:
@@ -1005,18 +1007,11 @@ class MG400Emulator:
             return ERROR_FAILED
         if not self._check_target(cmd, target, joint_target):
             return ERROR_FAILED
-        geometry = self.config.geometry
-        start_joints = self._joints.copy()
-        start_pose = np.array(forward(start_joints, geometry))
-        if joint_target:
-            end_joints = np.array(target)
-            end_pose = np.array(forward(end_joints, geometry))
-        else:
-            end_pose = np.array(target)
-            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
-            end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
-        overspeed = self._overspeed(start_joints, end_joints, start_pose, end_pose, duration_s,
-                                    wrap_j4=not joint_target)
+        start_joints, start_pose, end_joints, end_pose = self._ends(target, joint_target)
+        joint_delta = end_joints - start_joints
+        if not joint_target:
+            joint_delta[3] = wrap_deg(joint_delta[3])  # ServoP: R unwrapped next to the start, J4 the short way
+        overspeed = self._overspeed(joint_delta, start_pose, end_pose, duration_s)
         if overspeed is not None:
             self._raise_alarm(*overspeed)
             return ERROR_FAILED
@@ -1031,9 +1026,6 @@ class MG400Emulator:
             old_pose_rate = (before.end_pose - before.start_pose) * rate
             old_joint_rate = (before.end_joints - before.start_joints) * rate
         new_pose_rate = (end_pose - start_pose) / duration_s
-        joint_delta = end_joints - start_joints
-        if not joint_target:
-            joint_delta[3] = wrap_deg(joint_delta[3])  # ServoP: J4 turns the short way
         new_joint_rate = joint_delta / duration_s
         interval_s = max(self._time_s - self._velocity_changed_s, self.config.feedback_period_s)
         accel_mm_s2 = float(np.linalg.norm(new_pose_rate[:3] - old_pose_rate[:3])) / interval_s
@@ -1044,14 +1036,11 @@ class MG400Emulator:
         self._cond.notify_all()
         return ERROR_OK
 
-    def _overspeed(self, start_joints: np.ndarray, end_joints: np.ndarray, start_pose: np.ndarray,
-                   end_pose: np.ndarray, duration_s: float, wrap_j4: bool) -> tuple[int, str] | None:
+    def _overspeed(self, joint_delta: np.ndarray, start_pose: np.ndarray, end_pose: np.ndarray,
+                   duration_s: float) -> tuple[int, str] | None:
         """(alarm, reason) when reaching the target in ``duration_s`` needs more than the arm's speed limits."""
         cfg = self.config
-        deltas = end_joints - start_joints
-        if wrap_j4:  # ServoP: R is unwrapped next to the start, so J4 turns the short way
-            deltas[3] = wrap_deg(deltas[3])
-        joint_speeds = np.abs(deltas) / duration_s
+        joint_speeds = np.abs(joint_delta) / duration_s
         linear_speed = float(np.linalg.norm(end_pose[:3] - start_pose[:3])) / duration_s
         ratios = joint_speeds / cfg.max_joint_speed_deg_s
         fastest = int(np.argmax(ratios))
