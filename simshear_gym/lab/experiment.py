@@ -74,7 +74,7 @@ from simshear_gym.lab.frames import (
     flange_pose_for_sensor,
     sensor_on_face,
 )
-from simshear_gym.real.camera import PreprocessConfig, default_config
+from simshear_gym.real.camera import preprocess_config
 from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.real.mg400_client import wait_at_pose
 from simshear_gym.real.safety import SafetyConfig
@@ -885,14 +885,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_loop_arguments(parser)
 
 
-def _preprocess(value: str) -> PreprocessConfig | None:
-    if value == "none":
-        return None
-    if value == "shipped":
-        return default_config()
-    return PreprocessConfig.load(value)
-
-
 def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: float = 1.0) -> SafetyConfig:
     """The safe defaults with the feedback and camera-frame ages the rehearsal allows: two emulators, the render
     and the networks share one process (on a loaded 2-core machine a 0.5 s stall is the machine's, not the link's
@@ -977,7 +969,7 @@ def run(args: argparse.Namespace) -> int:
     safety = start_run(args)
     config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s).with_env(
         control_period_s=args.period_s, reference_depth_mm=args.reference_depth_mm, safety=safety,
-        preprocess=_preprocess(args.preprocess))
+        preprocess=preprocess_config(args.preprocess))
     command = recorded_command("simshear experiment tracking", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None

@@ -343,16 +343,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
-def _preprocess_config(value: str):
-    from simshear_gym.real.camera import PreprocessConfig, default_config
-
-    if value == "none":
-        return None
-    if value == "shipped":
-        return default_config()
-    return PreprocessConfig.load(value)
-
-
 def _controller_name(args: argparse.Namespace) -> str | None:
     """``--controller``, or ``--task``'s law when neither ``--controller`` nor ``--policy`` is given."""
     if args.controller is None and args.policy is None and args.task is not None:
@@ -460,6 +450,7 @@ def run(args: argparse.Namespace) -> int:
 
     from simshear_gym.control.env_estimator import reading_estimator
     from simshear_gym.control.estimator import EstimatorConfig
+    from simshear_gym.real.camera import preprocess_config as camera_preprocess_config
     from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv, env_client
     from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
@@ -489,7 +480,7 @@ def run(args: argparse.Namespace) -> int:
                           else PUSH_REFERENCE_DEPTH_MM if push else 4.0)
     posenet = load_sensor(args.sensor).posenet("edge" if edge else "surface") if args.sensor else args.posenet
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
-    preprocess_config = _preprocess_config(args.preprocess)
+    preprocess_config = camera_preprocess_config(args.preprocess)
     safety_type = UnsafeSafetyConfig if args.unsafe_limits else SafetyConfig
     try:
         safety = safety_type(max_step_mm=args.max_step_mm, max_step_deg=args.max_step_deg,
