@@ -50,7 +50,6 @@ error mean +- std, contact loss, loop rate, compute per cycle, how it ended; on 
 from __future__ import annotations
 
 import argparse
-import csv
 import logging
 import math
 import time
@@ -77,6 +76,7 @@ from simshear_gym.lab.frames import (
 from simshear_gym.real.camera import preprocess_config
 from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.real.mg400_client import wait_at_pose
+from simshear_gym.real.rollout import log_vector, write_log_csv
 from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose, pose_to_T_base_flange
 from simshear_gym.transforms import invert, rz_matrix
@@ -269,12 +269,6 @@ class _Contact:
         if not self.armed or self.min_depth_mm is None:
             return True
         return self.read_depth(observation["tactile"]) >= self.min_depth_mm
-
-
-def _vector(value, size: int = 4) -> list[float]:
-    if value is None:
-        return [math.nan] * size
-    return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
 
 
 def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np.ndarray:
@@ -509,7 +503,8 @@ class ExperimentRun:
             if leader is not None:
                 leader.close()
         summary = self._summary(stop, why, phase, command, time.monotonic() - started)
-        _write_csv(out_dir / "log.csv", self.rows)
+        columns = list(dict.fromkeys(key for row in self.rows for key in row))  # each row's new keys, in order
+        write_log_csv(out_dir / "log.csv", columns, self.rows)
         plot_run(self.rows, out_dir / "experiment.png", title=self._title(summary))
         write_json(out_dir / "experiment.json", summary)
         return summary
@@ -658,7 +653,7 @@ class ExperimentRun:
                                "trajectory_s": round(trajectory_s, 4)}
         for prefix, value in (("leader_target", leader_target), ("leader", leader_pose),
                               ("follower_target", info.get("flange_target_mm_deg")), ("follower", follower_pose)):
-            for name, number in zip(POSE_NAMES, _vector(value)):
+            for name, number in zip(POSE_NAMES, log_vector(value)):
                 row[f"{prefix}_{name}"] = round(number, 6)
         sensor = target = None
         lift = error = math.nan
@@ -675,7 +670,7 @@ class ExperimentRun:
                 target = (T_face @ np.append(q_face, 1.0))[:3]
                 error = float(np.linalg.norm(sensor - target))
         for prefix, value in (("sensor", sensor), ("target", target)):
-            for name, number in zip(XYZ, _vector(value, 3)):
+            for name, number in zip(XYZ, log_vector(value, 3)):
                 row[f"{prefix}_{name}"] = round(number, 5)
         lag = math.nan
         if leader_pose is not None:
@@ -683,10 +678,10 @@ class ExperimentRun:
         row.update(contact_error_mm=round(error, 5), sensor_above_face_mm=round(lift, 5), on_face=on_face,
                    leader_lag_mm=round(lag, 5))
         mean, std = (None, None) if estimate is None else estimate
-        for name, m, s in zip(STATE_NAMES, _vector(mean), _vector(std)):
+        for name, m, s in zip(STATE_NAMES, log_vector(mean), log_vector(std)):
             row[f"estimate_{name}"] = round(m, 4)
             row[f"estimate_std_{name}"] = round(s, 4)
-        for index, number in enumerate(_vector(action)):
+        for index, number in enumerate(log_vector(action)):
             row[f"action_{index}"] = round(number, 5)
         snapshot = leader.status_snapshot()
         row.update(compute_ms=round(compute_ms, 3), overrun_s=round(float(info.get("overrun_s", 0.0)), 4),
@@ -761,21 +756,6 @@ class ExperimentRun:
 
 def _stat(values: np.ndarray, function, digits: int = 4) -> float | None:
     return round(float(function(values)), digits) if len(values) else None
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    columns: list[str] = []
-    for row in rows:
-        columns += [key for key in row if key not in columns]
-
-    def write(tmp: str) -> None:
-        with open(tmp, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=columns)
-            writer.writeheader()
-            for row in rows:
-                writer.writerow({key: ("" if row.get(key) is None else row.get(key)) for key in columns})
-
-    atomic_write(path, write)
 
 
 def _span(values: np.ndarray) -> float:

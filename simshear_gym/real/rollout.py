@@ -87,7 +87,8 @@ POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
 # The rollout loop and its log
 
 
-def _vector(value, size: int = 4) -> list[float]:
+def log_vector(value, size: int = 4) -> list[float]:
+    """A log's ``size`` numbers of ``value`` (flattened), NaN for each when it is None."""
     if value is None:
         return [float("nan")] * size
     return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
@@ -113,12 +114,12 @@ def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: 
     tcp = observation["tcp_pose"] if "tcp_pose" in observation else info.get("tcp_pose")  # estimate observations
     for prefix, value in (("tcp", tcp), ("tcp_target", info["tcp_target"]),
                           ("flange", info["flange_pose_mm_deg"]), ("flange_target", info["flange_target_mm_deg"])):
-        for name, number in zip(POSE_NAMES, _vector(value)):
+        for name, number in zip(POSE_NAMES, log_vector(value)):
             row[f"{prefix}_{name}"] = round(number, 6)  # the precision of the commands sent
-    for index, number in enumerate(_vector(action)):
+    for index, number in enumerate(log_vector(action)):
         row[f"action_{index}"] = round(number, 5)
     if estimate is not None:
-        for name, mean, std in zip(state_names, _vector(estimate[0]), _vector(estimate[1])):
+        for name, mean, std in zip(state_names, log_vector(estimate[0]), log_vector(estimate[1])):
             row[f"estimate_{name}"] = round(mean, 4)
             row[f"estimate_std_{name}"] = round(std, 4)
     row.update(policy_ms=round(policy_ms, 3), overrun_s=round(float(info["overrun_s"]), 4),
@@ -172,7 +173,7 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
             break
     events = list(base.safety_events)
     columns = _columns(with_estimate, truth_source is not None, names)
-    _write_csv(out_dir / "steps.csv", columns, rows)
+    write_log_csv(out_dir / "steps.csv", columns, rows)
     figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{name}: {termination or 'completed'}")
     overruns = np.array([row["overrun_s"] for row in rows[1:]]) if len(rows) > 1 else np.zeros(0)
     summary: dict[str, Any] = {
@@ -206,7 +207,9 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     return summary
 
 
-def _write_csv(path: Path, columns: list[str], rows: list[dict]) -> None:
+def write_log_csv(path: Path, columns: list[str], rows: list[dict]) -> None:
+    """``rows`` as a CSV of ``columns`` (None written empty), atomically."""
+
     def write(tmp: str) -> None:
         with open(tmp, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
