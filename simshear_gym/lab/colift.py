@@ -68,7 +68,7 @@ from simshear_gym.lab.experiment import (
     ExperimentConfig,
     ExperimentRun,
     LeaderPlan,
-    _wait_still,
+    _move_and_wait,
     add_arm_arguments,
     add_loop_arguments,
     report_run,
@@ -246,10 +246,7 @@ class CoLiftRun(ExperimentRun):
         axis = (pose_to_T_base_flange(pose) @ self.config.real_env.mount.T_flange_sensor())[:3, 2]
         target = pose.copy()
         target[:3] -= self.config.retreat_mm * axis
-        client.reset_reference()
-        client.mov_l(*target)
-        client.sync()
-        _wait_still(client, target)
+        _move_and_wait(client, target)
 
     def _summary(self, stop: str, why: str, phase: str, command: str, wall_s: float) -> dict[str, Any]:
         summary = super()._summary(stop, why, phase, command, wall_s)

@@ -319,9 +319,13 @@ def _wait_feedback(client, timeout_s: float = 2.0) -> np.ndarray:
             time.sleep(0.005)
 
 
-def _wait_still(client, pose: np.ndarray, timeout_s: float = 5.0, tolerance: float = 0.5) -> None:
-    """Wait until the fed-back pose is ``pose`` and no queued move runs."""
-    reached = wait_at_pose(client, pose, tolerance, timeout_s, 0.005)
+def _move_and_wait(client, pose: np.ndarray, linear: bool = True) -> None:
+    """MovL (MovJ: not ``linear``) to ``pose`` from the measured pose, then wait until the fed-back pose is
+    ``pose`` and no queued move runs."""
+    client.reset_reference()
+    (client.mov_l if linear else client.mov_j)(*pose)
+    client.sync()
+    reached = wait_at_pose(client, pose, 0.5, 5.0, 0.005)
     if reached is not None:
         raise ExperimentError(f"the MG400 at {client.config.host} stopped at {reached.round(3).tolist()} "
                               f"instead of {pose.round(3).tolist()}")
@@ -332,10 +336,7 @@ def _lift(client, retreat_mm: float, safety: SafetyConfig) -> None:
     pose, _ = client.measured_state()
     target = pose.copy()
     target[2] = min(pose[2] + retreat_mm, safety.z_range_mm[1])
-    client.reset_reference()
-    client.mov_l(*target)
-    client.sync()
-    _wait_still(client, target)
+    _move_and_wait(client, target)
 
 
 def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, config: ExperimentConfig):
@@ -355,11 +356,7 @@ def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, c
     finally:
         follower.close()
     try:
-        start = np.array(config.leader_start_pose_mm_deg)
-        leader.reset_reference()
-        leader.mov_j(*start)
-        leader.sync()
-        _wait_still(leader, start)
+        _move_and_wait(leader, np.array(config.leader_start_pose_mm_deg), linear=False)
     except BaseException:
         leader.close()
         raise
