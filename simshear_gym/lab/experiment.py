@@ -306,19 +306,6 @@ def _ready(client, what: str) -> None:
         client.enable_robot()
 
 
-def _wait_feedback(client, timeout_s: float = 2.0) -> np.ndarray:
-    from simshear_gym.real.mg400_client import FeedbackStaleError
-
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            return np.asarray(client.latest_feedback().tool_vector_actual, dtype=np.float64)
-        except FeedbackStaleError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.005)
-
-
 def _move_and_wait(client, pose: np.ndarray, linear: bool = True) -> None:
     """MovL (MovJ: not ``linear``) to ``pose`` from the measured pose, then wait until the fed-back pose is
     ``pose`` and no queued move runs."""
@@ -350,8 +337,8 @@ def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, c
         leader.connect()
         _ready(follower, "follower")
         _ready(leader, "leader")
-        _wait_feedback(follower)
-        _wait_feedback(leader)
+        follower.wait_feedback(2.0)
+        leader.wait_feedback(2.0)
         _lift(follower, config.retreat_mm, config.real_env.safety)
     finally:
         follower.close()

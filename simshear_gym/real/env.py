@@ -415,18 +415,12 @@ class RealTactileEnv(gym.Env):
         self.client.close()
         self.client.connect()
         self._connected = True
-        deadline = time.monotonic() + self.config.client.connect_timeout_s
-        while True:  # the first feedback packet; the env reads tcp_pose from it
-            try:
-                self.client.latest_feedback()
-                return
-            except FeedbackStaleError as error:
-                if time.monotonic() > deadline:
-                    client = self.config.client
-                    raise MG400ConnectionError(f"no feedback from the MG400 at {client.host}:"
-                                               f"{client.feedback_port} within {client.connect_timeout_s:g} s"
-                                               f": {error}") from error
-                time.sleep(0.005)
+        client = self.config.client
+        try:  # the first feedback packet; the env reads tcp_pose from it
+            self.client.wait_feedback(client.connect_timeout_s)
+        except FeedbackStaleError as error:
+            raise MG400ConnectionError(f"no feedback from the MG400 at {client.host}:{client.feedback_port} within "
+                                       f"{client.connect_timeout_s:g} s: {error}") from error
 
     def close(self) -> None:
         """Close the robot connections and the camera (the robot stops at its last servo target)."""
