@@ -676,6 +676,10 @@ class MG400Emulator:
             end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
         return start_joints, start_pose, end_joints, end_pose
 
+    def _kinematics_alarm(self, error: UnreachableError | LimitError, reason: str) -> None:
+        """The controller's alarm for a target or path point out of the workspace or beyond a joint limit."""
+        self._raise_alarm(ALARM_OUT_OF_WORKSPACE if isinstance(error, UnreachableError) else ALARM_JOINT_LIMIT, reason)
+
     def _start_motion(self, item: _Queued) -> _Motion:
         cfg = self.config
         start_joints, start_pose, end_joints, end_pose = self._ends(item.target, item.joint_target)
@@ -754,20 +758,16 @@ class MG400Emulator:
                 item = self._queue.popleft()
                 try:
                     self._active = self._start_motion(item)
-                except UnreachableError as error:
-                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{item.command}: {error}")
-                except LimitError as error:
-                    self._raise_alarm(ALARM_JOINT_LIMIT, f"{item.command}: {error}")
+                except (UnreachableError, LimitError) as error:
+                    self._kinematics_alarm(error, f"{item.command}: {error}")
             motion = self._active
             if motion is not None:
                 motion.elapsed_s += dt_s
                 fraction = motion.fraction(motion.elapsed_s)
                 try:
                     self._joints = motion.joints_at(fraction, self.config.geometry, self.config.limits)
-                except UnreachableError as error:
-                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, str(error))
-                except LimitError as error:
-                    self._raise_alarm(ALARM_JOINT_LIMIT, str(error))
+                except (UnreachableError, LimitError) as error:
+                    self._kinematics_alarm(error, str(error))
                 else:
                     if fraction >= 1.0:
                         self._joints = motion.end_joints.copy()
@@ -850,16 +850,22 @@ class MG400Emulator:
             self._cond.notify_all()
         return ERROR_OK, ()
 
-    def _set_ratio(self, cmd: ParsedCommand, name: str, lowest: int) -> tuple[int, Sequence[object]]:
-        """SpeedJ / SpeedL / AccJ / AccL (1..100) and CP (0..100): the queued moves' settings, percent."""
+    def _integer(self, cmd: ParsedCommand, lowest: int, highest: int) -> tuple[int, int]:
+        """One whole-number parameter in ``lowest..highest``: (ErrorID, the number)."""
         error_id, numbers, _ = self._numbers(cmd, 1)
         if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not lowest <= numbers[0] <= 100:
-            return parameter_range_error(1), ()
-        with self._cond:
-            self._ratios[name] = float(numbers[0])
-        return ERROR_OK, ()
+            return error_id, 0
+        if numbers[0] != int(numbers[0]) or not lowest <= numbers[0] <= highest:
+            return parameter_range_error(1), 0
+        return ERROR_OK, int(numbers[0])
+
+    def _set_ratio(self, cmd: ParsedCommand, name: str, lowest: int) -> tuple[int, Sequence[object]]:
+        """SpeedJ / SpeedL / AccJ / AccL (1..100) and CP (0..100): the queued moves' settings, percent."""
+        error_id, percent = self._integer(cmd, lowest, 100)
+        if error_id == ERROR_OK:
+            with self._cond:
+                self._ratios[name] = float(percent)
+        return error_id, ()
 
     def _set_payload(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         """``SetPayLoad(weight[,inertia])`` / ``PayLoad(weight,inertia)``: the load in kg."""
@@ -887,22 +893,14 @@ class MG400Emulator:
         return self._no_args(cmd, action)
 
     def _set_speed_factor(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        error_id, numbers, _ = self._numbers(cmd, 1)
-        if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not 1 <= numbers[0] <= 100:
-            return parameter_range_error(1), ()
-        with self._cond:
-            self._speed_factor = int(numbers[0])
-        return ERROR_OK, ()
+        error_id, percent = self._integer(cmd, 1, 100)
+        if error_id == ERROR_OK:
+            with self._cond:
+                self._speed_factor = percent
+        return error_id, ()
 
     def _index_setting(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        error_id, numbers, _ = self._numbers(cmd, 1)
-        if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not 0 <= numbers[0] <= 9:
-            return parameter_range_error(1), ()
-        return ERROR_OK, ()
+        return self._integer(cmd, 0, 9)[0], ()
 
     def _get_error_id(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         if cmd.args or cmd.keywords:
@@ -918,11 +916,8 @@ class MG400Emulator:
                 check_joint_limits(target, self.config.limits)
             else:
                 check_pose_reachable(target, self.config.geometry, self.config.limits)
-        except UnreachableError as error:
-            self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{cmd.text}: {error}")
-            return False
-        except LimitError as error:
-            self._raise_alarm(ALARM_JOINT_LIMIT, f"{cmd.text}: {error}")
+        except (UnreachableError, LimitError) as error:
+            self._kinematics_alarm(error, f"{cmd.text}: {error}")
             return False
         return True
 
