@@ -116,10 +116,7 @@ class ArmsCalibration:
                 "residual_rms_mm": self.residual_rms_mm, "points": self.points, "command": self.command}
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_json(path, self.to_dict())
-        return path
+        return write_json(path, self.to_dict())  # its folder made, written atomically
 
     @classmethod
     def load(cls, path: str | Path) -> ArmsCalibration:
