@@ -318,13 +318,13 @@ class Rehearsal:
 def connect(endpoint, safety):
     """A connected, enabled safe client for the arm at ``endpoint`` (refuses an arm in error mode)."""
     from simshear_gym.lab.experiment import _ready
-    from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig
+    from simshear_gym.real.env import env_client
+    from simshear_gym.real.mg400_client import MG400Client
     from simshear_gym.real.safety import SafetyLayer
 
-    client = MG400Client(MG400ClientConfig(host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                           motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port,
-                                           reply_timeout_s=1.0, sync_timeout_s=30.0,
-                                           feedback_max_age_s=safety.max_feedback_age_s), SafetyLayer(safety))
+    client = MG400Client(env_client(endpoint.host, endpoint.dashboard_port, endpoint.motion_port,
+                                    endpoint.feedback_port, feedback_max_age_s=safety.max_feedback_age_s),
+                         SafetyLayer(safety))
     client.connect()
     _ready(client, "collecting")
     return client
