@@ -68,8 +68,7 @@ from simshear_gym.lab.experiment import (
     ExperimentConfig,
     ExperimentRun,
     LeaderPlan,
-    _preprocess,
-    _wait_still,
+    _move_and_wait,
     add_arm_arguments,
     add_loop_arguments,
     report_run,
@@ -77,6 +76,7 @@ from simshear_gym.lab.experiment import (
     start_run,
 )
 from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
+from simshear_gym.real.camera import preprocess_config
 from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
@@ -246,10 +246,7 @@ class CoLiftRun(ExperimentRun):
         axis = (pose_to_T_base_flange(pose) @ self.config.real_env.mount.T_flange_sensor())[:3, 2]
         target = pose.copy()
         target[:3] -= self.config.retreat_mm * axis
-        client.reset_reference()
-        client.mov_l(*target)
-        client.sync()
-        _wait_still(client, target)
+        _move_and_wait(client, target)
 
     def _summary(self, stop: str, why: str, phase: str, command: str, wall_s: float) -> dict[str, Any]:
         summary = super()._summary(stop, why, phase, command, wall_s)
@@ -312,7 +309,7 @@ def run(args: argparse.Namespace) -> int:
     safety = start_run(args)
     config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
                           lift_mm=args.lift_mm).with_env(control_period_s=args.period_s, safety=safety,
-                                                         preprocess=_preprocess(args.preprocess))
+                                                         preprocess=preprocess_config(args.preprocess))
     command = recorded_command("simshear experiment colift", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/colift") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
+from simshear_gym.lab.frames import FaceOnFlange
 from simshear_gym.transforms import pose_to_matrix
 
 # The co-lift scene's layout (simshear_gym.envs.colift; equal by test, kept here so that the command modules import
@@ -31,7 +31,7 @@ OBJECT_THICKNESS_MM = {name: size[2] for name, size in OBJECT_FACE_MM.items()}
 
 
 @dataclass(frozen=True)
-class ObjectFace:
+class ObjectFace(FaceOnFlange):
     """The face of the held object the TacTip squeezes, as a frame on the leader's flange: the upright plate's face
     moved out by the object's thickness (origin on the grip axis, +z out of the face towards the follower, +y up).
     It stands where the tracking experiment's :class:`~simshear_gym.lab.frames.PlateMount` does.
@@ -61,16 +61,8 @@ class ObjectFace:
     def size_mm(self) -> tuple[float, float]:
         return OBJECT_FACE_MM[self.object_name][:2]
 
-    @property
-    def half_extents_mm(self) -> tuple[float, float]:
-        return (self.size_mm[0] / 2.0, self.size_mm[1] / 2.0)
-
     def T_flange_plate(self) -> np.ndarray:
         return np.asarray(self.T_flange_plate_rows, dtype=np.float64)
 
     def T_flange_face(self) -> np.ndarray:
         return self.T_flange_plate() @ pose_to_matrix(np.array([0.0, 0.0, self.thickness_mm, 0.0, 0.0, 0.0]))
-
-    def T_follower_face(self, leader_flange_pose_mm_deg, T_follower_leader: np.ndarray) -> np.ndarray:
-        """The object's face frame in the follower's base frame, for the leader's flange pose (its base frame)."""
-        return T_follower_leader @ pose_to_T_base_flange(leader_flange_pose_mm_deg) @ self.T_flange_face()

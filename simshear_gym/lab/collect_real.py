@@ -37,6 +37,7 @@ from simshear_gym.data.labels import MOVE_COLUMNS, POSE_COLUMNS, wrap_deg
 from simshear_gym.data.tactile_set import IMAGE_COLUMN, image_name
 from simshear_gym.io import atomic_write
 from simshear_gym.lab.collect_protocol import CollectProtocol
+from simshear_gym.real.mg400_client import wait_at_pose
 
 TARGETS = "targets.csv"
 META = "meta.json"
@@ -67,17 +68,10 @@ def average_frame(camera, frames: int) -> np.ndarray:
 def wait_arrived(client, pose: np.ndarray, timeout_s: float = 10.0, tolerance: float = 0.05,
                  clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep) -> None:
     """Wait until the fed-back pose is ``pose`` (mm, deg) and no queued move runs; raise ``CollectError``."""
-    deadline = clock() + timeout_s
-    while True:
-        feedback = client.latest_feedback()
-        reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)[:4]
-        if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
-                and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
-            return
-        if clock() > deadline:
-            raise CollectError(f"the arm stopped at {reached.round(3).tolist()} instead of "
-                               f"{np.round(pose, 3).tolist()}")
-        sleep(0.005)
+    reached = wait_at_pose(client, pose, tolerance, timeout_s, 0.005, clock, sleep)
+    if reached is not None:
+        raise CollectError(f"the arm stopped at {reached.round(3).tolist()} instead of "
+                           f"{np.round(pose, 3).tolist()}")
 
 
 def move_to(client, pose: np.ndarray) -> None:
@@ -324,13 +318,13 @@ class Rehearsal:
 def connect(endpoint, safety):
     """A connected, enabled safe client for the arm at ``endpoint`` (refuses an arm in error mode)."""
     from simshear_gym.lab.experiment import _ready
-    from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig
+    from simshear_gym.real.env import env_client
+    from simshear_gym.real.mg400_client import MG400Client
     from simshear_gym.real.safety import SafetyLayer
 
-    client = MG400Client(MG400ClientConfig(host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                           motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port,
-                                           reply_timeout_s=1.0, sync_timeout_s=30.0,
-                                           feedback_max_age_s=safety.max_feedback_age_s), SafetyLayer(safety))
+    client = MG400Client(env_client(endpoint.host, endpoint.dashboard_port, endpoint.motion_port,
+                                    endpoint.feedback_port, feedback_max_age_s=safety.max_feedback_age_s),
+                         SafetyLayer(safety))
     client.connect()
     _ready(client, "collecting")
     return client

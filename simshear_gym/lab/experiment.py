@@ -50,7 +50,6 @@ error mean +- std, contact loss, loop rate, compute per cycle, how it ended; on 
 from __future__ import annotations
 
 import argparse
-import csv
 import logging
 import math
 import time
@@ -74,8 +73,10 @@ from simshear_gym.lab.frames import (
     flange_pose_for_sensor,
     sensor_on_face,
 )
-from simshear_gym.real.camera import PreprocessConfig, default_config
+from simshear_gym.real.camera import preprocess_config
 from simshear_gym.real.env import RealEnvConfig
+from simshear_gym.real.mg400_client import wait_at_pose
+from simshear_gym.real.rollout import log_vector, write_log_csv
 from simshear_gym.real.safety import SafetyConfig
 from simshear_gym.robots.mg400.frames import T_base_flange_to_pose, pose_to_T_base_flange
 from simshear_gym.transforms import invert, rz_matrix
@@ -270,12 +271,6 @@ class _Contact:
         return self.read_depth(observation["tactile"]) >= self.min_depth_mm
 
 
-def _vector(value, size: int = 4) -> list[float]:
-    if value is None:
-        return [math.nan] * size
-    return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
-
-
 def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np.ndarray:
     """The follower flange pose with its sensor ``hover_mm`` above the plate's ``start_offset_mm`` (leader at its
     start pose), through the calibration."""
@@ -311,32 +306,16 @@ def _ready(client, what: str) -> None:
         client.enable_robot()
 
 
-def _wait_feedback(client, timeout_s: float = 2.0) -> np.ndarray:
-    from simshear_gym.real.mg400_client import FeedbackStaleError
-
-    deadline = time.monotonic() + timeout_s
-    while True:
-        try:
-            return np.asarray(client.latest_feedback().tool_vector_actual, dtype=np.float64)
-        except FeedbackStaleError:
-            if time.monotonic() > deadline:
-                raise
-            time.sleep(0.005)
-
-
-def _wait_still(client, pose: np.ndarray, timeout_s: float = 5.0, tolerance: float = 0.5) -> None:
-    """Wait until the fed-back pose is ``pose`` and no queued move runs."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        feedback = client.latest_feedback()
-        reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)
-        if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
-                and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
-            return
-        if time.monotonic() > deadline:
-            raise ExperimentError(f"the MG400 at {client.config.host} stopped at {reached.round(3).tolist()} "
-                                  f"instead of {pose.round(3).tolist()}")
-        time.sleep(0.005)
+def _move_and_wait(client, pose: np.ndarray, linear: bool = True) -> None:
+    """MovL (MovJ: not ``linear``) to ``pose`` from the measured pose, then wait until the fed-back pose is
+    ``pose`` and no queued move runs."""
+    client.reset_reference()
+    (client.mov_l if linear else client.mov_j)(*pose)
+    client.sync()
+    reached = wait_at_pose(client, pose, 0.5, 5.0, 0.005)
+    if reached is not None:
+        raise ExperimentError(f"the MG400 at {client.config.host} stopped at {reached.round(3).tolist()} "
+                              f"instead of {pose.round(3).tolist()}")
 
 
 def _lift(client, retreat_mm: float, safety: SafetyConfig) -> None:
@@ -344,10 +323,7 @@ def _lift(client, retreat_mm: float, safety: SafetyConfig) -> None:
     pose, _ = client.measured_state()
     target = pose.copy()
     target[2] = min(pose[2] + retreat_mm, safety.z_range_mm[1])
-    client.reset_reference()
-    client.mov_l(*target)
-    client.sync()
-    _wait_still(client, target)
+    _move_and_wait(client, target)
 
 
 def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, config: ExperimentConfig):
@@ -361,17 +337,13 @@ def prepare_arms(leader_endpoint: ArmEndpoint, follower_endpoint: ArmEndpoint, c
         leader.connect()
         _ready(follower, "follower")
         _ready(leader, "leader")
-        _wait_feedback(follower)
-        _wait_feedback(leader)
+        follower.wait_feedback(2.0)
+        leader.wait_feedback(2.0)
         _lift(follower, config.retreat_mm, config.real_env.safety)
     finally:
         follower.close()
     try:
-        start = np.array(config.leader_start_pose_mm_deg)
-        leader.reset_reference()
-        leader.mov_j(*start)
-        leader.sync()
-        _wait_still(leader, start)
+        _move_and_wait(leader, np.array(config.leader_start_pose_mm_deg), linear=False)
     except BaseException:
         leader.close()
         raise
@@ -515,7 +487,8 @@ class ExperimentRun:
             if leader is not None:
                 leader.close()
         summary = self._summary(stop, why, phase, command, time.monotonic() - started)
-        _write_csv(out_dir / "log.csv", self.rows)
+        columns = list(dict.fromkeys(key for row in self.rows for key in row))  # each row's new keys, in order
+        write_log_csv(out_dir / "log.csv", columns, self.rows)
         plot_run(self.rows, out_dir / "experiment.png", title=self._title(summary))
         write_json(out_dir / "experiment.json", summary)
         return summary
@@ -664,7 +637,7 @@ class ExperimentRun:
                                "trajectory_s": round(trajectory_s, 4)}
         for prefix, value in (("leader_target", leader_target), ("leader", leader_pose),
                               ("follower_target", info.get("flange_target_mm_deg")), ("follower", follower_pose)):
-            for name, number in zip(POSE_NAMES, _vector(value)):
+            for name, number in zip(POSE_NAMES, log_vector(value)):
                 row[f"{prefix}_{name}"] = round(number, 6)
         sensor = target = None
         lift = error = math.nan
@@ -681,7 +654,7 @@ class ExperimentRun:
                 target = (T_face @ np.append(q_face, 1.0))[:3]
                 error = float(np.linalg.norm(sensor - target))
         for prefix, value in (("sensor", sensor), ("target", target)):
-            for name, number in zip(XYZ, _vector(value, 3)):
+            for name, number in zip(XYZ, log_vector(value, 3)):
                 row[f"{prefix}_{name}"] = round(number, 5)
         lag = math.nan
         if leader_pose is not None:
@@ -689,10 +662,10 @@ class ExperimentRun:
         row.update(contact_error_mm=round(error, 5), sensor_above_face_mm=round(lift, 5), on_face=on_face,
                    leader_lag_mm=round(lag, 5))
         mean, std = (None, None) if estimate is None else estimate
-        for name, m, s in zip(STATE_NAMES, _vector(mean), _vector(std)):
+        for name, m, s in zip(STATE_NAMES, log_vector(mean), log_vector(std)):
             row[f"estimate_{name}"] = round(m, 4)
             row[f"estimate_std_{name}"] = round(s, 4)
-        for index, number in enumerate(_vector(action)):
+        for index, number in enumerate(log_vector(action)):
             row[f"action_{index}"] = round(number, 5)
         snapshot = leader.status_snapshot()
         row.update(compute_ms=round(compute_ms, 3), overrun_s=round(float(info.get("overrun_s", 0.0)), 4),
@@ -767,21 +740,6 @@ class ExperimentRun:
 
 def _stat(values: np.ndarray, function, digits: int = 4) -> float | None:
     return round(float(function(values)), digits) if len(values) else None
-
-
-def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    columns: list[str] = []
-    for row in rows:
-        columns += [key for key in row if key not in columns]
-
-    def write(tmp: str) -> None:
-        with open(tmp, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=columns)
-            writer.writeheader()
-            for row in rows:
-                writer.writerow({key: ("" if row.get(key) is None else row.get(key)) for key in columns})
-
-    atomic_write(path, write)
 
 
 def _span(values: np.ndarray) -> float:
@@ -891,14 +849,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_loop_arguments(parser)
 
 
-def _preprocess(value: str) -> PreprocessConfig | None:
-    if value == "none":
-        return None
-    if value == "shipped":
-        return default_config()
-    return PreprocessConfig.load(value)
-
-
 def rehearsal_safety(max_feedback_age_s: float = 1.0, max_camera_frame_age_s: float = 1.0) -> SafetyConfig:
     """The safe defaults with the feedback and camera-frame ages the rehearsal allows: two emulators, the render
     and the networks share one process (on a loaded 2-core machine a 0.5 s stall is the machine's, not the link's
@@ -983,7 +933,7 @@ def run(args: argparse.Namespace) -> int:
     safety = start_run(args)
     config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s).with_env(
         control_period_s=args.period_s, reference_depth_mm=args.reference_depth_mm, safety=safety,
-        preprocess=_preprocess(args.preprocess))
+        preprocess=preprocess_config(args.preprocess))
     command = recorded_command("simshear experiment tracking", add_arguments, args)
     out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
     calibration = ArmsCalibration.load(args.calibration) if args.calibration else None

@@ -116,10 +116,7 @@ class ArmsCalibration:
                 "residual_rms_mm": self.residual_rms_mm, "points": self.points, "command": self.command}
 
     def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        write_json(path, self.to_dict())
-        return path
+        return write_json(path, self.to_dict())  # its folder made, written atomically
 
     @classmethod
     def load(cls, path: str | Path) -> ArmsCalibration:
@@ -147,8 +144,21 @@ class ArmsCalibration:
             raise ValueError(f"calibration file {path}: {error}") from None
 
 
+class FaceOnFlange:
+    """A face held on the leader's flange (its frame ``T_flange_face()``, its extent ``size_mm``): a
+    :class:`PlateMount` or the co-lift's :class:`~simshear_gym.lab.colift_layout.ObjectFace`."""
+
+    @property
+    def half_extents_mm(self) -> tuple[float, float]:
+        return (self.size_mm[0] / 2.0, self.size_mm[1] / 2.0)
+
+    def T_follower_face(self, leader_flange_pose_mm_deg, T_follower_leader: np.ndarray) -> np.ndarray:
+        """The face frame in the follower's base frame, for the leader's flange pose (its base frame)."""
+        return T_follower_leader @ pose_to_T_base_flange(leader_flange_pose_mm_deg) @ self.T_flange_face()
+
+
 @dataclass(frozen=True)
-class PlateMount:
+class PlateMount(FaceOnFlange):
     """The flat plate the leader holds: its top face's frame on the leader's flange, and its size.
 
     Attributes:
@@ -174,14 +184,6 @@ class PlateMount:
 
     def T_flange_face(self) -> np.ndarray:
         return pose_to_matrix(np.array(self.T_flange_face_pose))
-
-    @property
-    def half_extents_mm(self) -> tuple[float, float]:
-        return (self.size_mm[0] / 2.0, self.size_mm[1] / 2.0)
-
-    def T_follower_face(self, leader_flange_pose_mm_deg, T_follower_leader: np.ndarray) -> np.ndarray:
-        """The face frame in the follower's base frame, for the leader's flange pose (its base frame)."""
-        return T_follower_leader @ pose_to_T_base_flange(leader_flange_pose_mm_deg) @ self.T_flange_face()
 
 
 LEADER_START_POSE: tuple[float, float, float, float] = SCENE_LEADER_START_POSE_MM_DEG

@@ -26,7 +26,6 @@ the safety limits (its own record, not the client's).
 from __future__ import annotations
 
 import math
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -44,17 +43,14 @@ from simshear_gym.lab.frames import (
     sensor_on_face,
 )
 from simshear_gym.real.camera import CameraError, PreprocessConfig, default_config
-from simshear_gym.real.hil import embed_in_frame, touch_face
+from simshear_gym.real.hil import SimTacTipCamera, embed_in_frame, touch_face
 from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator, MotionRecord
 from simshear_gym.real.safety import MotionKind, SafetyConfig, SafetyError, SafetyLayer
-from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 from simshear_gym.robots.mg400.kinematics import inverse
 from simshear_gym.robots.mg400.protocol import FEEDBACK_PERIOD_S
 from simshear_gym.sim import stimuli
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
 from simshear_gym.sim.shear import ShearTracker
-from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.world import World
 from simshear_gym.transforms import invert
 
 
@@ -71,7 +67,7 @@ class RigTruth:
     contact_error_mm: float  # nan before mark_target()
 
 
-class RigCamera:
+class RigCamera(SimTacTipCamera):
     """A frame source: the simulated TacTip at the follower's flange, touching a flat face (module docstring).
 
     It renders on read (:func:`~simshear_gym.real.camera.renders_on_read`): each ``read()`` makes the frame of the
@@ -93,8 +89,6 @@ class RigCamera:
             :class:`~simshear_gym.sim.stimuli.StraightEdge` for edge contacts, its frame ``T_follower_face``).
     """
 
-    renders_on_read = True
-
     def __init__(self, follower_pose: Callable[[], object], T_follower_face: Callable[[], np.ndarray],
                  face_size_mm: tuple[float, float, float] = PlateMount().size_mm, mount: TacTipMount = TacTipMount(),
                  raw_frame_layout: PreprocessConfig | None = None, noise_seed: int = 0, noise_grey: int = 8,
@@ -102,32 +96,21 @@ class RigCamera:
                  stimulus: stimuli.Stimulus | None = None) -> None:
         if not (callable(follower_pose) and callable(T_follower_face)):
             raise ValueError("RigCamera needs callables for the follower's pose and the face's frame")
-        self.name = "rehearsal rig camera"
-        self.mount = mount
-        self.raw_frame_layout = raw_frame_layout
+        super().__init__(follower_pose, contact, True, mount, raw_frame_layout, clock, "rehearsal rig camera")
         self.contact = contact
-        self._follower_pose = follower_pose
         self._T_follower_face = T_follower_face
-        self._clock = clock
         self._rng = np.random.default_rng(noise_seed)
         self._noise_grey = int(noise_grey)
-        self._lock = threading.Lock()
-        self._T_flange_sensor = mount.T_flange_sensor()
         self._T_work_face = invert(T_face_work())
         self._half_extents_mm = (face_size_mm[0] / 2.0, face_size_mm[1] / 2.0)
         self._stimulus = stimuli.FlatSurface(size_mm=tuple(face_size_mm)) if stimulus is None else stimulus
-        self.world = World()
-        self.tactip = TacTip(self.world, TacTipConfig(image_size_px=RENDER_SIZE_PX))
         self._body = self._spawn(T_follower_face())
         self._tracker = ShearTracker()
-        self._t0: float | None = None
         self._target_face_mm: np.ndarray | None = None
         self._last_sensor_face_mm: np.ndarray | None = None
         self._last_frame: np.ndarray | None = None
         self._frozen = False
         self._cut = False
-        self._closed = False
-        self.history: list[RigTruth] = []
 
     # -- faults ----------------------------------------------------------------------------------------------------
 
@@ -155,8 +138,7 @@ class RigCamera:
         (None)."""
         with self._lock:
             if flange_pose_mm_deg is not None:
-                T_base_sensor = pose_to_T_base_flange(np.asarray(flange_pose_mm_deg, dtype=np.float64)[:4]) \
-                    @ self._T_flange_sensor
+                T_base_sensor = self.T_base_sensor_at(flange_pose_mm_deg)
                 T_base_face = np.asarray(self._T_follower_face(), dtype=np.float64)
                 self._target_face_mm = (invert(T_base_face) @ T_base_sensor)[:3, 3].copy()
                 return
@@ -177,8 +159,8 @@ class RigCamera:
             now = self._clock()
             if self._t0 is None:
                 self._t0 = now
-            flange = np.asarray(self._follower_pose(), dtype=np.float64)[:4]
-            T_base_sensor = pose_to_T_base_flange(flange) @ self._T_flange_sensor
+            flange = np.asarray(self._flange_pose(), dtype=np.float64)[:4]
+            T_base_sensor = self.T_base_sensor_at(flange)
             T_base_face, penetration_mm, in_contact, shear = self._touch(T_base_sensor)
             self._last_sensor_face_mm = (invert(T_base_face) @ T_base_sensor)[:3, 3].copy()
             target = error = None
@@ -219,18 +201,6 @@ class RigCamera:
         border[y0:y1, x0:x1] = False
         frame[border] = self._rng.integers(0, self._noise_grey + 1, int(border.sum()), dtype=np.uint8)
         return frame
-
-    def close(self) -> None:
-        with self._lock:
-            if not self._closed:
-                self._closed = True
-                self.world.close()
-
-    def __enter__(self) -> RigCamera:
-        return self
-
-    def __exit__(self, *exc_info: object) -> None:
-        self.close()
 
 
 @dataclass(frozen=True)

@@ -150,6 +150,16 @@ def default_config() -> PreprocessConfig:
     return PreprocessConfig.load(DEFAULT_CONFIG_PATH)
 
 
+def preprocess_config(value: str) -> PreprocessConfig | None:
+    """A ``--preprocess`` value: ``"none"`` (None: the frames are tactile images), ``"shipped"``
+    (:func:`default_config`) or a preprocessing JSON's path."""
+    if value == "none":
+        return None
+    if value == "shipped":
+        return default_config()
+    return PreprocessConfig.load(value)
+
+
 def to_gray(frame: np.ndarray) -> np.ndarray:
     """A uint8 (H, W) grey image from a uint8 grey (H, W), (H, W, 1), BGR (H, W, 3) or BGRA (H, W, 4) frame."""
     if not isinstance(frame, np.ndarray) or frame.dtype != np.uint8:

@@ -96,6 +96,7 @@ from simshear_gym.real.mg400_client import (
     MG400ConnectionError,
     MG400Error,
     MG400TimeoutError,
+    wait_at_pose,
 )
 from simshear_gym.real.safety import (
     FeedbackMismatchError,
@@ -414,18 +415,12 @@ class RealTactileEnv(gym.Env):
         self.client.close()
         self.client.connect()
         self._connected = True
-        deadline = time.monotonic() + self.config.client.connect_timeout_s
-        while True:  # the first feedback packet; the env reads tcp_pose from it
-            try:
-                self.client.latest_feedback()
-                return
-            except FeedbackStaleError as error:
-                if time.monotonic() > deadline:
-                    client = self.config.client
-                    raise MG400ConnectionError(f"no feedback from the MG400 at {client.host}:"
-                                               f"{client.feedback_port} within {client.connect_timeout_s:g} s"
-                                               f": {error}") from error
-                time.sleep(0.005)
+        client = self.config.client
+        try:  # the first feedback packet; the env reads tcp_pose from it
+            self.client.wait_feedback(client.connect_timeout_s)
+        except FeedbackStaleError as error:
+            raise MG400ConnectionError(f"no feedback from the MG400 at {client.host}:{client.feedback_port} within "
+                                       f"{client.connect_timeout_s:g} s: {error}") from error
 
     def close(self) -> None:
         """Close the robot connections and the camera (the robot stops at its last servo target)."""
@@ -542,17 +537,10 @@ class RealTactileEnv(gym.Env):
     def _wait_until_at(self, pose: np.ndarray, tolerance: float = 0.5, timeout_s: float = 2.0) -> None:
         """Wait for a feedback packet that shows the queue done and the arm at ``pose`` (Sync answers before the
         newest packet shows it)."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            feedback = self.client.latest_feedback()
-            reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)
-            if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
-                    and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
-                return
-            if time.monotonic() > deadline:
-                raise RealEnvError(f"the MG400 stopped at {reached.round(3).tolist()} instead of the start pose "
-                                   f"{pose.tolist()} (tolerance {tolerance} mm / deg)")
-            time.sleep(0.002)
+        reached = wait_at_pose(self.client, pose, tolerance, timeout_s, 0.002)
+        if reached is not None:
+            raise RealEnvError(f"the MG400 stopped at {reached.round(3).tolist()} instead of the start pose "
+                               f"{pose.tolist()} (tolerance {tolerance} mm / deg)")
 
     def _send(self, target: np.ndarray) -> tuple[str, str] | None:
         """One ServoP through the safety layer; (termination, reason) when it was refused or failed."""

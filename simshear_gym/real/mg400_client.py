@@ -169,6 +169,15 @@ def _connect(label: str, host: str, port: int, timeout_s: float) -> socket.socke
     return sock
 
 
+def _shut(sock: socket.socket) -> None:
+    """Shut a connection down (if it still is up) and close it."""
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+    sock.close()
+
+
 class _ReplyChannel:
     """One request/reply connection (dashboard or motion): send a command, wait for its reply."""
 
@@ -245,19 +254,12 @@ class _ReplyChannel:
     def _mark_lost(self, reason: str) -> None:
         self._lost = reason
         logger.error("MG400 %s lost: %s", self._where, reason)
-        self._close_socket()
-
-    def _close_socket(self) -> None:
-        try:
-            self._sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self._sock.close()
+        _shut(self._sock)
 
     def close(self) -> None:
         if self._lost is None:
             self._lost = "closed by the client"
-            self._close_socket()
+            _shut(self._sock)
 
 
 class _FeedbackReader:
@@ -384,11 +386,7 @@ class _FeedbackReader:
 
     def close(self) -> None:
         self._stop.set()
-        try:
-            self._sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self._sock.close()
+        _shut(self._sock)
         self._thread.join(timeout=1.0)
 
 
@@ -418,6 +416,23 @@ def _four(values: Sequence[float], name: str) -> Pose:
     if not all(math.isfinite(v) for v in out):
         raise ValueError(f"{name} must be finite, got {out}")
     return out  # type: ignore[return-value]
+
+
+def wait_at_pose(client, pose: np.ndarray, tolerance: float, timeout_s: float, poll_s: float,
+                 clock: Callable[[], float] = time.monotonic,
+                 sleep: Callable[[float], None] = time.sleep) -> np.ndarray | None:
+    """Wait until ``client``'s newest feedback shows no queued move running and the flange at ``pose`` (within
+    ``tolerance`` mm and deg): None then, or after ``timeout_s`` the fed-back pose it stopped at."""
+    deadline = clock() + timeout_s
+    while True:
+        feedback = client.latest_feedback()
+        reached = np.asarray(feedback.tool_vector_actual, dtype=np.float64)[:4]
+        if (not feedback.run_queued_command and np.linalg.norm(reached[:3] - pose[:3]) <= tolerance
+                and abs(wrap_deg(reached[3] - pose[3])) <= tolerance):
+            return None
+        if clock() > deadline:
+            return reached
+        sleep(poll_s)
 
 
 class MG400Client:
@@ -608,6 +623,29 @@ class MG400Client:
             raise FeedbackStaleError("feedback is not running (not connected, or use_feedback=False)")
         return self._feedback.latest(self.config.feedback_max_age_s if max_age_s is None else max_age_s)
 
+    def wait_feedback(self, timeout_s: float) -> MG400Feedback:
+        """The newest valid feedback packet (:meth:`latest_feedback`), waiting up to ``timeout_s`` for one.
+
+        Raises:
+            FeedbackStaleError: none came within ``timeout_s``.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                return self.latest_feedback()
+            except FeedbackStaleError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.005)
+
+    def _fresh_feedback(self) -> MG400Feedback | None:
+        """The newest feedback packet when the stream runs and it is fresh (``config.feedback_max_age_s``), else
+        None."""
+        try:
+            return self.latest_feedback()
+        except FeedbackStaleError:
+            return None
+
     def wait_until_still(self, duration_s: float, timeout_s: float = 2.0) -> bool:
         """Wait until the feedback shows the arm still for ``duration_s`` (a servo command from rest may then ask
         for up to ``max_accel`` times that much speed: the acceleration check); False after ``timeout_s`` or
@@ -651,21 +689,13 @@ class MG400Client:
 
     def measured_joints(self) -> np.ndarray:
         """Current joints, deg: from fresh feedback if available, else ``GetAngle()``."""
-        if self._feedback is not None:
-            try:
-                return np.array(self._feedback.latest(self.config.feedback_max_age_s).q_actual_deg)
-            except FeedbackStaleError:
-                pass
-        return np.array(self.get_angle())
+        feedback = self._fresh_feedback()
+        return np.array(feedback.q_actual_deg if feedback is not None else self.get_angle())
 
     def measured_pose(self) -> Pose:
         """Current flange pose: from fresh feedback if available, else ``GetPose()``."""
-        if self._feedback is not None:
-            try:
-                return self._feedback.latest(self.config.feedback_max_age_s).tool_vector_actual
-            except FeedbackStaleError:
-                pass
-        return self.get_pose()
+        feedback = self._fresh_feedback()
+        return feedback.tool_vector_actual if feedback is not None else self.get_pose()
 
     def measured_state(self) -> tuple[np.ndarray, np.ndarray]:
         """The robot's reported pose ``(x_mm, y_mm, z_mm, r_deg)`` and joints (deg), from one fresh feedback packet
@@ -674,12 +704,7 @@ class MG400Client:
         Raises:
             FeedbackMismatchError: the joints' forward kinematics and the pose disagree beyond the tolerance.
         """
-        feedback = None
-        if self._feedback is not None:
-            try:
-                feedback = self._feedback.latest(self.config.feedback_max_age_s)
-            except FeedbackStaleError:
-                feedback = None
+        feedback = self._fresh_feedback()
         if feedback is not None:
             pose, joints, source = feedback.tool_vector_actual, feedback.q_actual_deg, "feedback"
         else:

@@ -432,7 +432,7 @@ class MG400Emulator:
             ("dashboard", "setpayload"): self._set_payload,
             ("dashboard", "payload"): self._set_payload,
             ("dashboard", "resetrobot"): lambda cmd: self._no_args(cmd, self._halt),
-            ("dashboard", "emergencystop"): self._emergency_stop,
+            ("dashboard", "emergencystop"): self._disable,  # the emulated arm stops and is disabled either way
             ("dashboard", "speedfactor"): self._set_speed_factor,
             ("dashboard", "user"): self._index_setting,
             ("dashboard", "tool"): self._index_setting,
@@ -661,16 +661,28 @@ class MG400Emulator:
         self._halt()
         self._cond.notify_all()
 
-    def _start_motion(self, item: _Queued) -> _Motion:
-        cfg, geometry, start_joints = self.config, self.config.geometry, self._joints.copy()
+    def _ends(self, target: Sequence[float], joint_target: bool
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(start joints, start pose, end joints, end pose) of a move from where the arm is to ``target``, joints
+        or a pose (whose R is unwrapped next to the start's); lock held."""
+        geometry, start_joints = self.config.geometry, self._joints.copy()
         start_pose = np.array(forward(start_joints, geometry))
-        if item.joint_target:
-            end_joints = np.array(item.target)
+        if joint_target:
+            end_joints = np.array(target)
             end_pose = np.array(forward(end_joints, geometry))
         else:
-            end_pose = np.array(item.target)
-            end_joints = check_pose_reachable(end_pose, geometry, cfg.limits)
+            end_pose = np.array(target)
+            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
             end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
+        return start_joints, start_pose, end_joints, end_pose
+
+    def _kinematics_alarm(self, error: UnreachableError | LimitError, reason: str) -> None:
+        """The controller's alarm for a target or path point out of the workspace or beyond a joint limit."""
+        self._raise_alarm(ALARM_OUT_OF_WORKSPACE if isinstance(error, UnreachableError) else ALARM_JOINT_LIMIT, reason)
+
+    def _start_motion(self, item: _Queued) -> _Motion:
+        cfg = self.config
+        start_joints, start_pose, end_joints, end_pose = self._ends(item.target, item.joint_target)
         kind = "l" if item.linear else "j"
         speed = self._speed_factor / 100.0 * (item.speed_ratio or self._ratios["speed" + kind]) / 100.0
         accel = (item.accel_ratio or self._ratios["acc" + kind]) / 100.0
@@ -746,20 +758,16 @@ class MG400Emulator:
                 item = self._queue.popleft()
                 try:
                     self._active = self._start_motion(item)
-                except UnreachableError as error:
-                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{item.command}: {error}")
-                except LimitError as error:
-                    self._raise_alarm(ALARM_JOINT_LIMIT, f"{item.command}: {error}")
+                except (UnreachableError, LimitError) as error:
+                    self._kinematics_alarm(error, f"{item.command}: {error}")
             motion = self._active
             if motion is not None:
                 motion.elapsed_s += dt_s
                 fraction = motion.fraction(motion.elapsed_s)
                 try:
                     self._joints = motion.joints_at(fraction, self.config.geometry, self.config.limits)
-                except UnreachableError as error:
-                    self._raise_alarm(ALARM_OUT_OF_WORKSPACE, str(error))
-                except LimitError as error:
-                    self._raise_alarm(ALARM_JOINT_LIMIT, str(error))
+                except (UnreachableError, LimitError) as error:
+                    self._kinematics_alarm(error, str(error))
                 else:
                     if fraction >= 1.0:
                         self._joints = motion.end_joints.copy()
@@ -842,16 +850,22 @@ class MG400Emulator:
             self._cond.notify_all()
         return ERROR_OK, ()
 
-    def _set_ratio(self, cmd: ParsedCommand, name: str, lowest: int) -> tuple[int, Sequence[object]]:
-        """SpeedJ / SpeedL / AccJ / AccL (1..100) and CP (0..100): the queued moves' settings, percent."""
+    def _integer(self, cmd: ParsedCommand, lowest: int, highest: int) -> tuple[int, int]:
+        """One whole-number parameter in ``lowest..highest``: (ErrorID, the number)."""
         error_id, numbers, _ = self._numbers(cmd, 1)
         if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not lowest <= numbers[0] <= 100:
-            return parameter_range_error(1), ()
-        with self._cond:
-            self._ratios[name] = float(numbers[0])
-        return ERROR_OK, ()
+            return error_id, 0
+        if numbers[0] != int(numbers[0]) or not lowest <= numbers[0] <= highest:
+            return parameter_range_error(1), 0
+        return ERROR_OK, int(numbers[0])
+
+    def _set_ratio(self, cmd: ParsedCommand, name: str, lowest: int) -> tuple[int, Sequence[object]]:
+        """SpeedJ / SpeedL / AccJ / AccL (1..100) and CP (0..100): the queued moves' settings, percent."""
+        error_id, percent = self._integer(cmd, lowest, 100)
+        if error_id == ERROR_OK:
+            with self._cond:
+                self._ratios[name] = float(percent)
+        return error_id, ()
 
     def _set_payload(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         """``SetPayLoad(weight[,inertia])`` / ``PayLoad(weight,inertia)``: the load in kg."""
@@ -878,29 +892,15 @@ class MG400Emulator:
             self._halt()
         return self._no_args(cmd, action)
 
-    def _emergency_stop(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        def action() -> None:
-            self._halt()
-            self._enabled = False
-        return self._no_args(cmd, action)
-
     def _set_speed_factor(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        error_id, numbers, _ = self._numbers(cmd, 1)
-        if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not 1 <= numbers[0] <= 100:
-            return parameter_range_error(1), ()
-        with self._cond:
-            self._speed_factor = int(numbers[0])
-        return ERROR_OK, ()
+        error_id, percent = self._integer(cmd, 1, 100)
+        if error_id == ERROR_OK:
+            with self._cond:
+                self._speed_factor = percent
+        return error_id, ()
 
     def _index_setting(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        error_id, numbers, _ = self._numbers(cmd, 1)
-        if error_id != ERROR_OK:
-            return error_id, ()
-        if numbers[0] != int(numbers[0]) or not 0 <= numbers[0] <= 9:
-            return parameter_range_error(1), ()
-        return ERROR_OK, ()
+        return self._integer(cmd, 0, 9)[0], ()
 
     def _get_error_id(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         if cmd.args or cmd.keywords:
@@ -916,11 +916,8 @@ class MG400Emulator:
                 check_joint_limits(target, self.config.limits)
             else:
                 check_pose_reachable(target, self.config.geometry, self.config.limits)
-        except UnreachableError as error:
-            self._raise_alarm(ALARM_OUT_OF_WORKSPACE, f"{cmd.text}: {error}")
-            return False
-        except LimitError as error:
-            self._raise_alarm(ALARM_JOINT_LIMIT, f"{cmd.text}: {error}")
+        except (UnreachableError, LimitError) as error:
+            self._kinematics_alarm(error, f"{cmd.text}: {error}")
             return False
         return True
 
@@ -1005,18 +1002,11 @@ class MG400Emulator:
             return ERROR_FAILED
         if not self._check_target(cmd, target, joint_target):
             return ERROR_FAILED
-        geometry = self.config.geometry
-        start_joints = self._joints.copy()
-        start_pose = np.array(forward(start_joints, geometry))
-        if joint_target:
-            end_joints = np.array(target)
-            end_pose = np.array(forward(end_joints, geometry))
-        else:
-            end_pose = np.array(target)
-            end_joints = check_pose_reachable(end_pose, geometry, self.config.limits)
-            end_pose[3] = start_pose[3] + wrap_deg(end_pose[3] - start_pose[3])
-        overspeed = self._overspeed(start_joints, end_joints, start_pose, end_pose, duration_s,
-                                    wrap_j4=not joint_target)
+        start_joints, start_pose, end_joints, end_pose = self._ends(target, joint_target)
+        joint_delta = end_joints - start_joints
+        if not joint_target:
+            joint_delta[3] = wrap_deg(joint_delta[3])  # ServoP: R unwrapped next to the start, J4 the short way
+        overspeed = self._overspeed(joint_delta, start_pose, end_pose, duration_s)
         if overspeed is not None:
             self._raise_alarm(*overspeed)
             return ERROR_FAILED
@@ -1031,9 +1021,6 @@ class MG400Emulator:
             old_pose_rate = (before.end_pose - before.start_pose) * rate
             old_joint_rate = (before.end_joints - before.start_joints) * rate
         new_pose_rate = (end_pose - start_pose) / duration_s
-        joint_delta = end_joints - start_joints
-        if not joint_target:
-            joint_delta[3] = wrap_deg(joint_delta[3])  # ServoP: J4 turns the short way
         new_joint_rate = joint_delta / duration_s
         interval_s = max(self._time_s - self._velocity_changed_s, self.config.feedback_period_s)
         accel_mm_s2 = float(np.linalg.norm(new_pose_rate[:3] - old_pose_rate[:3])) / interval_s
@@ -1044,14 +1031,11 @@ class MG400Emulator:
         self._cond.notify_all()
         return ERROR_OK
 
-    def _overspeed(self, start_joints: np.ndarray, end_joints: np.ndarray, start_pose: np.ndarray,
-                   end_pose: np.ndarray, duration_s: float, wrap_j4: bool) -> tuple[int, str] | None:
+    def _overspeed(self, joint_delta: np.ndarray, start_pose: np.ndarray, end_pose: np.ndarray,
+                   duration_s: float) -> tuple[int, str] | None:
         """(alarm, reason) when reaching the target in ``duration_s`` needs more than the arm's speed limits."""
         cfg = self.config
-        deltas = end_joints - start_joints
-        if wrap_j4:  # ServoP: R is unwrapped next to the start, so J4 turns the short way
-            deltas[3] = wrap_deg(deltas[3])
-        joint_speeds = np.abs(deltas) / duration_s
+        joint_speeds = np.abs(joint_delta) / duration_s
         linear_speed = float(np.linalg.norm(end_pose[:3] - start_pose[:3])) / duration_s
         ratios = joint_speeds / cfg.max_joint_speed_deg_s
         fastest = int(np.argmax(ratios))

@@ -87,7 +87,8 @@ POSE_NAMES = ("x_mm", "y_mm", "z_mm", "r_deg")
 # The rollout loop and its log
 
 
-def _vector(value, size: int = 4) -> list[float]:
+def log_vector(value, size: int = 4) -> list[float]:
+    """A log's ``size`` numbers of ``value`` (flattened), NaN for each when it is None."""
     if value is None:
         return [float("nan")] * size
     return [float(v) for v in np.asarray(value, dtype=np.float64).reshape(-1)[:size]]
@@ -113,12 +114,12 @@ def _row(step: int, observation: dict, info: dict, action, estimate, policy_ms: 
     tcp = observation["tcp_pose"] if "tcp_pose" in observation else info.get("tcp_pose")  # estimate observations
     for prefix, value in (("tcp", tcp), ("tcp_target", info["tcp_target"]),
                           ("flange", info["flange_pose_mm_deg"]), ("flange_target", info["flange_target_mm_deg"])):
-        for name, number in zip(POSE_NAMES, _vector(value)):
+        for name, number in zip(POSE_NAMES, log_vector(value)):
             row[f"{prefix}_{name}"] = round(number, 6)  # the precision of the commands sent
-    for index, number in enumerate(_vector(action)):
+    for index, number in enumerate(log_vector(action)):
         row[f"action_{index}"] = round(number, 5)
     if estimate is not None:
-        for name, mean, std in zip(state_names, _vector(estimate[0]), _vector(estimate[1])):
+        for name, mean, std in zip(state_names, log_vector(estimate[0]), log_vector(estimate[1])):
             row[f"estimate_{name}"] = round(mean, 4)
             row[f"estimate_std_{name}"] = round(std, 4)
     row.update(policy_ms=round(policy_ms, 3), overrun_s=round(float(info["overrun_s"]), 4),
@@ -172,7 +173,7 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
             break
     events = list(base.safety_events)
     columns = _columns(with_estimate, truth_source is not None, names)
-    _write_csv(out_dir / "steps.csv", columns, rows)
+    write_log_csv(out_dir / "steps.csv", columns, rows)
     figure = plot_trajectory(rows, out_dir / "trajectory.png", title=f"{name}: {termination or 'completed'}")
     overruns = np.array([row["overrun_s"] for row in rows[1:]]) if len(rows) > 1 else np.zeros(0)
     summary: dict[str, Any] = {
@@ -206,7 +207,9 @@ def run_rollout(env, controller: Controller, steps: int, out_dir: str | Path, co
     return summary
 
 
-def _write_csv(path: Path, columns: list[str], rows: list[dict]) -> None:
+def write_log_csv(path: Path, columns: list[str], rows: list[dict]) -> None:
+    """``rows`` as a CSV of ``columns`` (None written empty), atomically."""
+
     def write(tmp: str) -> None:
         with open(tmp, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
@@ -343,16 +346,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (default 1)")
 
 
-def _preprocess_config(value: str):
-    from simshear_gym.real.camera import PreprocessConfig, default_config
-
-    if value == "none":
-        return None
-    if value == "shipped":
-        return default_config()
-    return PreprocessConfig.load(value)
-
-
 def _controller_name(args: argparse.Namespace) -> str | None:
     """``--controller``, or ``--task``'s law when neither ``--controller`` nor ``--policy`` is given."""
     if args.controller is None and args.policy is None and args.task is not None:
@@ -460,6 +453,7 @@ def run(args: argparse.Namespace) -> int:
 
     from simshear_gym.control.env_estimator import reading_estimator
     from simshear_gym.control.estimator import EstimatorConfig
+    from simshear_gym.real.camera import preprocess_config as camera_preprocess_config
     from simshear_gym.real.env import EstimatedContact, RealEnvConfig, RealTactileEnv, env_client
     from simshear_gym.real.safety import SafetyConfig, UnsafeSafetyConfig
 
@@ -489,7 +483,7 @@ def run(args: argparse.Namespace) -> int:
                           else PUSH_REFERENCE_DEPTH_MM if push else 4.0)
     posenet = load_sensor(args.sensor).posenet("edge" if edge else "surface") if args.sensor else args.posenet
     out_dir = args.out if args.out is not None else Path("runs/rollout") / time.strftime("%Y%m%d-%H%M%S")
-    preprocess_config = _preprocess_config(args.preprocess)
+    preprocess_config = camera_preprocess_config(args.preprocess)
     safety_type = UnsafeSafetyConfig if args.unsafe_limits else SafetyConfig
     try:
         safety = safety_type(max_step_mm=args.max_step_mm, max_step_deg=args.max_step_deg,
