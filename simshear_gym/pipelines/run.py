@@ -410,15 +410,23 @@ def evaluate_step(config: ExperimentConfig, profile, adapted: dict, paired: dict
     posenets = {"models": posenet_weights(config, profile, done), "variables": variables}
     key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
            "eval_rows": profile.eval_rows}
+    return evaluation_stage(runner, "evaluate", key, config, adapted, paired, translators, posenets,
+                            profile.eval_rows)
+
+
+def evaluation_stage(runner: StageRunner, name: str, key: dict, config: ExperimentConfig, adapted: dict,
+                     paired: dict, translators: dict, posenets: dict, eval_rows: int | None) -> StageResult:
+    """The stage ``name`` (cached under ``key``) that writes the figures of
+    :func:`~simshear_gym.pipelines.evaluation.evaluate_sensor` to its ``evaluation.json``."""
 
     def work(folder: Path) -> dict:
         from simshear_gym.pipelines.evaluation import evaluate_sensor
 
-        figures = evaluate_sensor(config, runner.root, adapted, paired, translators, posenets, profile.eval_rows)
+        figures = evaluate_sensor(config, runner.root, adapted, paired, translators, posenets, eval_rows)
         write_json(folder / "evaluation.json", figures)
         return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
 
-    return runner.run("evaluate", key, work)
+    return runner.run(name, key, work)
 
 
 def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, workers: int) -> dict:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import os
 import time
@@ -263,7 +264,7 @@ def evaluate_budget(runner: StageRunner, config, profile, adapted: dict, paired:
                     variables: dict, done: dict) -> dict:
     """The pipeline's evaluation (:func:`~simshear_gym.pipelines.evaluation.evaluate_sensor`) of one budget's
     models on every dataset's complete validation rows; retrieval from the budget's training rows."""
-    from simshear_gym.pipelines.run import contacts_of
+    from simshear_gym.pipelines.run import contacts_of, evaluation_stage
 
     contacts = contacts_of(config)
     translators = {contact: {"shpix2pix": done[f"translator/{contact}_shpix2pix"].outputs["weights"]}
@@ -273,18 +274,8 @@ def evaluate_budget(runner: StageRunner, config, profile, adapted: dict, paired:
     budget_paired = {name: {"train": subsets[name], "val": paired[name]["val"]} for name in paired}
     key = {"paired": budget_paired, "translators": translators, "models": models, "variables": variables,
            "eval_rows": profile.eval_rows}
-
-    def work(folder: Path) -> dict:
-        from simshear_gym.pipelines.evaluation import evaluate_sensor
-
-        figures = evaluate_sensor(config, runner.root, adapted, budget_paired, translators,
-                                  {"models": models, "variables": variables}, profile.eval_rows)
-        write_json(folder / "evaluation.json", figures)
-        return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
-
-    import json
-
-    result = runner.run("sweep_evaluate", key, work)
+    result = evaluation_stage(runner, "sweep_evaluate", key, config, adapted, budget_paired, translators,
+                              {"models": models, "variables": variables}, profile.eval_rows)
     return json.loads((runner.root / result.outputs["evaluation"]).read_text())
 
 
