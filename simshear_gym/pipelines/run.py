@@ -601,18 +601,19 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             posenets = {"models": posenet_weights(config, profile_settings, done), "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
         exports_from = len(runner.results)
-        onnx = stage_onnx(runner, {contact: archs["shpix2pix"] for contact, archs in translators.items()}, paired,
-                          contacts_of(config))
+        shipped = {contact: archs["shpix2pix"] for contact, archs in translators.items()}  # sensor.json names them
+        onnx = stage_onnx(runner, shipped, paired, contacts_of(config))
         results += runner.results[exports_from:]
     if translators and posenets:
         write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor),
-                     translators={contact: archs["shpix2pix"] for contact, archs in translators.items()},
+                     translators=shipped,
                      posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
                      variables=posenets["variables"], onnx=onnx)
+    machine = machine_info()  # its packages' versions: the package's own, None where it is not installed
     manifest = {
         "config": str(config.path), "settings": list(config.settings), "sensor": config.name, "profile": profile,
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
-        "package_version": _version(), "git_commit": commit, "machine": machine_info(),
+        "package_version": machine["packages"]["simshear-gym"] or "unknown", "git_commit": commit, "machine": machine,
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.setting("seed"),
                   "posenet": profile_settings.posenet.setting("seed")},
@@ -624,15 +625,6 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
     }
     write_json(out / "manifest.json", manifest)
     return manifest
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("simshear-gym")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 # ----------------------------------------------------------------------------------------------- command line
