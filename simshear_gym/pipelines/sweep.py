@@ -82,8 +82,7 @@ def parse_budgets(values: list[str]) -> tuple[Budget, ...]:
         try:
             rows = int(text)
         except ValueError:
-            raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
-                             f"per dataset (an integer >= 1) or 'all'") from None
+            rows = 0  # not a number: no more a budget than a number below 1
         if rows < 1:
             raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
                              f"per dataset (an integer >= 1) or 'all'")
@@ -231,9 +230,8 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
     commit, started, load_before = git_commit(), time.perf_counter(), os.getloadavg()[0]
     adapted = stage_adapt(runner, config, root, profile.rows_per_split)
     paired = stage_collect(runner, config, adapted, workers)
-    train_rows = {name: len(pd.read_csv(runner.root / splits["train"] / "targets.csv"))
-                  for name, splits in paired.items()}
-    val_rows = {name: len(pd.read_csv(runner.root / splits["val"] / "targets.csv")) for name, splits in paired.items()}
+    train_rows, val_rows = ({name: len(pd.read_csv(runner.root / splits[split] / "targets.csv"))
+                             for name, splits in paired.items()} for split in ("train", "val"))
     check_budgets(budgets, train_rows)
     variables = {contact: variables_for(config, names, adapted, runner.root)
                  for contact, names in contacts_of(config).items()}
@@ -306,10 +304,8 @@ def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], e
                 variable: figures["chance_mae"] for variable, figures in readings["real"].items()
                 if variable != "mean_nll"},
             "read_by_reference": readings.get("read_by_real", []),
-            "mape": {"translator": translation["shpix2pix"]["mape"],
-                     "retrieval": translation["nearest-label retrieval"]["mape"]},
-            "ssim": {"translator": translation["shpix2pix"]["ssim"],
-                     "retrieval": translation["nearest-label retrieval"]["ssim"]}}
+            **{metric: {"translator": translation["shpix2pix"][metric],
+                        "retrieval": translation["nearest-label retrieval"][metric]} for metric in ("mape", "ssim")}}
     return {"budget": budget.label, "rows_per_dataset": rows,
             "robot_minutes": round(sum(rows.values()) * ROBOT_S_PER_ROW / 60.0, 2),
             "epochs": epochs, "optimiser_steps": steps, "stage_wall_s": wall_s, "datasets": datasets}
