@@ -109,16 +109,12 @@ def git_commit() -> str:
         return "unknown"
 
 
-def _dataset_files(config: ExperimentConfig, name: str, root: Path) -> list[Path]:
-    return [resolve(data_file.csv, root) for data_file in config.datasets[name].files]
-
-
 def stage_adapt(runner: StageRunner, config: ExperimentConfig, root: Path, rows_per_split: int | None) -> dict:
     """{dataset: {split: path of its canonical set}}."""
     sets = {}
     for name, dataset in config.datasets.items():
         key = {"dataset": dataset, "frame": config.frame_for(name), "rows_per_split": rows_per_split,
-               "files": file_fingerprint(_dataset_files(config, name, root))}
+               "files": file_fingerprint([resolve(data_file.csv, root) for data_file in dataset.files])}
 
         def work(folder: Path, name=name, dataset=dataset) -> dict:
             adapted = adapt_dataset(dataset, config.frame_for(name), root, name, rows_per_split)
