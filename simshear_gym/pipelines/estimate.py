@@ -34,7 +34,7 @@ import json
 import multiprocessing
 import os
 import time
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -95,10 +95,6 @@ def load_note(load: dict, training_wall_min: float) -> str:
             f"{load['jobs']} probe(s) beside it about {load['slowdown']:.1f}x an idle machine's times; idle, the "
             f"training would take about {training_wall_min / load['slowdown']:.1f} min (run the estimate again when "
             "the machine is idle for a figure that needs no such correction)")
-
-
-def _default(config_class, name: str):
-    return next(f.default for f in fields(config_class) if f.name == name)
 
 
 def planned_steps(config: ExperimentConfig, profile: str) -> list[Step]:
@@ -173,6 +169,7 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
     of a GDNN's rows, are probed on it as the run runs them); see the module docstring."""
     from simshear_gym.models.device import check_device_name
     from simshear_gym.models.gdnn import VARIABLE_SETS
+    from simshear_gym.pipelines.config import trainer_defaults
     from simshear_gym.train.posenet_config import PosenetTrainConfig
     from simshear_gym.train.translator_config import TranslatorTrainConfig
 
@@ -214,8 +211,8 @@ def estimate(config: ExperimentConfig, root: Path, profile: str, jobs: int | Non
         else:
             config_class, last_batch = PosenetTrainConfig, 0
             translate_s = sum(rows * probes[key_of[name]][2] for name in work["translators"])
-        batch = work["settings"].get("batch_size", _default(config_class, "batch_size"))
-        holdout = max(1, round(work["settings"].get("holdout", _default(config_class, "holdout")) * rows))
+        batch = work["settings"].get("batch_size", trainer_defaults(config_class)["batch_size"])
+        holdout = max(1, round(work["settings"].get("holdout", trainer_defaults(config_class)["holdout"]) * rows))
         per_epoch = len(range(0, rows - holdout - last_batch, batch))
         epochs = work["settings"]["epochs"]
         planned[step.name] = {"name": step.name, "trainer": work["trainer"], "rows": rows, "epochs": epochs,

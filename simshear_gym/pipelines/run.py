@@ -109,16 +109,12 @@ def git_commit() -> str:
         return "unknown"
 
 
-def _dataset_files(config: ExperimentConfig, name: str, root: Path) -> list[Path]:
-    return [resolve(data_file.csv, root) for data_file in config.datasets[name].files]
-
-
 def stage_adapt(runner: StageRunner, config: ExperimentConfig, root: Path, rows_per_split: int | None) -> dict:
     """{dataset: {split: path of its canonical set}}."""
     sets = {}
     for name, dataset in config.datasets.items():
         key = {"dataset": dataset, "frame": config.frame_for(name), "rows_per_split": rows_per_split,
-               "files": file_fingerprint(_dataset_files(config, name, root))}
+               "files": file_fingerprint([resolve(data_file.csv, root) for data_file in dataset.files])}
 
         def work(folder: Path, name=name, dataset=dataset) -> dict:
             adapted = adapt_dataset(dataset, config.frame_for(name), root, name, rows_per_split)
@@ -250,14 +246,6 @@ def _translator_work(settings: dict, contact: str, names: list[str], arch: str =
             "settings": settings | {"arch": arch}}
 
 
-def _gdnn_work(stage, contact: str, names: list[str], drawn: tuple = (), random_rows: int = 0,
-               baseline: bool = False, seed: int | None = None) -> dict:
-    """A GDNN step's ``work`` (:class:`~simshear_gym.pipelines.stages.Step`)."""
-    settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
-    return {"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
-            "settings": settings, "translators": tuple(dict.fromkeys(name for name, _ in drawn))}
-
-
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
                     generator, runner: StageRunner, done: dict, *, device: str = "auto",
                     reader: str | None = None) -> StageResult:
@@ -314,6 +302,43 @@ def pool_step(config: ExperimentConfig, stage, contact: str, names: list[str], t
         reader=needs[0] if needs else None), needs=needs + start,
         cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
         work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names))
+
+
+def arch_step(config: ExperimentConfig, stage, contact: str, arch: str, names: list[str], train_sets: list[str],
+              device: str) -> Step:
+    """The training step of a contact type's shPix2pix or pix2pix (``arch``) on ``train_sets``."""
+    return Step(f"translator/{contact}_{arch}", partial(
+        translator_step, config, stage, contact, arch, train_sets, None, device=device),
+        cost=TRANSLATOR_EPOCH_COST * stage.epochs_for(contact),
+        work=_translator_work(_translator_settings(stage, contact), contact, names, arch))
+
+
+def gdnn_step(config: ExperimentConfig, stage, contact: str, source: str, names: list[str], train_sets: list[str],
+              variables: str, drawn: tuple[tuple[str, int], ...] = (), device: str = "auto", *, name: str = "",
+              seed: int | None = None, baseline: bool = False, random_rows: int = 0) -> Step:
+    """The training step of a GDNN (:func:`posenet_step`) of a contact type; it needs the translator steps it
+    draws from (``drawn``), and is named ``name`` (by default as :func:`posenet_step` names its stage). Its
+    ``work`` adds ``random_rows`` random sim contacts to the rows of ``names``."""
+    options = {"device": device, **({"seed": seed} if seed is not None else {}),
+               **({"baseline": True} if baseline else {})}
+    settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
+    return Step(name or f"posenet/{contact}_{source}{f'_s{seed}' if seed is not None else ''}", partial(
+        posenet_step, config, stage, contact, source, train_sets, variables, drawn, **options),
+        needs=tuple(step for step, _ in drawn), cost=POSENET_EPOCH_COST * stage.epochs_for(contact, baseline),
+        work={"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
+              "settings": settings, "translators": tuple(dict.fromkeys(step for step, _ in drawn))})
+
+
+def chain_step(config: ExperimentConfig, stage, contact: str, names: list[str], train_sets: list[str],
+               random_sets: dict, variables: str, pool, device: str) -> Step:
+    """The training step of the GDNN that ships: on the translations of the sim renders of ``train_sets`` (and of
+    the contact type's random sim contacts, ``random_sets``), each row through a generator drawn from the contact
+    type's shPix2pix and the ``pool`` generators."""
+    drawn = ((f"translator/{contact}_shpix2pix", stage.translator_draws_for(contact)),
+             *((f"translator/{contact}_{generator.name}", generator.draws) for generator in pool))
+    sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
+    return gdnn_step(config, stage, contact, "shpix2pix", names, sets, variables, drawn, device,
+                     random_rows=stage.random_contacts.get(contact, 0))
 
 
 def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
@@ -381,15 +406,23 @@ def evaluate_step(config: ExperimentConfig, profile, adapted: dict, paired: dict
     posenets = {"models": posenet_weights(config, profile, done), "variables": variables}
     key = {"adapted": adapted, "paired": paired, "translators": translators, "posenets": posenets,
            "eval_rows": profile.eval_rows}
+    return evaluation_stage(runner, "evaluate", key, config, adapted, paired, translators, posenets,
+                            profile.eval_rows)
+
+
+def evaluation_stage(runner: StageRunner, name: str, key: dict, config: ExperimentConfig, adapted: dict,
+                     paired: dict, translators: dict, posenets: dict, eval_rows: int | None) -> StageResult:
+    """The stage ``name`` (cached under ``key``) that writes the figures of
+    :func:`~simshear_gym.pipelines.evaluation.evaluate_sensor` to its ``evaluation.json``."""
 
     def work(folder: Path) -> dict:
         from simshear_gym.pipelines.evaluation import evaluate_sensor
 
-        figures = evaluate_sensor(config, runner.root, adapted, paired, translators, posenets, profile.eval_rows)
+        figures = evaluate_sensor(config, runner.root, adapted, paired, translators, posenets, eval_rows)
         write_json(folder / "evaluation.json", figures)
         return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
 
-    return runner.run("evaluate", key, work)
+    return runner.run(name, key, work)
 
 
 def stage_random(runner: StageRunner, config: ExperimentConfig, profile, adapted: dict, workers: int) -> dict:
@@ -441,39 +474,22 @@ def training_steps(config: ExperimentConfig, profile, adapted: dict, paired: dic
     device = device or profile.device
     steps = []
     for contact, names in contacts_of(config).items():
-        posenet_cost = POSENET_EPOCH_COST * profile.posenet.epochs_for(contact)
         train_sets = [paired[name]["train"] for name in names]
         if "translator" in stages:
-            for arch in profile.translator.archs:
-                work = _translator_work(_translator_settings(profile.translator, contact), contact, names, arch)
-                steps.append(Step(f"translator/{contact}_{arch}", partial(
-                    translator_step, config, profile.translator, contact, arch, train_sets, None, device=device),
-                    cost=TRANSLATOR_EPOCH_COST * profile.translator.epochs_for(contact), work=work))
+            steps += [arch_step(config, profile.translator, contact, arch, names, train_sets, device)
+                      for arch in profile.translator.archs]
             steps += [pool_step(config, profile.translator, contact, names, train_sets, generator, device)
                       for generator in profile.pool_for(contact)]
         if "posenet" in stages:
-            gdnn_work = partial(_gdnn_work, profile.posenet, contact, names)
-            steps.append(Step(f"posenet/{contact}_real", partial(
-                posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                device=device), cost=posenet_cost, work=gdnn_work()))
-            for reader_seed in sorted({g.reader_seed for g in profile.pool_for(contact) if g.reader_seed}):
-                steps.append(Step(f"posenet/{contact}_real_s{reader_seed}", partial(
-                    posenet_step, config, profile.posenet, contact, "real", train_sets, variables[contact], (),
-                    device=device, seed=reader_seed), cost=posenet_cost, work=gdnn_work(seed=reader_seed)))
-            drawn = ((f"translator/{contact}_shpix2pix", profile.posenet.translator_draws_for(contact)),
-                     *((f"translator/{contact}_{g.name}", g.draws) for g in profile.pool_for(contact)))
-            sets = train_sets + ([random_sets[contact]] if contact in random_sets else [])
-            steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
-                posenet_step, config, profile.posenet, contact, "shpix2pix", sets, variables[contact], drawn,
-                device=device), needs=tuple(name for name, _ in drawn),
-                cost=posenet_cost, work=gdnn_work(drawn, profile.posenet.random_contacts.get(contact, 0))))
+            gdnn = partial(gdnn_step, config, profile.posenet, contact)
+            steps.append(gdnn("real", names, train_sets, variables[contact], device=device))
+            steps += [gdnn("real", names, train_sets, variables[contact], device=device, seed=reader_seed)
+                      for reader_seed in sorted({g.reader_seed for g in profile.pool_for(contact) if g.reader_seed})]
+            steps.append(chain_step(config, profile.posenet, contact, names, train_sets, random_sets,
+                                    variables[contact], profile.pool_for(contact), device))
             for source in profile.posenet.baselines:
                 drawn = ((f"translator/{contact}_pix2pix", 1),) if source == "pix2pix" else ()
-                steps.append(Step(f"posenet/{contact}_{source}", partial(
-                    posenet_step, config, profile.posenet, contact, source, train_sets, variables[contact], drawn,
-                    device=device, baseline=True), needs=tuple(name for name, _ in drawn),
-                    cost=POSENET_EPOCH_COST * profile.posenet.epochs_for(contact, baseline=True),
-                    work=gdnn_work(drawn, baseline=True)))
+                steps.append(gdnn(source, names, train_sets, variables[contact], drawn, device, baseline=True))
     if "evaluate" in stages:
         steps.append(Step("evaluate", partial(evaluate_step, config, profile, adapted, paired, variables),
                           needs=tuple(step.name for step in steps), cost=0.3))
@@ -581,18 +597,19 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
             posenets = {"models": posenet_weights(config, profile_settings, done), "variables": variables}
         evaluation = done["evaluate"].record if "evaluate" in stages else None
         exports_from = len(runner.results)
-        onnx = stage_onnx(runner, {contact: archs["shpix2pix"] for contact, archs in translators.items()}, paired,
-                          contacts_of(config))
+        shipped = {contact: archs["shpix2pix"] for contact, archs in translators.items()}  # sensor.json names them
+        onnx = stage_onnx(runner, shipped, paired, contacts_of(config))
         results += runner.results[exports_from:]
     if translators and posenets:
         write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor),
-                     translators={contact: archs["shpix2pix"] for contact, archs in translators.items()},
+                     translators=shipped,
                      posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
                      variables=posenets["variables"], onnx=onnx)
+    machine = machine_info()  # its packages' versions: the package's own, None where it is not installed
     manifest = {
         "config": str(config.path), "settings": list(config.settings), "sensor": config.name, "profile": profile,
         **({"purpose": PLUMBING_PROFILES[profile]} if profile in PLUMBING_PROFILES else {}), "stages": list(stages),
-        "package_version": _version(), "git_commit": commit, "machine": machine_info(),
+        "package_version": machine["packages"]["simshear-gym"] or "unknown", "git_commit": commit, "machine": machine,
         "wall_s": round(time.perf_counter() - start, 2),
         "seeds": {"translator": profile_settings.translator.setting("seed"),
                   "posenet": profile_settings.posenet.setting("seed")},
@@ -604,15 +621,6 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
     }
     write_json(out / "manifest.json", manifest)
     return manifest
-
-
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("simshear-gym")
-    except PackageNotFoundError:
-        return "unknown"
 
 
 # ----------------------------------------------------------------------------------------------- command line

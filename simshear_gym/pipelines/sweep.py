@@ -29,11 +29,11 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import json
 import math
 import os
 import time
 from dataclasses import dataclass, replace
-from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +41,7 @@ import pandas as pd
 
 from simshear_gym.command_line import recorded_command
 from simshear_gym.io import write_json
-from simshear_gym.pipelines.stages import StageRunner, Step, file_fingerprint, run_steps
+from simshear_gym.pipelines.stages import StageRunner, file_fingerprint, run_steps
 from simshear_gym.tables import add_set_argument
 
 ALL = "all"
@@ -82,8 +82,7 @@ def parse_budgets(values: list[str]) -> tuple[Budget, ...]:
         try:
             rows = int(text)
         except ValueError:
-            raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
-                             f"per dataset (an integer >= 1) or 'all'") from None
+            rows = 0  # not a number: no more a budget than a number below 1
         if rows < 1:
             raise ValueError(f"--real-rows: {value!r} is not a budget; expected a number of real training rows "
                              f"per dataset (an integer >= 1) or 'all'")
@@ -158,16 +157,7 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
     """The steps of one budget (:func:`.stages.run_steps`): per contact type its shPix2pix on the N pairs, the GDNN
     on its translations of every sim render, the GDNN on the N real images and the reference; with the epochs each
     trains ({step: epochs})."""
-    from simshear_gym.pipelines.run import (
-        POSENET_EPOCH_COST,
-        TRANSLATOR_EPOCH_COST,
-        _gdnn_work,
-        _translator_work,
-        contacts_of,
-        pool_step,
-        posenet_step,
-        translator_step,
-    )
+    from simshear_gym.pipelines.run import arch_step, chain_step, contacts_of, gdnn_step, pool_step
 
     steps, epochs = [], {}
     for contact, names in contacts_of(config).items():
@@ -179,11 +169,7 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
         translator = translator.with_epochs(scaled(translator.epochs_for(contact), factor))
         reader = profile.posenet
         real_rows = reader.with_epochs(scaled(reader.epochs_for(contact), factor))
-        translator_name = f"translator/{contact}_shpix2pix"
-        steps.append(Step(translator_name, partial(translator_step, config, translator, contact, "shpix2pix",
-                                                   budget_sets, None, device=device),
-                          cost=TRANSLATOR_EPOCH_COST * translator.epochs_for(contact),
-                          work=_translator_work(translator.settings_for(contact), contact, names)))
+        steps.append(arch_step(config, translator, contact, "shpix2pix", names, budget_sets, device))
         real_rows_name = f"posenet/{contact}_real_rows" if budget.rows is not None else f"posenet/{contact}_real"
         pool = []
         for generator in profile.pool_for(contact):
@@ -196,21 +182,13 @@ def budget_steps(config, profile, budget: Budget, paired: dict, subsets: dict, r
                 generator = replace(generator, overrides={**generator.overrides, "epochs": scaled(own, factor)})
             steps.append(pool_step(config, translator, contact, names, budget_sets, generator, device,
                                    reader=real_rows_name))
-            pool.append((steps[-1].name, generator.draws))
-        drawn = ((translator_name, reader.translator_draws_for(contact)), *pool)
-        chain_sets = all_sets + ([random_sets[contact]] if contact in random_sets else [])
-        steps.append(Step(f"posenet/{contact}_shpix2pix", partial(
-            posenet_step, config, reader, contact, "shpix2pix", chain_sets, variables[contact], drawn, device=device),
-            needs=tuple(name for name, _ in drawn), cost=POSENET_EPOCH_COST * reader.epochs_for(contact),
-            work=_gdnn_work(reader, contact, names, drawn, reader.random_contacts.get(contact, 0))))
+            pool.append(generator)
+        steps.append(chain_step(config, reader, contact, names, all_sets, random_sets, variables[contact], pool,
+                                device))
         if budget.rows is not None:  # at 'all' the GDNN on the N real images is the reference
-            steps.append(Step(f"posenet/{contact}_real_rows", partial(
-                posenet_step, config, real_rows, contact, "real", budget_sets, variables[contact], (),
-                device=device), cost=POSENET_EPOCH_COST * real_rows.epochs_for(contact),
-                work=_gdnn_work(real_rows, contact, names)))
-        steps.append(Step(f"posenet/{contact}_real", partial(
-            posenet_step, config, reader, contact, "real", all_sets, variables[contact], (), device=device),
-            cost=POSENET_EPOCH_COST * reader.epochs_for(contact), work=_gdnn_work(reader, contact, names)))
+            steps.append(gdnn_step(config, real_rows, contact, "real", names, budget_sets, variables[contact],
+                                   device=device, name=real_rows_name))
+        steps.append(gdnn_step(config, reader, contact, "real", names, all_sets, variables[contact], device=device))
         chain = reader.epochs_for(contact)
         epochs[contact] = {"factor": factor, "translator": translator.epochs_for(contact), "chain": chain,
                            "real_rows": real_rows.epochs_for(contact) if budget.rows is not None else chain,
@@ -252,9 +230,8 @@ def run_sweep(config, out: Path, root: Path, profile_name: str, budgets: tuple[B
     commit, started, load_before = git_commit(), time.perf_counter(), os.getloadavg()[0]
     adapted = stage_adapt(runner, config, root, profile.rows_per_split)
     paired = stage_collect(runner, config, adapted, workers)
-    train_rows = {name: len(pd.read_csv(runner.root / splits["train"] / "targets.csv"))
-                  for name, splits in paired.items()}
-    val_rows = {name: len(pd.read_csv(runner.root / splits["val"] / "targets.csv")) for name, splits in paired.items()}
+    train_rows, val_rows = ({name: len(pd.read_csv(runner.root / splits[split] / "targets.csv"))
+                             for name, splits in paired.items()} for split in ("train", "val"))
     check_budgets(budgets, train_rows)
     variables = {contact: variables_for(config, names, adapted, runner.root)
                  for contact, names in contacts_of(config).items()}
@@ -285,7 +262,7 @@ def evaluate_budget(runner: StageRunner, config, profile, adapted: dict, paired:
                     variables: dict, done: dict) -> dict:
     """The pipeline's evaluation (:func:`~simshear_gym.pipelines.evaluation.evaluate_sensor`) of one budget's
     models on every dataset's complete validation rows; retrieval from the budget's training rows."""
-    from simshear_gym.pipelines.run import contacts_of
+    from simshear_gym.pipelines.run import contacts_of, evaluation_stage
 
     contacts = contacts_of(config)
     translators = {contact: {"shpix2pix": done[f"translator/{contact}_shpix2pix"].outputs["weights"]}
@@ -295,18 +272,8 @@ def evaluate_budget(runner: StageRunner, config, profile, adapted: dict, paired:
     budget_paired = {name: {"train": subsets[name], "val": paired[name]["val"]} for name in paired}
     key = {"paired": budget_paired, "translators": translators, "models": models, "variables": variables,
            "eval_rows": profile.eval_rows}
-
-    def work(folder: Path) -> dict:
-        from simshear_gym.pipelines.evaluation import evaluate_sensor
-
-        figures = evaluate_sensor(config, runner.root, adapted, budget_paired, translators,
-                                  {"models": models, "variables": variables}, profile.eval_rows)
-        write_json(folder / "evaluation.json", figures)
-        return {"outputs": {"evaluation": runner.relative(folder / "evaluation.json")}, "metrics": figures["summary"]}
-
-    import json
-
-    result = runner.run("sweep_evaluate", key, work)
+    result = evaluation_stage(runner, "sweep_evaluate", key, config, adapted, budget_paired, translators,
+                              {"models": models, "variables": variables}, profile.eval_rows)
     return json.loads((runner.root / result.outputs["evaluation"]).read_text())
 
 
@@ -337,10 +304,8 @@ def budget_entry(budget: Budget, names: list[str], train_rows: dict[str, int], e
                 variable: figures["chance_mae"] for variable, figures in readings["real"].items()
                 if variable != "mean_nll"},
             "read_by_reference": readings.get("read_by_real", []),
-            "mape": {"translator": translation["shpix2pix"]["mape"],
-                     "retrieval": translation["nearest-label retrieval"]["mape"]},
-            "ssim": {"translator": translation["shpix2pix"]["ssim"],
-                     "retrieval": translation["nearest-label retrieval"]["ssim"]}}
+            **{metric: {"translator": translation["shpix2pix"][metric],
+                        "retrieval": translation["nearest-label retrieval"][metric]} for metric in ("mape", "ssim")}}
     return {"budget": budget.label, "rows_per_dataset": rows,
             "robot_minutes": round(sum(rows.values()) * ROBOT_S_PER_ROW / 60.0, 2),
             "epochs": epochs, "optimiser_steps": steps, "stage_wall_s": wall_s, "datasets": datasets}
