@@ -1,14 +1,19 @@
 """What every training run in ``train/`` shares: the learning-rate schedule, the holdout split, the resume settings
-check. Torch-free, so that the command modules can build their parsers without it; the checkpoint itself is
-written by :mod:`simshear_gym.train.loop`."""
+check, the help of the flags the translator and posenet commands share, and their ``run``'s body. Torch-free, so
+that the command modules can build their parsers without it; the checkpoint itself is written by
+:mod:`simshear_gym.train.loop`."""
 
 from __future__ import annotations
 
+import json
 import math
+from collections.abc import Callable
 from dataclasses import MISSING, asdict, fields
 from pathlib import Path
 
 import numpy as np
+
+from simshear_gym.models.device import DEVICES
 
 LR_SCHEDULES = ("constant", "cosine")
 LR_SCALINGS = ("none", "linear", "sqrt")
@@ -17,9 +22,39 @@ DATA_PLACEMENTS = ("auto", "on", "off")
 """Where a run's training rows live (``data_on_device``): ``on`` the training device (batches gathered and augmented
 there), ``off`` on the CPU (each batch built there and copied over), ``auto``: on the device when it is a GPU."""
 
+RUN_CHOICES = {"lr_schedule": LR_SCHEDULES, "device": DEVICES, "lr_scaling": LR_SCALINGS,
+               "data_on_device": DATA_PLACEMENTS}
+"""The values the flags of the run settings that ``simshear train translator`` and ``posenet`` share accept."""
+BUDGET_FLAG_HELP = {
+    "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
+    "cap_minutes": "wall-clock safety cap: stop after this much training time of this run, back at its last "
+                   "finished epoch (--resume continues it), without changing the schedule (which runs over the "
+                   "epochs unless --max-minutes is given)",
+}
+"""Help of the time-budget flags of ``simshear train translator`` and ``posenet``."""
+
 CAP_STOP = "wall-clock cap"
 """``stopped_by`` of a training stopped by its ``cap_minutes`` safety cap: not the recipe's model (it stopped at
 its last finished epoch; a resumed run continues it)."""
+
+
+def device_flag_help(network: str, reference_batch: int) -> dict[str, str]:
+    """Help of the device and GPU flags of ``simshear train translator`` and ``posenet``, in their order, for a run
+    that trains the ``network`` ("generator", "GDNN") with an ``lr`` tuned at ``reference_batch``."""
+    return {
+        "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
+                  "CUDA); under torchrun each process takes GPU LOCAL_RANK",
+        "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
+               "CPU always trains in float32",
+        "lr_scaling": f"scale --lr from the batch it was tuned at ({reference_batch}) to --batch-size: none, linear (x "
+                      "the ratio) or sqrt (x its square root, the rule for Adam)",
+        "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
+        "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on "
+                          "a GPU); the same batches either way",
+        "compile": f"run the {network} through torch.compile (the eager {network}, after one warning, where it cannot "
+                   "compile)",
+        "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
+    }
 
 
 def scheduled_lr(lr: float, schedule: str, progress: float) -> float:
@@ -107,3 +142,25 @@ def check_same_settings(path: Path, saved_config: dict, config, free: tuple[str,
         raise ValueError(f"{path}: trained with other settings ({changed}); to train with different settings, use "
                          "a new --out")
 
+
+
+def train_command(args, config, make_trainer: Callable) -> dict | None:
+    """``simshear train translator|posenet``'s run: in a torchrun session (:mod:`simshear_gym.train.distributed`)
+    the trainer ``make_trainer(distributed)`` resumed (``--resume``) and fitted (``--wandb``: mirrored to W&B);
+    returns the summary, printed, on rank 0 (None on the others)."""
+    from simshear_gym.train.distributed import distributed_session
+    from simshear_gym.train.wandb_sync import wandb_run
+
+    if (args.out / "checkpoint.pt").exists() and not args.resume:
+        raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
+    with distributed_session(config.device) as distributed:
+        trainer = make_trainer(distributed)
+        resumed = args.resume and trainer.resume()
+        if resumed and trainer.is_main:
+            print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
+        with wandb_run(args.wandb if trainer.is_main else None, args.out, asdict(config)):
+            summary = trainer.fit(progress=trainer.is_main)
+    if not trainer.is_main:
+        return None
+    print(json.dumps(summary))
+    return summary
