@@ -6,8 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from simshear_gym.models.device import check_device_name
-from simshear_gym.train.runs import check_gpu_knobs, scheduled_lr
+from simshear_gym.train.runs import check_run_knobs
 
 if TYPE_CHECKING:
     from simshear_gym.models.gdnn import GDNNConfig
@@ -86,9 +85,7 @@ class PosenetTrainConfig:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
-        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
-        check_device_name(self.device)
-        check_gpu_knobs(self)
+        check_run_knobs(self)
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:

@@ -19,7 +19,7 @@ from simshear_gym.data.paired import load_paired
 from simshear_gym.data.paths import cache_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import atomic_write
-from simshear_gym.models.device import cpu_state, resolve_device
+from simshear_gym.models.device import OnDevice, cpu_state, resolve_device
 from simshear_gym.models.gdnn import GDNN, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
 from simshear_gym.models.posenet_io import save_posenet
@@ -130,9 +130,7 @@ def on_translation_device(translators: list, device: str, batch: int) -> tuple[l
     """``translators`` as they run on ``device`` and the batch they translate in: unchanged on the CPU; on a GPU
     each generator moved there (:class:`~simshear_gym.models.device.OnDevice`: CPU arrays in and out) and batches
     of :data:`GPU_TRANSLATION_BATCH`."""
-    from simshear_gym.models.device import OnDevice, check_device_name, resolve_device
-
-    where = resolve_device(check_device_name(device))
+    where = resolve_device(device)
     if where.type == "cpu":
         return translators, batch
     return [Translator(OnDevice(t.generator.float(), where), t.card, fast=False) for t in translators], max(

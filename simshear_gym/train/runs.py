@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.models.device import DEVICES
+from simshear_gym.models.device import DEVICES, check_device_name
 
 LR_SCHEDULES = ("constant", "cosine")
 LR_SCALINGS = ("none", "linear", "sqrt")
@@ -102,9 +102,11 @@ def data_on_device(setting: str, device_type: str) -> bool:
     return setting == "on" or (setting == "auto" and device_type == "cuda")
 
 
-def check_gpu_knobs(config) -> None:
-    """Raise a ValueError naming the valid values unless a trainer config's ``lr_scaling``, ``warmup_epochs``,
-    ``data_on_device``, ``compile`` and ``tf32`` are valid."""
+def check_run_knobs(config) -> None:
+    """Raise a ValueError naming the valid values unless a trainer config's ``lr_schedule``, ``device``,
+    ``lr_scaling``, ``warmup_epochs``, ``data_on_device``, ``compile`` and ``tf32`` are valid."""
+    scheduled_lr(config.lr, config.lr_schedule, 0.0)  # validates the schedule
+    check_device_name(config.device)
     batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, config.lr_scaling)
     if not 0.0 <= config.warmup_epochs <= config.epochs:
         raise ValueError(f"warmup_epochs must be in [0, epochs = {config.epochs}], got {config.warmup_epochs!r}")
