@@ -328,8 +328,7 @@ class PosenetTrainer(EpochTrainer):
         rows = self.local_rows(len(index))
         return {"nll": self.train_step(images[rows], self.variables.encode(part.labels)[rows])}
 
-    def holdout_metric(self) -> float:
-        return self.holdout_nll()
+    holdout_metric = holdout_nll
 
     def save_best(self, path: Path, card: dict) -> None:
         save_posenet(path, self.model, card={**card, "source": self.config.source, "contact": self.config.contact})

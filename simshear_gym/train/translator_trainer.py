@@ -282,8 +282,7 @@ class TranslatorTrainer(EpochTrainer):
         rows = self.device_pairs if self.device_pairs is not None else self.train_pairs
         return self.train_step(*rows.batch(index[self.local_rows(len(index))]))
 
-    def holdout_metric(self) -> float:
-        return self.holdout_l1()
+    holdout_metric = holdout_l1
 
     def save_best(self, path: Path, card: dict) -> None:
         save_generator(path, self.generator, half=False, card=card)
