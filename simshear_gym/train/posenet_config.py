@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from simshear_gym.train.runs import check_run_knobs
+from simshear_gym.train.runs import check_choice, check_run_knobs
 
 if TYPE_CHECKING:
     from simshear_gym.models.gdnn import GDNNConfig
@@ -62,10 +62,8 @@ class PosenetTrainConfig:
     tf32: bool = True
 
     def __post_init__(self) -> None:
-        if self.source not in SOURCES:
-            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
-        if self.contact not in CONTACTS:
-            raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        check_choice("source", self.source, SOURCES)
+        check_choice("contact", self.contact, CONTACTS)
         if (self.source == "env") != (self.contact == "env"):
             raise ValueError(f"source 'env' (sets of simshear collect-env) goes with contact 'env' and only with it, "
                              f"got source {self.source!r}, contact {self.contact!r}")

@@ -29,7 +29,7 @@ from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.posenet_config import SOURCES, PosenetTrainConfig
 from simshear_gym.train.precision import Compiled, MixedPrecision, autocast_dtype, memory_format, use_tf32
-from simshear_gym.train.runs import data_on_device, split_holdout
+from simshear_gym.train.runs import check_choice, data_on_device, split_holdout
 
 
 # ------------------------------------------------------------------------------------------------------ data
@@ -79,8 +79,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     ``variables``: an inline variable set (:func:`~simshear_gym.models.gdnn.variable_set`) instead of the
     contact's; ``device`` (``cpu``, ``cuda``, ``auto``): where the translators run (on a GPU in batches of
     :data:`GPU_TRANSLATION_BATCH`: a GDNN's rows through a pool of generators cost minutes on one CPU thread)."""
-    if source not in SOURCES:
-        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    check_choice("source", source, SOURCES)
     variables = variable_set(variables or contact)
     if source == "env":
         return _load_env_sets(paired_dirs, variables, image_size_px)

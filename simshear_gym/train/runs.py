@@ -38,6 +38,12 @@ CAP_STOP = "wall-clock cap"
 its last finished epoch; a resumed run continues it)."""
 
 
+def check_choice(name: str, value, choices: tuple) -> None:
+    """A ValueError naming the valid values unless setting ``name``'s ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+
+
 def device_flag_help(network: str, reference_batch: int) -> dict[str, str]:
     """Help of the device and GPU flags of ``simshear train translator`` and ``posenet``, in their order, for a run
     that trains the ``network`` ("generator", "GDNN") with an ``lr`` tuned at ``reference_batch``."""
@@ -59,8 +65,7 @@ def device_flag_help(network: str, reference_batch: int) -> dict[str, str]:
 
 def scheduled_lr(lr: float, schedule: str, progress: float) -> float:
     """Learning rate after ``progress`` (0..1) of a run: ``constant``, or ``cosine`` (decays to 0 at the end)."""
-    if schedule not in LR_SCHEDULES:
-        raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got {schedule!r}")
+    check_choice("lr_schedule", schedule, LR_SCHEDULES)
     if schedule == "constant":
         return lr
     return lr * 0.5 * (1.0 + math.cos(math.pi * min(max(progress, 0.0), 1.0)))
@@ -72,8 +77,7 @@ def batch_scaled_lr(lr: float, batch_size: int, reference_batch: int, scaling: s
     same step per row seen, for SGD-like updates); ``sqrt`` by the square root of that ratio (the rule for Adam,
     whose step size does not grow with the gradient's scale: the gradient's noise falls as the square root of the
     batch)."""
-    if scaling not in LR_SCALINGS:
-        raise ValueError(f"lr_scaling must be one of {LR_SCALINGS}, got {scaling!r}")
+    check_choice("lr_scaling", scaling, LR_SCALINGS)
     ratio = batch_size / reference_batch
     return lr * {"none": 1.0, "linear": ratio, "sqrt": math.sqrt(ratio)}[scaling]
 
@@ -110,8 +114,7 @@ def check_run_knobs(config) -> None:
     batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, config.lr_scaling)
     if not 0.0 <= config.warmup_epochs <= config.epochs:
         raise ValueError(f"warmup_epochs must be in [0, epochs = {config.epochs}], got {config.warmup_epochs!r}")
-    if config.data_on_device not in DATA_PLACEMENTS:
-        raise ValueError(f"data_on_device must be one of {DATA_PLACEMENTS}, got {config.data_on_device!r}")
+    check_choice("data_on_device", config.data_on_device, DATA_PLACEMENTS)
     for name in ("compile", "tf32"):
         if not isinstance(getattr(config, name), bool):
             raise ValueError(f"{name} must be true or false, got {getattr(config, name)!r}")

@@ -7,7 +7,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from simshear_gym.train.runs import check_run_knobs, run_lr
+from simshear_gym.train.runs import check_choice, check_run_knobs, run_lr
 
 if TYPE_CHECKING:
     from simshear_gym.models.unet import UNetConfig
@@ -72,8 +72,7 @@ class TranslatorTrainConfig:
     tf32: bool = True
 
     def __post_init__(self) -> None:
-        if self.arch not in ARCHS:
-            raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
+        check_choice("arch", self.arch, ARCHS)
         check_run_knobs(self)
         if self.shear_decoder and self.arch != "shpix2pix":
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
