@@ -88,13 +88,6 @@ def load_checkpoint(path: Path) -> dict:
     return state
 
 
-def save_checkpoint(run_dir: Path, state: dict, config, history: list[dict]) -> None:
-    """Write ``checkpoint.pt`` (``state``) and ``history.json`` atomically: a crash mid-write leaves the previous
-    files whole."""
-    atomic_write(Path(run_dir) / "checkpoint.pt", lambda tmp: torch.save(state, tmp))
-    write_json(Path(run_dir) / "history.json", {"config": asdict(config), "epochs": history})
-
-
 class EpochTrainer(ABC):
     """Base of a trainer run in epochs; see the module docstring.
 
@@ -200,9 +193,12 @@ class EpochTrainer(ABC):
         }
 
     def save_checkpoint(self) -> None:
-        """Write ``checkpoint.pt`` and ``history.json`` (rank 0 only under torchrun)."""
+        """Write ``checkpoint.pt`` (:meth:`state`) and ``history.json`` atomically, so that a crash mid-write leaves
+        the previous files whole (rank 0 only under torchrun)."""
         if self.is_main:
-            save_checkpoint(self.run_dir, self.state(), self.config, self.history)
+            state = self.state()
+            atomic_write(self.run_dir / "checkpoint.pt", lambda tmp: torch.save(state, tmp))
+            write_json(self.run_dir / "history.json", {"config": asdict(self.config), "epochs": self.history})
 
     def resume(self) -> bool:
         """Continue from ``checkpoint.pt`` if there is one; returns whether it did. Refuses a checkpoint trained
@@ -327,9 +323,6 @@ class _NoWriter:
     """The tensorboard writer of a process that writes nothing (not rank 0)."""
 
     def add_scalar(self, *args, **kwargs) -> None:
-        pass
-
-    def add_image(self, *args, **kwargs) -> None:
         pass
 
     def close(self) -> None:

@@ -39,14 +39,11 @@ augmentations and trainer are in :mod:`simshear_gym.train.posenet_trainer`, on t
 from __future__ import annotations
 
 import argparse
-import json
-from dataclasses import asdict
 from pathlib import Path
 
-from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
 from simshear_gym.train.posenet_config import CONTACTS, SOURCES, PosenetTrainConfig
-from simshear_gym.train.runs import DATA_PLACEMENTS, LR_SCALINGS, LR_SCHEDULES
+from simshear_gym.train.runs import BUDGET_FLAG_HELP, RUN_CHOICES, device_flag_help, train_command
 from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
 FLAG_HELP = {
@@ -70,27 +67,14 @@ FLAG_HELP = {
                "input size)",
     "erase": "augmentation: black out a disc of radius up to ERASE (a share of the image size) in each training "
              "image",
-    "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
-    "cap_minutes": "wall-clock safety cap: stop after this much training time of this run, back at its last "
-                   "finished epoch (--resume continues it), without changing the schedule (which runs over the "
-                   "epochs unless --max-minutes is given)",
+    **BUDGET_FLAG_HELP,
     "seed": "seed of the holdout split, the initial weights, the batch order and the augmentations",
     "threads": "torch CPU threads",
     "translators": "generator weights (.pt) to translate with instead of the shipped one; several: each row "
                    "through a randomly drawn one each time",
     "variables": "the variables to estimate, inline (NAME:COLUMN:LOW:HIGH[:periodic],...; a sensor's own, as the "
                  "pipeline writes them) instead of the contact type's set",
-    "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
-              "CUDA); under torchrun each process takes GPU LOCAL_RANK",
-    "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
-           "CPU always trains in float32",
-    "lr_scaling": "scale --lr from the batch it was tuned at (64) to --batch-size: none, linear (x the ratio) or "
-                  "sqrt (x its square root, the rule for Adam)",
-    "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
-    "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on a "
-                      "GPU); the same batches either way",
-    "compile": "run the GDNN through torch.compile (the eager GDNN, after one warning, where it cannot compile)",
-    "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
+    **device_flag_help("GDNN", PosenetTrainConfig.reference_batch),
 }
 
 
@@ -98,8 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, PosenetTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired", "blur_px": "--blur"},
-                 choices={"source": SOURCES, "contact": CONTACTS, "lr_schedule": LR_SCHEDULES, "device": DEVICES,
-                          "lr_scaling": LR_SCALINGS, "data_on_device": DATA_PLACEMENTS},
+                 choices={"source": SOURCES, "contact": CONTACTS, **RUN_CHOICES},
                  required=("source", "contact", "paired_dirs"), metavars={"paired_dirs": "DIR",
                                                                           "translators": "WEIGHTS"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
@@ -111,24 +94,16 @@ def run(args: argparse.Namespace) -> int:
     :mod:`simshear_gym.train.distributed`)."""
     import torch
 
-    from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.posenet_trainer import PosenetTrainer, load_source
-    from simshear_gym.train.wandb_sync import wandb_run
 
     config = config_from_args(PosenetTrainConfig, args)
-    if (args.out / "checkpoint.pt").exists() and not args.resume:
-        raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
     torch.set_num_threads(config.threads)
-    with distributed_session(config.device) as distributed:
+
+    def trainer(distributed):
         data = load_source(config.source, config.contact, config.paired_dirs, args.data, config.image_size_px,
                            translators=config.translators, variables=config.variables,
                            device=config.device if distributed is None else "cpu")  # torchrun: each on its CPU
-        trainer = PosenetTrainer(config, args.out, data, distributed)
-        resumed = args.resume and trainer.resume()
-        if resumed and trainer.is_main:
-            print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-        with wandb_run(args.wandb if trainer.is_main else None, args.out, asdict(config)):
-            summary = trainer.fit(progress=trainer.is_main)
-    if trainer.is_main:
-        print(json.dumps(summary))
+        return PosenetTrainer(config, args.out, data, distributed)
+
+    train_command(args, config, trainer)
     return 0

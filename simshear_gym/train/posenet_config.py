@@ -6,8 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from simshear_gym.models.device import check_device_name
-from simshear_gym.train.runs import check_gpu_knobs, scheduled_lr
+from simshear_gym.train.runs import check_choice, check_run_knobs
 
 if TYPE_CHECKING:
     from simshear_gym.models.gdnn import GDNNConfig
@@ -63,10 +62,8 @@ class PosenetTrainConfig:
     tf32: bool = True
 
     def __post_init__(self) -> None:
-        if self.source not in SOURCES:
-            raise ValueError(f"source must be one of {SOURCES}, got {self.source!r}")
-        if self.contact not in CONTACTS:
-            raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        check_choice("source", self.source, SOURCES)
+        check_choice("contact", self.contact, CONTACTS)
         if (self.source == "env") != (self.contact == "env"):
             raise ValueError(f"source 'env' (sets of simshear collect-env) goes with contact 'env' and only with it, "
                              f"got source {self.source!r}, contact {self.contact!r}")
@@ -86,9 +83,7 @@ class PosenetTrainConfig:
             raise ValueError(f"beta must be in [0, 1], got {self.beta}")
         if self.lr <= 0:
             raise ValueError(f"lr must be > 0, got {self.lr}")
-        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
-        check_device_name(self.device)
-        check_gpu_knobs(self)
+        check_run_knobs(self)
         self.gdnn_config()  # validates the architecture
 
     def gdnn_config(self) -> GDNNConfig:

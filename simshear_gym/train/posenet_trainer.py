@@ -19,7 +19,7 @@ from simshear_gym.data.paired import load_paired
 from simshear_gym.data.paths import cache_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.io import atomic_write
-from simshear_gym.models.device import cpu_state, resolve_device
+from simshear_gym.models.device import OnDevice, cpu_state, resolve_device
 from simshear_gym.models.gdnn import GDNN, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
 from simshear_gym.models.posenet_io import save_posenet
@@ -29,7 +29,7 @@ from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
 from simshear_gym.train.posenet_config import SOURCES, PosenetTrainConfig
 from simshear_gym.train.precision import Compiled, MixedPrecision, autocast_dtype, memory_format, use_tf32
-from simshear_gym.train.runs import data_on_device, split_holdout
+from simshear_gym.train.runs import check_choice, data_on_device, split_holdout
 
 
 # ------------------------------------------------------------------------------------------------------ data
@@ -79,8 +79,7 @@ def load_source(source: str, contact: str, paired_dirs: tuple[str, ...] | list[s
     ``variables``: an inline variable set (:func:`~simshear_gym.models.gdnn.variable_set`) instead of the
     contact's; ``device`` (``cpu``, ``cuda``, ``auto``): where the translators run (on a GPU in batches of
     :data:`GPU_TRANSLATION_BATCH`: a GDNN's rows through a pool of generators cost minutes on one CPU thread)."""
-    if source not in SOURCES:
-        raise ValueError(f"source must be one of {SOURCES}, got {source!r}")
+    check_choice("source", source, SOURCES)
     variables = variable_set(variables or contact)
     if source == "env":
         return _load_env_sets(paired_dirs, variables, image_size_px)
@@ -130,9 +129,7 @@ def on_translation_device(translators: list, device: str, batch: int) -> tuple[l
     """``translators`` as they run on ``device`` and the batch they translate in: unchanged on the CPU; on a GPU
     each generator moved there (:class:`~simshear_gym.models.device.OnDevice`: CPU arrays in and out) and batches
     of :data:`GPU_TRANSLATION_BATCH`."""
-    from simshear_gym.models.device import OnDevice, check_device_name, resolve_device
-
-    where = resolve_device(check_device_name(device))
+    where = resolve_device(device)
     if where.type == "cpu":
         return translators, batch
     return [Translator(OnDevice(t.generator.float(), where), t.card, fast=False) for t in translators], max(
@@ -330,8 +327,7 @@ class PosenetTrainer(EpochTrainer):
         rows = self.local_rows(len(index))
         return {"nll": self.train_step(images[rows], self.variables.encode(part.labels)[rows])}
 
-    def holdout_metric(self) -> float:
-        return self.holdout_nll()
+    holdout_metric = holdout_nll
 
     def save_best(self, path: Path, card: dict) -> None:
         save_posenet(path, self.model, card={**card, "source": self.config.source, "contact": self.config.contact})

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from simshear_gym.contract import ACTION_OBSERVATIONS, ESTIMATE_OBSERVATIONS, IMAGE_SIZES_PX, check_observation
 from simshear_gym.models.device import check_device_name
+from simshear_gym.train.runs import check_choice
 
 ALGORITHMS = ("ppo", "sac", "tqc")  # tqc: sb3-contrib's TQC (an optional dependency)
 TASKS = ("tracking", "colift", "edge", "push")
@@ -79,10 +80,8 @@ class RLTrainConfig:
     device: str = "cpu"
 
     def __post_init__(self) -> None:
-        if self.algo not in ALGORITHMS:
-            raise ValueError(f"algo must be one of {ALGORITHMS}, got {self.algo!r}")
-        if self.task not in TASKS:
-            raise ValueError(f"task must be one of {TASKS}, got {self.task!r}")
+        check_choice("algo", self.algo, ALGORITHMS)
+        check_choice("task", self.task, TASKS)
         if self.obs_mode not in OBS_MODES:
             raise ValueError(f"obs_mode must be 'real' or 'sim' (a policy never sees ground truth), "
                              f"got {self.obs_mode!r}")
@@ -90,8 +89,7 @@ class RLTrainConfig:
         if self.image_size_px not in IMAGE_SIZES_PX:
             raise ValueError(f"image_size_px must be one of {IMAGE_SIZES_PX}, got {self.image_size_px}")
         check_device_name(self.device)
-        if self.vec not in VEC_ENVS:
-            raise ValueError(f"vec must be one of {VEC_ENVS}, got {self.vec!r}")
+        check_choice("vec", self.vec, VEC_ENVS)
         if min(self.n_envs, self.n_steps, self.batch_size, self.n_epochs, self.checkpoint_steps,
                self.eval_max_steps) < 1 or self.timesteps < (0 if self.bc_steps else 1):
             raise ValueError("timesteps (0 allowed with --bc-steps: the clone alone), n_envs, n_steps, batch_size, "

@@ -404,21 +404,19 @@ def train(config: RLTrainConfig, run_dir: Path, resume: bool = False, progress: 
     Algorithm = sb3_class(config.algo)
     tensorboard = str(run_dir / "tb")
     policy_kwargs = {"net_arch": list(config.net_arch)} if config.net_arch else None
+    common = {"batch_size": config.batch_size, "gamma": config.gamma, "learning_rate": config.learning_rate,
+              "policy_kwargs": policy_kwargs, "seed": config.seed, "tensorboard_log": tensorboard,
+              "verbose": int(progress), "device": device}
     if start_from is not None:
         model = load_agent(Algorithm, start_from, env, config, tensorboard_log=tensorboard, device=device)
     elif config.algo == "ppo":
         policy = "MultiInputPolicy"
         if config.asymmetric_critic:
             from simshear_gym.control.asymmetric import AsymmetricActorCriticPolicy as policy
-        model = PPO(policy, env, n_steps=config.n_steps, batch_size=config.batch_size,
-                    n_epochs=config.n_epochs, gamma=config.gamma, learning_rate=config.learning_rate,
-                    policy_kwargs=policy_kwargs, seed=config.seed, tensorboard_log=tensorboard,
-                    verbose=int(progress), device=device)
+        model = PPO(policy, env, n_steps=config.n_steps, n_epochs=config.n_epochs, **common)
     else:  # SAC, TQC
-        model = Algorithm("MultiInputPolicy", env, batch_size=config.batch_size, learning_rate=config.learning_rate,
-                    gamma=config.gamma, buffer_size=min(100_000, config.timesteps),
-                    learning_starts=min(1_000, config.timesteps // 4), policy_kwargs=policy_kwargs,
-                    seed=config.seed, tensorboard_log=tensorboard, verbose=int(progress), device=device)
+        model = Algorithm("MultiInputPolicy", env, buffer_size=min(100_000, config.timesteps),
+                          learning_starts=min(1_000, config.timesteps // 4), **common)
     imitation = None
     if start_from is None and config.bc_steps:
         imitation = clone_servo_law(config, model, vec_normalize)

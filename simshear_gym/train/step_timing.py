@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.models.device import resolve_device
+
 PROBE_ROWS = 512
 """Rows of the random set a probe trains on (the holdout pass is timed on its share of them and scaled), or more
 where the run's batch needs them (:func:`probe_rows`)."""
@@ -65,14 +67,6 @@ def _median_s(action, repeats: int, warmup: int, device: str = "cpu") -> float:
     return float(np.median(times))
 
 
-def _probe_device(device: str) -> str:
-    """"cpu" or "cuda": the device a run asked for as ``device`` trains on here (``auto``: CUDA where there is one;
-    "cuda" without CUDA is the trainers' own error)."""
-    from simshear_gym.models.device import check_device_name, resolve_device
-
-    return resolve_device(check_device_name(device)).type
-
-
 def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None, device: str = "cpu") -> StepTime:
     if ready is not None:
         ready()
@@ -101,7 +95,7 @@ def translator_step_time(settings: dict, image_size_px: int, steps: int = 10, th
     from simshear_gym.train.translator_trainer import PairedTensors, TranslatorTrainer
 
     torch.set_num_threads(threads)
-    device = _probe_device(device)
+    device = resolve_device(device).type  # "cpu" or "cuda": where the run trains here
     generator = torch.Generator().manual_seed(0)
     with tempfile.TemporaryDirectory() as folder:
         pose, pose_settings = None, {}
@@ -135,7 +129,7 @@ def posenet_step_time(settings: dict, variables: str, views: int = 1, steps: int
     from simshear_gym.train.posenet_trainer import LabelledImages, PosenetTrainer
 
     torch.set_num_threads(threads)
-    device = _probe_device(device)
+    device = resolve_device(device).type  # "cpu" or "cuda": where the run trains here
     generator = torch.Generator().manual_seed(0)
     config = PosenetTrainConfig(**{**settings, "paired_dirs": ("random",), "variables": variables, "device": device,
                                    "threads": threads})
@@ -166,7 +160,7 @@ def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, r
     from simshear_gym.train.posenet_trainer import on_translation_device
 
     (translator,), batch = on_translation_device([Translator(UNetGenerator(config.generator_config()))],
-                                                 _probe_device(device), batch)
+                                                 resolve_device(device).type, batch)
     rng = np.random.default_rng(0)
     sim = rng.integers(0, 256, (batch, image_size_px, image_size_px), dtype=np.uint8)
     shear = rng.normal(size=(batch, 6)).astype(np.float32)

@@ -29,13 +29,10 @@ trainer are in :mod:`simshear_gym.train.translator_trainer`, on the epoch loop o
 from __future__ import annotations
 
 import argparse
-import json
-from dataclasses import asdict
 from pathlib import Path
 
-from simshear_gym.models.device import DEVICES
 from simshear_gym.train.flags import config_flags, config_from_args
-from simshear_gym.train.runs import DATA_PLACEMENTS, LR_SCALINGS, LR_SCHEDULES
+from simshear_gym.train.runs import BUDGET_FLAG_HELP, RUN_CHOICES, device_flag_help, train_command
 from simshear_gym.train.translator_config import ARCHS, DENSITY_POOL_PX, TranslatorTrainConfig
 from simshear_gym.train.wandb_sync import FLAG_HELP as WANDB_HELP
 
@@ -59,10 +56,7 @@ FLAG_HELP = {
     "gan_weight": "weight of the least-squares GAN loss (0: L1 alone, no discriminator)",
     "holdout": "share of the training rows held out for early stopping on L1",
     "patience_epochs": "stop after this many epochs in a row without a lower holdout L1",
-    "max_minutes": "stop after this much training time (counted across --resume); the run is checkpointed there",
-    "cap_minutes": "wall-clock safety cap: stop after this much training time of this run, back at its last "
-                   "finished epoch (--resume continues it), without changing the schedule (which runs over the "
-                   "epochs unless --max-minutes is given)",
+    **BUDGET_FLAG_HELP,
     "seed": "seed of the holdout split, the initial weights and the batch order",
     "threads": "torch CPU threads",
     "pose_net": "pose-consistency loss: a GDNN trained on the real images (best.pt of simshear train posenet "
@@ -73,18 +67,7 @@ FLAG_HELP = {
                "rows' sim renders and shear instead of the real images (a smaller, faster student; L1 alone)",
     "init_weights": "fine-tune: start the generator from this translator's weights (its .pt, the same architecture) "
                     "instead of random ones",
-    "device": "where to train: auto (CUDA where torch finds it, else the CPU), cpu or cuda (an error without "
-              "CUDA); under torchrun each process takes GPU LOCAL_RANK",
-    "amp": "on CUDA, no mixed precision (bf16 autocast, or fp16 with loss scaling where the GPU lacks bf16); the "
-           "CPU always trains in float32",
-    "lr_scaling": "scale --lr from the batch it was tuned at (16) to --batch-size: none, linear (x the ratio) or "
-                  "sqrt (x its square root, the rule for Adam)",
-    "warmup_epochs": "ramp the rate up linearly from 0 over this many epochs",
-    "data_on_device": "keep the training rows on the training device, batches gathered there: on, off, or auto (on a "
-                      "GPU); the same batches either way",
-    "compile": "run the generator through torch.compile (the eager generator, after one warning, where it cannot "
-               "compile)",
-    "tf32": "on CUDA, float32 matrix products and convolutions in full float32, not TF32",
+    **device_flag_help("generator", TranslatorTrainConfig.reference_batch),
 }
 
 
@@ -92,8 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="run directory")
     parser.add_argument("--data", default=None, help="data root of the real images")
     config_flags(parser, TranslatorTrainConfig, FLAG_HELP, flags={"paired_dirs": "--paired"},
-                 choices={"arch": ARCHS, "lr_schedule": LR_SCHEDULES, "device": DEVICES,
-                          "lr_scaling": LR_SCALINGS, "data_on_device": DATA_PLACEMENTS}, required=("paired_dirs",),
+                 choices={"arch": ARCHS, **RUN_CHOICES}, required=("paired_dirs",),
                  metavars={"paired_dirs": "DIR", "pose_variables": "NAME"})
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--export", type=Path, default=None, help="write the best generator (fp16) here")
@@ -103,27 +85,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train (under torchrun: data-parallel, rank 0 writing and printing; see
     :mod:`simshear_gym.train.distributed`)."""
-    from simshear_gym.train.distributed import distributed_session
     from simshear_gym.train.pose_consistency import PoseConsistency
     from simshear_gym.train.translator_trainer import TranslatorTrainer, export_run, load_pairs
-    from simshear_gym.train.wandb_sync import wandb_run
 
     config = config_from_args(TranslatorTrainConfig, args)
-    if (args.out / "checkpoint.pt").exists() and not args.resume:
-        raise ValueError(f"{args.out / 'checkpoint.pt'} exists: pass --resume to continue it or use a new --out")
-    with distributed_session(config.device) as distributed:
+
+    def trainer(distributed):
         pose = PoseConsistency(config.pose_net, config.pose_variables) if config.pose_weight > 0 else None
         pairs = load_pairs(config.paired_dirs, args.data, pose)
-        trainer = TranslatorTrainer(config, args.out, pairs, pose, distributed)
-        resumed = args.resume and trainer.resume()
-        if resumed and trainer.is_main:
-            print(f"resumed from {args.out / 'checkpoint.pt'} at epoch {trainer.epoch}")
-        with wandb_run(args.wandb if trainer.is_main else None, args.out, asdict(config)):
-            summary = trainer.fit(progress=trainer.is_main)
-    if not trainer.is_main:
-        return 0
-    print(json.dumps(summary))
-    if args.export:
+        return TranslatorTrainer(config, args.out, pairs, pose, distributed)
+
+    if train_command(args, config, trainer) is not None and args.export:
         export_run(args.out, args.export)
         print(f"exported {args.export}")
     return 0

@@ -7,8 +7,7 @@ import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, ClassVar
 
-from simshear_gym.models.device import check_device_name
-from simshear_gym.train.runs import check_gpu_knobs, run_lr, scheduled_lr
+from simshear_gym.train.runs import check_choice, check_run_knobs, run_lr
 
 if TYPE_CHECKING:
     from simshear_gym.models.unet import UNetConfig
@@ -73,11 +72,8 @@ class TranslatorTrainConfig:
     tf32: bool = True
 
     def __post_init__(self) -> None:
-        if self.arch not in ARCHS:
-            raise ValueError(f"arch must be one of {ARCHS}, got {self.arch!r}")
-        scheduled_lr(self.lr, self.lr_schedule, 0.0)  # validates the schedule
-        check_device_name(self.device)
-        check_gpu_knobs(self)
+        check_choice("arch", self.arch, ARCHS)
+        check_run_knobs(self)
         if self.shear_decoder and self.arch != "shpix2pix":
             raise ValueError("shear_decoder feeds the shear vector: it needs arch 'shpix2pix'")
         if not self.paired_dirs:

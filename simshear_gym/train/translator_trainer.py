@@ -46,39 +46,32 @@ class PairedTensors:
                              None if self.pose_labels is None else self.pose_labels[index])
 
     def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """Model-ready float tensors of the rows ``index``: sim, shear, real, pose labels (or None)."""
-        index = torch.as_tensor(index)
+        """Model-ready float tensors of the rows ``index`` (where the pairs are): sim, shear, real, pose labels (or
+        None)."""
+        index = torch.as_tensor(index).to(self.sim.device, non_blocking=True)
         real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
         labels = None if self.pose_labels is None else self.pose_labels[index]
-        return normalise_sim(self.sim[index]), normalise_shear(self.shear[index].numpy()), real, labels
+        return normalise_sim(self.sim[index]), self.shear_input(index), real, labels
+
+    def shear_input(self, index: torch.Tensor) -> torch.Tensor:
+        """The generator's shear input of the rows ``index`` (normalised here)."""
+        return normalise_shear(self.shear[index].numpy())
 
 
 @dataclass(frozen=True, eq=False)
-class DevicePairs:
+class DevicePairs(PairedTensors):
     """Training pairs held on the training device (``data_on_device``): sim uint8 (N, H, W), shear float32 (N, 6)
     already normalised (:func:`~simshear_gym.models.translator.normalise_shear`), real uint8 (N, H, W), pose labels
     float32 (N, D) or None. A batch is gathered there by index: the same float tensors
     :meth:`PairedTensors.batch` builds on the CPU, with no copy of images per step."""
-
-    sim: torch.Tensor
-    shear: torch.Tensor
-    real: torch.Tensor
-    pose_labels: torch.Tensor | None = None
 
     @classmethod
     def of(cls, pairs: PairedTensors, device: torch.device) -> DevicePairs:
         return cls(pairs.sim.to(device), normalise_shear(pairs.shear.numpy()).to(device), pairs.real.to(device),
                    None if pairs.pose_labels is None else pairs.pose_labels.to(device))
 
-    def __len__(self) -> int:
-        return len(self.sim)
-
-    def batch(self, index: np.ndarray) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
-        """Model-ready float tensors of the rows ``index`` on the device: sim, shear, real, pose labels (or None)."""
-        index = torch.as_tensor(index).to(self.sim.device, non_blocking=True)
-        real = self.real[index].unsqueeze(1).to(torch.float32) / 255.0
-        labels = None if self.pose_labels is None else self.pose_labels[index]
-        return normalise_sim(self.sim[index]), self.shear[index], real, labels
+    def shear_input(self, index: torch.Tensor) -> torch.Tensor:
+        return self.shear[index]
 
 
 def load_pairs(paired_dirs: tuple[str, ...] | list[str], data: str | None = None,
@@ -289,8 +282,7 @@ class TranslatorTrainer(EpochTrainer):
         rows = self.device_pairs if self.device_pairs is not None else self.train_pairs
         return self.train_step(*rows.batch(index[self.local_rows(len(index))]))
 
-    def holdout_metric(self) -> float:
-        return self.holdout_l1()
+    holdout_metric = holdout_l1
 
     def save_best(self, path: Path, card: dict) -> None:
         save_generator(path, self.generator, half=False, card=card)
