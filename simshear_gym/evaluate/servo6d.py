@@ -81,8 +81,7 @@ def summarise(runs: list[dict]) -> dict:
         "terminations": sorted({r["termination"] for r in runs if r["termination"]}),
         "control_ms_median": float(np.median([r["control_ms_median"] for r in runs])),
         "meets_target": bool(  # every run's mean within the targets, no run losing contact
-contact.max() <= TARGET_CONTACT_ERROR_MM and normal.max() <= TARGET_NORMAL_ERROR_DEG
-                             and losses == 0),
+            contact.max() <= TARGET_CONTACT_ERROR_MM and normal.max() <= TARGET_NORMAL_ERROR_DEG and losses == 0),
     }
 
 
