@@ -21,9 +21,10 @@ import pytest
 
 import simshear_gym.envs  # noqa: F401
 from simshear_gym import contract
+from simshear_gym.io import file_sha256
 from simshear_gym.models import translator_runtime, zoo
 from simshear_gym.models.translator import Translator
-from simshear_gym.models.translator_runtime import OnnxTranslator, file_sha256, load_translator, onnx_path_for
+from simshear_gym.models.translator_runtime import OnnxTranslator, load_translator, onnx_path_for
 from simshear_gym.models.zoo import shipped_translators
 
 pytest.importorskip("onnxruntime", reason="the ONNX translator runtime needs onnxruntime (a dependency)")

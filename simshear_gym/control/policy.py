@@ -324,7 +324,7 @@ def stale_estimator_models(path: str | Path) -> list[str]:
     """The models that made a shipped policy's observations at export (its ``config.json`` provenance) and have
     been replaced since (another sha256 now, or gone): the policy sees other observations than it was trained on.
     [] for a run folder without that record."""
-    from simshear_gym.models.translator_runtime import file_sha256
+    from simshear_gym.io import file_sha256
     from simshear_gym.models.zoo import estimator_file
 
     config = Path(path).parent / RUN_CONFIG

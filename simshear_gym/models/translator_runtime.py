@@ -30,14 +30,13 @@ torch is imported only by the torch path; this module imports neither torch nor 
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import os
 from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.io import verify_checksum
+from simshear_gym.io import file_sha256, verify_checksum
 from simshear_gym.models.device import DEVICES, check_device_name
 
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
@@ -67,10 +66,6 @@ def onnxruntime_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def file_sha256(path: str | os.PathLike) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def _metadata(session, path) -> dict:

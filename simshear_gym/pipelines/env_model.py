@@ -56,7 +56,7 @@ def scene_fingerprint(recipe: EnvModelRecipe) -> dict:
 
 
 def _sha(path: Path | str) -> str:
-    from simshear_gym.models.translator_runtime import file_sha256
+    from simshear_gym.io import file_sha256
 
     return file_sha256(path)[:16]
 

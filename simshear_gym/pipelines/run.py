@@ -65,11 +65,11 @@ import pandas as pd
 from simshear_gym.data.adapter import CANONICAL_COLUMNS, adapt_dataset, config_files, resolve, write_canonical
 from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import read_set
-from simshear_gym.io import write_json
+from simshear_gym.io import file_sha256, write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.models import onnx_export
 from simshear_gym.models.device import DEVICES, check_device_name
-from simshear_gym.models.translator_runtime import file_sha256, onnx_path_for
+from simshear_gym.models.translator_runtime import onnx_path_for
 from simshear_gym.models.zoo import DEFAULT_PIPELINE_RUNS, write_sensor
 from simshear_gym.pipelines.stages import (
     RunStopped,
