@@ -454,21 +454,22 @@ class Profile:
 
     def _check_start(self, generator: PoolGenerator) -> None:
         """A pool generator's ``start_from`` names a translator the profile trains (the shPix2pix always) for every
-        contact type the generator is trained for, and no chain of starts loops."""
-        start, seen = generator.start_from, [generator.name]
-        while start and start != "shpix2pix":
-            found = next((g for g in self.pool if g.name == start), None)
-            if found is None or start in seen:
+        contact type the generator is trained for, of the generator's architecture, and no chain of starts loops."""
+        by_name = {g.name: g for g in self.pool}
+        seen, current = [generator.name], generator
+        while current.start_from and current.start_from != "shpix2pix":
+            found = by_name.get(current.start_from)
+            if found is None or found.name in seen:
                 raise ValueError(f"pool generator {generator.name!r}: start_from {generator.start_from!r} must be "
                                  f"'shpix2pix' or another pool generator's name, without a loop (pool: "
-                                 f"{[g.name for g in self.pool]})")
+                                 f"{list(by_name)})")
             if found.contact not in ("", generator.contact):
                 raise ValueError(f"pool generator {generator.name!r} ({generator.contact or 'every'} contact) "
-                                 f"starts from {start!r}, trained for {found.contact} contacts only")
-            seen.append(start)
-            start = found.start_from
+                                 f"starts from {found.name!r}, trained for {found.contact} contacts only")
+            seen.append(found.name)
+            current = found
         if generator.start_from:
-            start = next((g for g in self.pool if g.name == generator.start_from), None)
+            start = by_name.get(generator.start_from)
             ours, theirs = (self.translator.settings_for("") | (g.replaced() if g else {}) for g in (generator, start))
             differ = {knob: (ours.get(knob), theirs.get(knob)) for knob in GENERATOR_ARCH_KNOBS
                       if ours.get(knob) != theirs.get(knob)}

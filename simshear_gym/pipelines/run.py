@@ -248,10 +248,10 @@ def _translator_work(settings: dict, contact: str, names: list[str], arch: str =
 
 def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, train_sets: list[str],
                     generator, runner: StageRunner, done: dict, *, device: str = "auto",
-                    reader: str | None = None) -> StageResult:
+                    reader: str | None = None, start: str | None = None) -> StageResult:
     """A translator of a contact type: its shPix2pix or pix2pix (``generator`` None), or a pool generator
     (:class:`~simshear_gym.pipelines.config.PoolGenerator`; its pose-consistency reader from ``done``: the step
-    ``reader``, by default the generator's own; the weights it starts from: its ``start_from`` step's), trained on
+    ``reader``, by default the generator's own; the weights it starts from: the step ``start``'s), trained on
     ``device``."""
     settings = _translator_settings(stage, contact, generator)
     pose_net = ""
@@ -259,8 +259,8 @@ def translator_step(config: ExperimentConfig, stage, contact: str, arch: str, tr
         pose_net = done[reader or f"posenet/{contact}_{generator.reader_step}"].outputs["weights"]
         settings |= {"pose_weight": generator.pose_weight, "pose_net": pose_net,
                      "pose_variables": tuple(generator.pose_variables)}
-    if generator is not None and generator.start_from:
-        settings |= {"init_weights": done[f"translator/{contact}_{generator.start_from}"].outputs["weights"]}
+    if start is not None:
+        settings |= {"init_weights": done[start].outputs["weights"]}
     key = {"paired": train_sets, "arch": arch, "settings": settings}
     label = generator.name if generator else arch
     name = f"translator/{contact}_{label}"
@@ -299,7 +299,7 @@ def pool_step(config: ExperimentConfig, stage, contact: str, names: list[str], t
     settings = _translator_settings(stage, contact, generator)
     return Step(f"translator/{contact}_{generator.name}", partial(
         translator_step, config, stage, contact, "shpix2pix", train_sets, generator, device=device,
-        reader=needs[0] if needs else None), needs=needs + start,
+        reader=needs[0] if needs else None, start=start[0] if start else None), needs=needs + start,
         cost=TRANSLATOR_EPOCH_COST * settings["epochs"] * (POSE_CONSISTENCY_COST if needs else 1.0),
         work=_translator_work(settings | {"pose_weight": generator.pose_weight}, contact, names))
 
@@ -600,11 +600,10 @@ def run_pipeline(config: ExperimentConfig, out: Path, root: Path, profile: str, 
         shipped = {contact: archs["shpix2pix"] for contact, archs in translators.items()}  # sensor.json names them
         onnx = stage_onnx(runner, shipped, paired, contacts_of(config))
         results += runner.results[exports_from:]
-    if translators and posenets:
-        write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor),
-                     translators=shipped,
-                     posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
-                     variables=posenets["variables"], onnx=onnx)
+        if translators and posenets:
+            write_sensor(out, config.name, str(config.path), profile, asdict(config.sensor), translators=shipped,
+                         posenets={contact: models["shpix2pix"] for contact, models in posenets["models"].items()},
+                         variables=posenets["variables"], onnx=onnx)
     machine = machine_info()  # its packages' versions: the package's own, None where it is not installed
     manifest = {
         "config": str(config.path), "settings": list(config.settings), "sensor": config.name, "profile": profile,

@@ -109,7 +109,7 @@ def data_on_device(setting: str, device_type: str) -> bool:
 def check_run_knobs(config) -> None:
     """Raise a ValueError naming the valid values unless a trainer config's ``lr_schedule``, ``device``,
     ``lr_scaling``, ``warmup_epochs``, ``data_on_device``, ``compile`` and ``tf32`` are valid."""
-    scheduled_lr(config.lr, config.lr_schedule, 0.0)  # validates the schedule
+    check_choice("lr_schedule", config.lr_schedule, LR_SCHEDULES)
     check_device_name(config.device)
     batch_scaled_lr(config.lr, config.batch_size, config.reference_batch, config.lr_scaling)
     if not 0.0 <= config.warmup_epochs <= config.epochs:
@@ -146,7 +146,6 @@ def check_same_settings(path: Path, saved_config: dict, config, free: tuple[str,
         changed = sorted(k for k in mine if saved.get(k) != mine[k])
         raise ValueError(f"{path}: trained with other settings ({changed}); to train with different settings, use "
                          "a new --out")
-
 
 
 def train_command(args, config, make_trainer: Callable) -> dict | None:
