@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from simshear_gym.evaluate.metrics import pose_shear_labels
 from simshear_gym.evaluate.posenet_filter import (
     FilterSettings,
     SequenceConfig,
@@ -11,7 +12,6 @@ from simshear_gym.evaluate.posenet_filter import (
     evaluate_sequence,
     lag_steps,
     run_filter,
-    sequence_labels,
 )
 from simshear_gym.models.gdnn import GDNN, GDNNConfig, variable_set
 from simshear_gym.models.posenet_io import save_posenet
@@ -24,7 +24,7 @@ def test_sequence_starts_at_touch_and_stays_in_the_training_ranges(contact):
     poses, moves = contact_sequence(SequenceConfig(contact=contact, steps=100))
     assert poses.shape == moves.shape == (100, 6)
     assert np.allclose(moves[0], 0.0)
-    labels = sequence_labels(poses, moves, variable_set(contact))  # the move stands in for the shear here
+    labels = pose_shear_labels(poses, moves, variable_set(contact))  # the move stands in for the shear here
     for index, spec in enumerate(variable_set(contact).variables):
         assert labels[:, index].min() >= spec.low and labels[:, index].max() <= spec.high, spec.name
     if contact == "edge":  # the edge angle crosses +-180
@@ -34,7 +34,7 @@ def test_sequence_starts_at_touch_and_stays_in_the_training_ranges(contact):
 def test_filter_reduces_noise_without_lag_on_synthetic_readings():
     variables = variable_set("edge")
     poses, moves = contact_sequence(SequenceConfig(contact="edge", steps=200))
-    truth = sequence_labels(poses, moves, variables)
+    truth = pose_shear_labels(poses, moves, variables)
     rng = np.random.default_rng(0)
     std = np.tile([0.5, 0.2, 8.0, 1.0, 1.0, 1.5], (len(truth), 1))
     readings = truth + rng.normal(size=truth.shape) * std

@@ -63,8 +63,14 @@ def mae_by_depth(absolute: np.ndarray, truth: np.ndarray, variables) -> list[dic
 
 def truth_labels(val: TactileSet, variables) -> np.ndarray:
     """(N, V) labels of a real set: ``pose_*`` from its poses, ``shear_sensor_*`` from its moves and Rz."""
-    table = dict(zip(POSE_COLUMNS, val.poses().T))
-    table.update(zip(SHEAR_COLUMNS, val.shear_sensor().T))
+    return pose_shear_labels(val.poses(), val.shear_sensor(), variables)
+
+
+def pose_shear_labels(poses: np.ndarray, shear: np.ndarray, variables) -> np.ndarray:
+    """(N, V) labels for a variable set from poses (N, 6) and sensor-frame shear (N, 6), as the real sets' columns
+    ``pose_*`` and ``shear_sensor_*`` (e.g. of a simulated sequence)."""
+    table = dict(zip(POSE_COLUMNS, poses.T))
+    table.update(zip(SHEAR_COLUMNS, shear.T))
     return label_matrix(table, variables)
 
 

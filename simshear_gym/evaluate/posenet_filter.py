@@ -118,16 +118,6 @@ def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.
     return poses, shear, images
 
 
-def sequence_labels(poses: np.ndarray, shear: np.ndarray, variables) -> np.ndarray:
-    """(T, V) labels of a sequence for a variable set (the real sets' columns)."""
-    from simshear_gym.data.labels import POSE_COLUMNS, SHEAR_COLUMNS
-    from simshear_gym.models.gdnn_input import label_matrix
-
-    table = dict(zip(POSE_COLUMNS, poses.T))
-    table.update(zip(SHEAR_COLUMNS, shear.T))
-    return label_matrix(table, variables)
-
-
 def run_filter(mean: np.ndarray, std: np.ndarray, truth: np.ndarray, variables,
                settings: FilterSettings = FilterSettings()) -> tuple[np.ndarray, np.ndarray]:
     """Filter GDNN readings (T, V) over a sequence; the commanded move is the change of ``truth``.
@@ -168,7 +158,7 @@ def lag_steps(estimate: np.ndarray, truth: np.ndarray, periodic: bool, max_lag: 
 
 
 def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: FilterSettings, max_lag: int = 5) -> dict:
-    from simshear_gym.evaluate.metrics import errors
+    from simshear_gym.evaluate.metrics import errors, pose_shear_labels
     from simshear_gym.models.gdnn_input import predict
     from simshear_gym.models.posenet_io import load_posenet
 
@@ -177,7 +167,7 @@ def evaluate_sequence(model_path: Path, config: SequenceConfig, settings: Filter
     if variables.name != config.contact:
         raise ValueError(f"{model_path}: predicts the {variables.name!r} variables, not {config.contact!r}")
     poses, shear, images = sequence_images(config)
-    truth = sequence_labels(poses, shear, variables)
+    truth = pose_shear_labels(poses, shear, variables)
     mean_encoded, std_encoded = predict(model, images)
     raw_mean, raw_std = (t.numpy().astype(np.float64) for t in variables.decode(mean_encoded, std_encoded))
     filtered_mean, filtered_std = run_filter(raw_mean, raw_std, truth, variables, settings)
