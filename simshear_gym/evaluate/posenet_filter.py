@@ -105,6 +105,7 @@ def contact_sequence(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray]:
 
 def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(poses, shear (T, 6) sensor frame, translated uint8 images (T, H, W)) of a sequence."""
+    from simshear_gym.models.translator import translate_rows
     from simshear_gym.models.zoo import load_shipped_translator
     from simshear_gym.sim.replay import ReplayScene
     from simshear_gym.sim.shear import ShearTrackerConfig, replay_shear
@@ -114,7 +115,7 @@ def sequence_images(config: SequenceConfig) -> tuple[np.ndarray, np.ndarray, np.
         sim = np.stack([scene.render(pose) for pose in poses])
     shear = replay_shear(poses, moves, ShearTrackerConfig())
     translator = load_shipped_translator(config.contact)
-    images = np.concatenate([translator(sim[i:i + 32], shear[i:i + 32]) for i in range(0, len(sim), 32)])
+    images = translate_rows(translator, sim, shear, 32)
     return poses, shear, images
 
 

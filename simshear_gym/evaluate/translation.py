@@ -84,10 +84,6 @@ def reader_mae(reader, images: np.ndarray, truth: np.ndarray) -> dict[str, float
     return {name: per["mae"] for name, per in figures["variables"].items()}
 
 
-def translate(translator, sim: np.ndarray, shear: np.ndarray, batch: int = 64) -> np.ndarray:
-    return np.concatenate([translator(sim[i:i + batch], shear[i:i + batch]) for i in range(0, len(sim), batch)])
-
-
 def on_device(translator, device):
     """``translator`` run on ``device`` (a torch.device): a torch translator's generator there behind the same
     call (uint8 in and out); the translator itself on the CPU or for ONNX Runtime."""
@@ -112,6 +108,7 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
     (:data:`~simshear_gym.models.device.DEVICES`)."""
     from simshear_gym.evaluate.metrics import mape, ssim, truth_labels
     from simshear_gym.models.device import OnDevice, resolve_device
+    from simshear_gym.models.translator import translate_rows
     from simshear_gym.models.translator_runtime import ONNX_SUFFIX, load_translator
     from simshear_gym.models.zoo import load_posenet, model_path
     from simshear_gym.sim.replay import render_poses
@@ -145,9 +142,9 @@ def evaluate(root: Path, models: dict[str, dict[str, Path]], rows: int | None = 
                 read_set(real_set_dir(root, contact, kind, "train")), val, contact)[select]}
             for name in models:
                 translator = translators[(name, contact)]
-                generated[name] = translate(translator, sim, shear)
+                generated[name] = translate_rows(translator, sim, shear)
                 if published_input:
-                    generated[f"{name} (published sim input)"] = translate(translator, published, shear)
+                    generated[f"{name} (published sim input)"] = translate_rows(translator, published, shear)
             set_name = f"{contact}_{kind}"
             results[set_name] = {method: {"mape": float(mape(images, real).mean()),
                                           "ssim": float(ssim(images, real).mean())}

@@ -91,3 +91,10 @@ class Translator:
                 raise ValueError(f"shear_sensor must be (B, 6) = ({len(sim)}, 6), got {tuple(shear.shape)}")
         out = self._run(sim, shear) if shear is not None else self._run(sim)
         return (out[:, 0] * 255.0 + 0.5).clamp(0, 255).to(torch.uint8).numpy()
+
+
+def translate_rows(translator, sim_uint8: np.ndarray, shear_sensor: np.ndarray, batch: int = 64) -> np.ndarray:
+    """uint8 (N, H, W): ``translator`` (a :class:`Translator`, or anything called like one) over sim images (N, H, W)
+    and their shear (N, 6), ``batch`` rows at a time."""
+    return np.concatenate([translator(sim_uint8[i:i + batch], shear_sensor[i:i + batch])
+                           for i in range(0, len(sim_uint8), batch)])

@@ -23,7 +23,7 @@ from simshear_gym.models.device import OnDevice, cpu_state, resolve_device
 from simshear_gym.models.gdnn import GDNN, VariableSet, beta_nll, gaussian_nll, variable_set
 from simshear_gym.models.gdnn_input import label_matrix, resize_images, to_input
 from simshear_gym.models.posenet_io import save_posenet
-from simshear_gym.models.translator import ARCHS, Translator
+from simshear_gym.models.translator import ARCHS, Translator, translate_rows
 from simshear_gym.models.zoo import load_shipped_translator
 from simshear_gym.train.distributed import Distributed
 from simshear_gym.train.loop import EpochTrainer
@@ -156,8 +156,7 @@ def translated_rows(translator, weights: str, paired, sim_uint8: np.ndarray, she
         cached = np.load(cache_file)
         if cached.shape == (len(sim_uint8), image_size_px, image_size_px):
             return cached
-    images = resize_images(np.concatenate([translator(sim_uint8[i:i + batch], shear[i:i + batch])
-                                           for i in range(0, len(sim_uint8), batch)]), image_size_px)
+    images = resize_images(translate_rows(translator, sim_uint8, shear, batch), image_size_px)
     atomic_write(cache_file, lambda path: np.save(path, images), suffix=".npy")
     return images
 

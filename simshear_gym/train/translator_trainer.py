@@ -98,7 +98,7 @@ def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch:
     """``pairs`` with the real images replaced by a teacher translator's uint8 images of the same rows (sim
     render and shear, through the translator's contract as the envs run it), for distillation. The teacher must
     be of the student's architecture kind (shPix2pix or pix2pix) and image size."""
-    from simshear_gym.models.translator import Translator
+    from simshear_gym.models.translator import Translator, translate_rows
 
     teacher = Path(teacher)
     if not teacher.is_file():
@@ -110,9 +110,7 @@ def teacher_targets(pairs: PairedTensors, teacher: str | Path, arch: str, batch:
         raise ValueError(f"teacher {teacher} is a {teacher_arch} of {generator.config.image_size_px} px; the student "
                          f"is a {arch} of {pairs.sim.shape[-1]} px: they must agree")
     translator = Translator(generator.float().eval(), card)
-    sims, shears = pairs.sim.numpy(), pairs.shear.numpy()
-    images = np.concatenate([translator(sims[start:start + batch], shears[start:start + batch])
-                             for start in range(0, len(pairs), batch)])
+    images = translate_rows(translator, pairs.sim.numpy(), pairs.shear.numpy(), batch)
     return PairedTensors(pairs.sim, pairs.shear, torch.from_numpy(images), pairs.pose_labels)
 
 
