@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +58,8 @@ def step_ms(model: str, layout: str, steps: int, threads: int) -> float:
     """Median wall time (ms) of one training step of ``model`` with its networks in ``layout``."""
     import torch
 
+    from simshear_gym.train.step_timing import median_s
+
     torch.set_num_threads(threads)
     fmt = torch.channels_last if layout == "channels_last" else torch.contiguous_format
     with tempfile.TemporaryDirectory() as folder:
@@ -68,14 +69,7 @@ def step_ms(model: str, layout: str, steps: int, threads: int) -> float:
             network.to(memory_format=fmt)
         trainer.memory_format = fmt  # the layout each batch is moved into
         trainer.train_mode()
-        for _ in range(3):  # warm-up
-            trainer.train_batch(batch)
-        times = []
-        for _ in range(steps):
-            start = time.perf_counter()
-            trainer.train_batch(batch)
-            times.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(times))
+        return 1000.0 * median_s(lambda: trainer.train_batch(batch), steps, warmup=3)  # after 3 warm-up steps
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

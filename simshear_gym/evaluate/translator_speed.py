@@ -9,7 +9,6 @@ uint8 images in, the copy to the GPU, the generator, the copy back, uint8 images
 from __future__ import annotations
 
 import argparse
-import time
 from pathlib import Path
 
 import numpy as np
@@ -19,17 +18,14 @@ from simshear_gym.machine import machine_info
 
 
 def latency_ms(translator, batch: int, repeats: int, rng: np.random.Generator) -> float:
-    """Median wall time per image (ms) of translating random contacts in batches of ``batch``."""
+    """Median wall time per image (ms) of translating random contacts in batches of ``batch`` (after one warm-up
+    batch)."""
+    from simshear_gym.train.step_timing import median_s
+
     size = translator.image_size_px
     sim = rng.integers(0, 60, (batch, size, size), dtype=np.uint8)
     shear = rng.uniform(-5, 5, (batch, 6)).astype(np.float32)
-    translator(sim, shear)  # warm-up
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        translator(sim, shear)
-        times.append(time.perf_counter() - start)
-    return 1000.0 * float(np.median(times)) / batch
+    return 1000.0 * median_s(lambda: translator(sim, shear), repeats, warmup=1) / batch
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

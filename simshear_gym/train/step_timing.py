@@ -54,7 +54,9 @@ def _synchronise(device: str) -> None:
         torch.cuda.synchronize()
 
 
-def _median_s(action, repeats: int, warmup: int, device: str = "cpu") -> float:
+def median_s(action, repeats: int, warmup: int, device: str = "cpu") -> float:
+    """Median seconds of ``repeats`` calls of ``action`` after ``warmup`` untimed ones (on a GPU ``device`` each
+    call ends with a synchronisation)."""
     for _ in range(warmup):
         action()
     _synchronise(device)
@@ -73,7 +75,7 @@ def _time_trainer(trainer, holdout_rows: int, steps: int, ready=None, device: st
     trainer.train_mode()
     size = trainer.config.batch_size
     batches = itertools.cycle([index for index in trainer.epoch_batches() if len(index) == size])  # whole ones
-    step_s = _median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3, device=device)
+    step_s = median_s(lambda: trainer.train_batch(next(batches)), steps, warmup=3, device=device)
     start = time.perf_counter()
     trainer.holdout_metric()
     _synchronise(device)
@@ -164,4 +166,4 @@ def translation_s_per_row(settings: dict, image_size_px: int, batch: int = 64, r
     rng = np.random.default_rng(0)
     sim = rng.integers(0, 256, (batch, image_size_px, image_size_px), dtype=np.uint8)
     shear = rng.normal(size=(batch, 6)).astype(np.float32)
-    return _median_s(lambda: translator(sim, shear), repeats, warmup=1) / batch
+    return median_s(lambda: translator(sim, shear), repeats, warmup=1) / batch
