@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from simshear_gym.data.tactile_set import decode_image
-from simshear_gym.evaluate.figures import pyplot
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.records import write_record
 from simshear_gym.real.camera import (
     DEFAULT_CONFIG_PATH,
@@ -181,8 +181,6 @@ def evaluate(pairs: PairSet, config: PreprocessConfig) -> dict:
 
 def save_montage(path: Path, pairs: PairSet, config: PreprocessConfig, n_rows: int = 4) -> Path:
     """Figure with rows of (raw crop | ours | published | difference) for the first ``n_rows`` pairs."""
-    from simshear_gym.io import atomic_write
-
     plt = pyplot()
     n_rows = min(n_rows, len(pairs.ids))
     figure, axes = plt.subplots(n_rows, 4, figsize=(10, 2.6 * n_rows), squeeze=False)
@@ -201,9 +199,7 @@ def save_montage(path: Path, pairs: PairSet, config: PreprocessConfig, n_rows: i
             axis.imshow(image, cmap="gray", vmin=0, vmax=255, interpolation="nearest")
             axis.set_title(title, fontsize=9)
             axis.set_axis_off()
-    figure.tight_layout()
-    atomic_write(path, lambda tmp: figure.savefig(tmp, format="png", dpi=100), suffix=".png")
-    plt.close(figure)
+    save_figure(figure, path, dpi=100)
     return path
 
 

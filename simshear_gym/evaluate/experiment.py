@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.evaluate.figures import pyplot
+from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 
@@ -73,7 +73,6 @@ COLIFT_KEYS = ("dropped", "truth_dropped", "truth_object_slip_max_mm")
 def plot(runs: dict, path: Path, title: str = "two-arm tracking, rehearsed", columns: int = 4) -> Path:
     import csv
 
-    from simshear_gym.io import atomic_write
     from simshear_gym.lab.experiment import draw_run
 
     plt = pyplot()
@@ -92,9 +91,7 @@ def plot(runs: dict, path: Path, title: str = "two-arm tracking, rehearsed", col
         draw_run(figure.add_subplot(lines, columns, index + 1, projection="3d"), rows, label)
     figure.suptitle(f"{title} (leader's contact point red, follower's sensor blue; follower's base frame, mm)",
                     fontsize=10)
-    figure.tight_layout()
-    atomic_write(path, lambda tmp: figure.savefig(tmp, dpi=90, format="png"), suffix=".png")
-    plt.close(figure)
+    save_figure(figure, path, dpi=90)
     return path
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from simshear_gym.io import atomic_write
+
 
 def pyplot():
     """``matplotlib.pyplot`` on the file-only ``Agg`` backend (imported here, so that ``--help`` stays light)."""
@@ -16,13 +18,13 @@ def pyplot():
 
 
 def save_figure(fig, path: Path, tight: bool = True, dpi: int = 110) -> None:
-    """Lay out (``tight``), write ``path`` (``dpi``; its folder made) and close a matplotlib figure."""
+    """Lay out (``tight``), write ``path`` (``dpi``; atomically, its folder made; the format of its suffix) and close
+    a matplotlib figure."""
     import matplotlib.pyplot as plt
 
     if tight:
         fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=dpi), suffix=Path(path).suffix)
     plt.close(fig)
 
 
