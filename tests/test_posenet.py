@@ -275,7 +275,8 @@ def test_evaluate_command_on_a_fake_val_set(tmp_path):
     out = tmp_path / "results"
     args = Namespace(model=[f"tiny={run_dir / 'best.pt'}", f"real={tmp_path / 'r{contact}n' / 'best.pt'}",
                             f"edge_only:edge={tmp_path / 'missing.pt'}"],  # another contact's: not loaded
-                     contact=["surface"], data=root, rows=5, out=out, name="posenet")
+                     contact=["surface"], val_set=None, data=root, rows=5, out=out, name="posenet", threads=1,
+                     device="auto")
     (tmp_path / "rsurfacen").mkdir()
     (tmp_path / "rsurfacen" / "best.pt").write_bytes((run_dir / "best.pt").read_bytes())
     assert evaluate_posenet.run(args) == 0
@@ -301,7 +302,7 @@ def test_evaluate_command_on_another_sensors_set(tmp_path):
     PosenetTrainer(tiny_config(epochs=1), run_dir, toy_labelled()).fit(progress=False)
     out = tmp_path / "results"
     args = Namespace(model=[f"tiny={run_dir / 'best.pt'}"], contact=None, val_set=val_dir, data=tmp_path, rows=None,
-                     out=out, name="lab")
+                     out=out, name="lab", threads=1, device="auto")
     assert evaluate_posenet.run(args) == 0
     result = json.loads((out / "lab.json").read_text())
     command = result["command"]

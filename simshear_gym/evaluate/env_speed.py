@@ -243,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
         if min(getattr(args, name)) < 1:
             raise ValueError(f"--{name.replace('_', '-')} values must be >= 1, got {getattr(args, name)}")
     env_ids = list(dict.fromkeys(args.env))
-    sensor = getattr(args, "sensor", None)
+    sensor = args.sensor
     head = {"machine": machine_info()}
     if sensor is not None:
         head["sensor"] = sensor_record(sensor, env_ids)  # before measuring: a sensor without a contact type fails here
@@ -277,7 +277,7 @@ def measure(args: argparse.Namespace, env_id: str) -> dict:
     runtimes = list(dict.fromkeys(args.runtimes))
     translators = list(dict.fromkeys(args.translators))
     contact = ENV_CONTACTS[env_id]
-    sensor = getattr(args, "sensor", None)
+    sensor = args.sensor
     single = {"sim": single_process("sim", args.steps, env_id=env_id), "real": []}
     sim_row = single["sim"]
     print(f"one process, sim 128 px: {sim_row['steps_per_s']:.0f} steps/s ({sim_row['ms_per_step']:.2f} ms/step)")

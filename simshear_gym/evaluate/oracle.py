@@ -74,11 +74,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.seeds < 0:
         raise ValueError(f"--seeds must be >= 0, got {args.seeds}")
-    tasks = getattr(args, "tasks", ["tracking"])
     status = 0
-    if "tracking" in tasks:
+    if "tracking" in args.tasks:
         status |= run_tracking(args)
-    if "colift" in tasks:
+    if "colift" in args.tasks:
         status |= run_colift(args)
     return status
 

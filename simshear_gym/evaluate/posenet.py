@@ -151,13 +151,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    val_set = getattr(args, "val_set", None)
+    val_set = args.val_set
     if (val_set is None) == (args.contact is None):  # before torch: an option error comes at once
         raise ValueError("give --contact (tactip331's real shear val sets) or --set DIR (any real tactile set), "
                          "one of the two")
     import torch
 
-    torch.set_num_threads(getattr(args, "threads", 1))
+    torch.set_num_threads(args.threads)
     if val_set is not None:
         meta = read_set(val_set).meta
         if meta.get("contact") not in CONTACTS:
@@ -171,8 +171,7 @@ def run(args: argparse.Namespace) -> int:
     for contact in contacts:
         models = {name: Path(str(paths[contact]).replace("{contact}", contact))
                   for name, paths in parse_models(args.model).items() if contact in paths}
-        results, arrays = evaluate(data_root(args.data), models, contact, args.rows, val_set,
-                                   getattr(args, "device", "auto"))
+        results, arrays = evaluate(data_root(args.data), models, contact, args.rows, val_set, args.device)
         png = args.out / f"{args.name}_{contact}.png"
         figure(arrays, png)
         set_name = str(val_set) if val_set is not None else f"real {contact}_shear csv_val"

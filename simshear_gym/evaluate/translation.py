@@ -227,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     readers = parse_readers(args.reader)
     start = time.perf_counter()
     results, reader_floor, stacks = evaluate(data_root(args.data), models, args.rows, args.workers,
-                                             readers=readers, device=getattr(args, "device", "auto"))
+                                             readers=readers, device=args.device)
     png = args.out / f"{args.name}.png"
     figure(stacks, png)
     write_record("simshear evaluate translation", add_arguments, args, args.out / f"{args.name}.json", {
