@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.data.paths import data_root, real_set_dir
 from simshear_gym.data.tactile_set import read_set
 from simshear_gym.evaluate.figures import pyplot, save_figure
@@ -34,8 +35,6 @@ from simshear_gym.models.device import DEVICES
 
 # torch (via evaluate.metrics and models) is imported inside the functions that use it, so that
 # `simshear evaluate posenet --help` stays light.
-
-CONTACTS = ("surface", "edge")
 
 
 def latency_ms(model, repeats: int = 200) -> dict:
@@ -134,7 +133,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a posenet best.pt (or a zoo folder, or hf://OWNER/NAME: a Hugging Face Hub id) to "
                              "evaluate; repeat for several; '{contact}' in PATH is replaced "
                              "by each --contact; NAME:CONTACT=PATH names the model of one contact type")
-    parser.add_argument("--contact", choices=CONTACTS, nargs="+", default=None,
+    parser.add_argument("--contact", choices=CONTACT_TYPES, nargs="+", default=None,
                         help="contact type(s) whose real tactip331 shear val set the models read; one section and "
                              "figure each")
     parser.add_argument("--set", type=Path, default=None, dest="val_set",
@@ -160,9 +159,9 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     if val_set is not None:
         meta = read_set(val_set).meta
-        if meta.get("contact") not in CONTACTS:
-            raise ValueError(f"{val_set}/meta.json: contact {meta.get('contact')!r}; expected one of {list(CONTACTS)} "
-                             "(a set written by a pipeline's adapt stage names it)")
+        if meta.get("contact") not in CONTACT_TYPES:
+            raise ValueError(f"{val_set}/meta.json: contact {meta.get('contact')!r}; expected one of "
+                             f"{list(CONTACT_TYPES)} (a set written by a pipeline's adapt stage names it)")
         contacts = [meta["contact"]]
     else:
         contacts = [args.contact] if isinstance(args.contact, str) else list(args.contact)

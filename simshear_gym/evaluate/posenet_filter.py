@@ -30,12 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from simshear_gym.data.labels import CONTACT_TYPES
 from simshear_gym.evaluate.figures import pyplot, save_figure
 from simshear_gym.evaluate.model_specs import parse_contact_paths
 from simshear_gym.evaluate.records import write_record
 from simshear_gym.io import recorded_path
-
-CONTACTS = ("surface", "edge")
 
 
 @dataclass(frozen=True)
@@ -56,8 +55,8 @@ class SequenceConfig:
     twist_deg: float = 4.0
 
     def __post_init__(self) -> None:
-        if self.contact not in CONTACTS:
-            raise ValueError(f"contact must be one of {CONTACTS}, got {self.contact!r}")
+        if self.contact not in CONTACT_TYPES:
+            raise ValueError(f"contact must be one of {CONTACT_TYPES}, got {self.contact!r}")
         if self.steps < 8:
             raise ValueError(f"steps must be >= 8, got {self.steps}")
         if not (0 <= self.slide_mm <= 5 and 0 <= self.twist_deg <= 5):
