@@ -63,6 +63,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from simshear_gym.data.labels import wrap_deg
+from simshear_gym.real.mg400_client import shut_socket
 from simshear_gym.robots.mg400.kinematics import (
     JOINT_NAMES,
     KinematicsError,
@@ -633,11 +634,7 @@ class MG400Emulator:
             self._clients.clear()
             self._feedback_clients.clear()
         for conn in clients:
-            try:
-                conn.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            conn.close()
+            shut_socket(conn)
 
     # -- robot model (call with self._cond held) -----------------------------------------------------------------
 
