@@ -509,16 +509,9 @@ class RealTactileEnv(gym.Env):
             obs, stop = self._observe(move)
         else:
             obs = self._last_obs
-        reason = ""
-        if stop is not None:
-            reason, event = stop
-            self.safety_events.append(event)
-            logger.warning("real env: episode stopped (%s): %s", reason, event)
-            self._termination = reason
-        info = self._info(stop_reason=reason, action=np.asarray(action, dtype=np.float64), overrun_s=overrun_s)
-        if stop is not None:
-            info["safety_event"] = stop[1]
-        return obs, 0.0, bool(reason), False, info
+        if stop is None:
+            return obs, 0.0, False, False, self._info(stop_reason="", action=array, overrun_s=overrun_s)
+        return obs, 0.0, True, False, self._stop_episode(*stop, array, overrun_s)
 
     def end_episode(self, termination: str, event: str):
         """End the running episode without sending anything (the caller could not compute an action, e.g. the
@@ -527,12 +520,16 @@ class RealTactileEnv(gym.Env):
             raise ValueError(f"termination must be one of {TERMINATIONS}, got {termination!r}")
         if self._termination != "":
             raise RuntimeError("no episode is running; call reset() first")
+        return self._last_obs, 0.0, True, False, self._stop_episode(termination, event, np.full(4, np.nan), 0.0)
+
+    def _stop_episode(self, termination: str, event: str, action: np.ndarray, overrun_s: float) -> dict[str, Any]:
+        """End the episode with ``termination`` (``event`` says why: logged and kept); the step's ``info``."""
         self.safety_events.append(event)
         logger.warning("real env: episode stopped (%s): %s", termination, event)
         self._termination = termination
-        info = self._info(stop_reason=termination, action=np.full(4, np.nan), overrun_s=0.0)
+        info = self._info(stop_reason=termination, action=action, overrun_s=overrun_s)
         info["safety_event"] = event
-        return self._last_obs, 0.0, True, False, info
+        return info
 
     def _wait_until_at(self, pose: np.ndarray, tolerance: float = 0.5, timeout_s: float = 2.0) -> None:
         """Wait for a feedback packet that shows the queue done and the arm at ``pose`` (Sync answers before the

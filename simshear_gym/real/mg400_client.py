@@ -169,8 +169,8 @@ def _connect(label: str, host: str, port: int, timeout_s: float) -> socket.socke
     return sock
 
 
-def _shut(sock: socket.socket) -> None:
-    """Shut a connection down (if it still is up) and close it."""
+def shut_socket(sock: socket.socket) -> None:
+    """Shut a connection down (if it still is up) and close it (the client's and the emulator's)."""
     try:
         sock.shutdown(socket.SHUT_RDWR)
     except OSError:
@@ -254,12 +254,12 @@ class _ReplyChannel:
     def _mark_lost(self, reason: str) -> None:
         self._lost = reason
         logger.error("MG400 %s lost: %s", self._where, reason)
-        _shut(self._sock)
+        shut_socket(self._sock)
 
     def close(self) -> None:
         if self._lost is None:
             self._lost = "closed by the client"
-            _shut(self._sock)
+            shut_socket(self._sock)
 
 
 class _FeedbackReader:
@@ -386,7 +386,7 @@ class _FeedbackReader:
 
     def close(self) -> None:
         self._stop.set()
-        _shut(self._sock)
+        shut_socket(self._sock)
         self._thread.join(timeout=1.0)
 
 

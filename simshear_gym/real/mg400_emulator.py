@@ -63,6 +63,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from simshear_gym.data.labels import wrap_deg
+from simshear_gym.real.mg400_client import shut_socket
 from simshear_gym.robots.mg400.kinematics import (
     JOINT_NAMES,
     KinematicsError,
@@ -439,7 +440,7 @@ class MG400Emulator:
             ("dashboard", "robotmode"): lambda cmd: self._no_args(cmd, lambda: [int(self.robot_mode)]),
             ("dashboard", "getpose"): lambda cmd: self._no_args(cmd, lambda: self._padded(self.pose)),
             ("dashboard", "getangle"): lambda cmd: self._no_args(cmd, lambda: self._padded(self.joints_deg)),
-            ("dashboard", "geterrorid"): self._get_error_id,
+            ("dashboard", "geterrorid"): lambda cmd: self._no_args(cmd, lambda: ((tuple(self._alarms),) + ((),) * 6,)),
             ("motion", "movj"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=False),
             ("motion", "movl"): lambda cmd: self._queue_move(cmd, joint_target=False, linear=True),
             ("motion", "jointmovj"): lambda cmd: self._queue_move(cmd, joint_target=True, linear=False),
@@ -633,11 +634,7 @@ class MG400Emulator:
             self._clients.clear()
             self._feedback_clients.clear()
         for conn in clients:
-            try:
-                conn.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            conn.close()
+            shut_socket(conn)
 
     # -- robot model (call with self._cond held) -----------------------------------------------------------------
 
@@ -901,13 +898,6 @@ class MG400Emulator:
 
     def _index_setting(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
         return self._integer(cmd, 0, 9)[0], ()
-
-    def _get_error_id(self, cmd: ParsedCommand) -> tuple[int, Sequence[object]]:
-        if cmd.args or cmd.keywords:
-            return ERROR_PARAMETER_COUNT, ()
-        with self._cond:
-            controller = tuple(self._alarms)
-        return ERROR_OK, ((controller,) + ((),) * 6,)
 
     def _check_target(self, cmd: ParsedCommand, target: Sequence[float], joint_target: bool) -> bool:
         """Validate a target (lock held); on failure raise the alarm and return False."""

@@ -397,22 +397,20 @@ def _sim_camera(args: argparse.Namespace, config, flange_pose):
     if args.camera == SIM_PUSH_CAMERA:
         from simshear_gym.real.hil_push import PushObjectConfig, SimPushCamera
 
-        push_object = PushObjectConfig(shape=args.shape, reference_depth_mm=config.reference_depth_mm,
-                                       target_xy_mm=_push_target(args, config))
-        return SimPushCamera(flange_pose, config.start_pose_mm_deg, push_object, config.mount,
-                             raw_frame_layout=config.preprocess)
-    if args.camera == SIM_EDGE_CAMERA:
+        camera_type, scene = SimPushCamera, PushObjectConfig(shape=args.shape, target_xy_mm=_push_target(args, config),
+                                                             reference_depth_mm=config.reference_depth_mm)
+    elif args.camera == SIM_EDGE_CAMERA:
         from simshear_gym.real.hil_edge import EdgeObjectConfig, SimEdgeCamera
 
-        edge_object = EdgeObjectConfig(outline=args.outline, reference_depth_mm=config.reference_depth_mm)
-        return SimEdgeCamera(flange_pose, config.start_pose_mm_deg, edge_object, config.mount,
-                             raw_frame_layout=config.preprocess)
-    from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
+        camera_type, scene = SimEdgeCamera, EdgeObjectConfig(outline=args.outline,
+                                                             reference_depth_mm=config.reference_depth_mm)
+    else:
+        from simshear_gym.real.hil import MovingSurfaceConfig, SimSurfaceCamera
 
-    surface = MovingSurfaceConfig(velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
-                                  reference_depth_mm=config.reference_depth_mm)
-    return SimSurfaceCamera(flange_pose, config.start_pose_mm_deg, surface, config.mount,
-                            raw_frame_layout=config.preprocess)
+        camera_type, scene = SimSurfaceCamera, MovingSurfaceConfig(
+            velocity_mm_s=tuple(args.surface_velocity), max_travel_mm=args.surface_travel_mm,
+            reference_depth_mm=config.reference_depth_mm)
+    return camera_type(flange_pose, config.start_pose_mm_deg, scene, config.mount, raw_frame_layout=config.preprocess)
 
 
 def _law_controller(law: str, args: argparse.Namespace, config, estimator_config):

@@ -407,22 +407,28 @@ def describe_alarm(alarm_id: int) -> str:
 # Feedback packet (port 30004)
 
 _OFFSET_SIZE = 0
-_OFFSET_DIGITAL_INPUTS = 8
-_OFFSET_DIGITAL_OUTPUTS = 16
-_OFFSET_ROBOT_MODE = 24
-_OFFSET_TIME_STAMP = 32
 _OFFSET_TEST_VALUE = 48
-_OFFSET_SPEED_SCALING = 64
-_OFFSET_Q_TARGET = 192
-_OFFSET_Q_ACTUAL = 432
-_OFFSET_TOOL_ACTUAL = 624
-_OFFSET_TOOL_TARGET = 768
-_OFFSET_RUN_QUEUED = 1014
-_OFFSET_ENABLE = 1026
-_OFFSET_ERROR = 1029
-_OFFSET_ROBOT_TYPE = 1031
-_OFFSET_QUAT_TARGET = 1352
-_OFFSET_QUAT_ACTUAL = 1384
+
+# The packet's fields this project uses, as (MG400Feedback attribute, struct format, byte offset): the one layout
+# pack_feedback writes and parse_feedback reads. A 4-vector is the first 4 of 6 doubles (the other two stay zero).
+_FIELDS: tuple[tuple[str, str, int], ...] = (
+    ("digital_inputs", "<q", 8),
+    ("digital_outputs", "<q", 16),
+    ("robot_mode", "<q", 24),
+    ("time_stamp_ms", "<q", 32),
+    ("speed_scaling", "<d", 64),
+    ("q_target_deg", "<4d", 192),
+    ("q_actual_deg", "<4d", 432),
+    ("tool_vector_actual", "<4d", 624),
+    ("tool_vector_target", "<4d", 768),
+    ("run_queued_command", "<b", 1014),
+    ("enable_status", "<b", 1026),
+    ("error_status", "<b", 1029),
+    ("robot_type", "<b", 1031),
+    ("quaternion_target", "<4d", 1352),
+    ("quaternion_actual", "<4d", 1384),
+)
+_FLAGS: tuple[str, ...] = ("run_queued_command", "enable_status", "error_status")  # bools, a byte each on the wire
 
 #: The test value's bytes, used to find packet boundaries again after a corrupt or partial packet.
 FEEDBACK_TEST_BYTES = struct.pack("<Q", FEEDBACK_TEST_VALUE)
@@ -500,22 +506,11 @@ def pack_feedback(feedback: MG400Feedback) -> bytes:
     """Build a 1440-byte feedback packet (unused bytes zero); the inverse of :func:`parse_feedback`."""
     buf = bytearray(FEEDBACK_PACKET_BYTES)
     struct.pack_into("<H", buf, _OFFSET_SIZE, FEEDBACK_PACKET_BYTES)
-    struct.pack_into("<q", buf, _OFFSET_DIGITAL_INPUTS, feedback.digital_inputs)
-    struct.pack_into("<q", buf, _OFFSET_DIGITAL_OUTPUTS, feedback.digital_outputs)
-    struct.pack_into("<q", buf, _OFFSET_ROBOT_MODE, feedback.robot_mode)
-    struct.pack_into("<q", buf, _OFFSET_TIME_STAMP, feedback.time_stamp_ms)
     struct.pack_into("<Q", buf, _OFFSET_TEST_VALUE, FEEDBACK_TEST_VALUE)
-    struct.pack_into("<d", buf, _OFFSET_SPEED_SCALING, feedback.speed_scaling)
-    for offset, values in ((_OFFSET_Q_TARGET, feedback.q_target_deg), (_OFFSET_Q_ACTUAL, feedback.q_actual_deg),
-                           (_OFFSET_TOOL_ACTUAL, feedback.tool_vector_actual),
-                           (_OFFSET_TOOL_TARGET, feedback.tool_vector_target)):
-        struct.pack_into("<6d", buf, offset, *values, 0.0, 0.0)
-    struct.pack_into("<4d", buf, _OFFSET_QUAT_TARGET, *feedback.quaternion_target)  # type: ignore[misc]
-    struct.pack_into("<4d", buf, _OFFSET_QUAT_ACTUAL, *feedback.quaternion_actual)  # type: ignore[misc]
-    struct.pack_into("<b", buf, _OFFSET_RUN_QUEUED, int(feedback.run_queued_command))
-    struct.pack_into("<b", buf, _OFFSET_ENABLE, int(feedback.enable_status))
-    struct.pack_into("<b", buf, _OFFSET_ERROR, int(feedback.error_status))
-    struct.pack_into("<b", buf, _OFFSET_ROBOT_TYPE, feedback.robot_type)
+    for name, layout, offset in _FIELDS:
+        value = getattr(feedback, name)
+        values = value if layout == "<4d" else (int(value) if name in _FLAGS else value,)
+        struct.pack_into(layout, buf, offset, *values)
     return bytes(buf)
 
 
@@ -536,26 +531,11 @@ def parse_feedback(buf: bytes | bytearray | memoryview) -> MG400Feedback:
     if test_value != FEEDBACK_TEST_VALUE:
         raise FeedbackError(f"feedback test value is {test_value:#018x}, expected {FEEDBACK_TEST_VALUE:#018x}")
 
-    def four(offset: int) -> Vec4:
-        return struct.unpack_from("<4d", data, offset)  # type: ignore[return-value]
-
-    return MG400Feedback(
-        robot_mode=struct.unpack_from("<q", data, _OFFSET_ROBOT_MODE)[0],
-        time_stamp_ms=struct.unpack_from("<q", data, _OFFSET_TIME_STAMP)[0],
-        q_target_deg=four(_OFFSET_Q_TARGET),
-        q_actual_deg=four(_OFFSET_Q_ACTUAL),
-        tool_vector_actual=four(_OFFSET_TOOL_ACTUAL),
-        tool_vector_target=four(_OFFSET_TOOL_TARGET),
-        speed_scaling=struct.unpack_from("<d", data, _OFFSET_SPEED_SCALING)[0],
-        enable_status=bool(struct.unpack_from("<b", data, _OFFSET_ENABLE)[0]),
-        error_status=bool(struct.unpack_from("<b", data, _OFFSET_ERROR)[0]),
-        run_queued_command=bool(struct.unpack_from("<b", data, _OFFSET_RUN_QUEUED)[0]),
-        robot_type=struct.unpack_from("<b", data, _OFFSET_ROBOT_TYPE)[0],
-        digital_inputs=struct.unpack_from("<q", data, _OFFSET_DIGITAL_INPUTS)[0],
-        digital_outputs=struct.unpack_from("<q", data, _OFFSET_DIGITAL_OUTPUTS)[0],
-        quaternion_target=four(_OFFSET_QUAT_TARGET),
-        quaternion_actual=four(_OFFSET_QUAT_ACTUAL),
-    )
+    values: dict[str, object] = {}
+    for name, layout, offset in _FIELDS:
+        unpacked = struct.unpack_from(layout, data, offset)
+        values[name] = unpacked if layout == "<4d" else bool(unpacked[0]) if name in _FLAGS else unpacked[0]
+    return MG400Feedback(**values)  # type: ignore[arg-type]
 
 
 class FeedbackBuffer:
