@@ -173,6 +173,15 @@ def only_contacts(config: ExperimentConfig, contacts: list[str] | None) -> Exper
                                      if dataset.contact in keep}, profiles=profiles)
 
 
+def config_and_root(args: argparse.Namespace, contacts: list[str] | None = None) -> tuple[ExperimentConfig, Path]:
+    """A pipeline command's experiment config (``args.config`` with its ``--set`` settings, restricted to
+    ``contacts``: :func:`only_contacts`) and the data root its paths are relative to (``args.data``)."""
+    from simshear_gym.pipelines.config import load_config
+
+    config = only_contacts(load_config(args.config, args.settings), contacts)
+    return config, data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+
+
 def contacts_of(config: ExperimentConfig) -> dict[str, list[str]]:
     """{contact type: its datasets}."""
     out: dict[str, list[str]] = {}
@@ -642,10 +651,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.pipelines.config import load_config
-
-    config = only_contacts(load_config(args.config, args.settings), args.contacts)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args, args.contacts)
     out = args.out or Path(DEFAULT_PIPELINE_RUNS) / config.name
     try:
         with stop_on_signals():

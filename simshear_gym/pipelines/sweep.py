@@ -401,14 +401,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.data.adapter import config_files
-    from simshear_gym.data.paths import data_root
-    from simshear_gym.pipelines.config import load_config
-    from simshear_gym.pipelines.run import PLUMBING_PROFILES, contacts_of, only_contacts
+    from simshear_gym.pipelines.run import PLUMBING_PROFILES, config_and_root, contacts_of
 
     budgets = parse_budgets(args.real_rows)
-    config = only_contacts(load_config(args.config, args.settings), args.contacts)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args, args.contacts)
     out = args.out or Path("runs") / "pipeline" / config.name
     prefix = args.record or Path("results") / "ablations" / f"pipeline_sweep_{config.name}_{args.profile}"
     body = run_sweep(config, out, root, args.profile, budgets, scale_cap=args.scale_epochs, workers=args.workers,
