@@ -181,11 +181,14 @@ def write_json(path: str | os.PathLike, payload: dict) -> Path:
     return atomic_write(path, lambda tmp: Path(tmp).write_text(json.dumps(payload, indent=2, default=float) + "\n"))
 
 
-def recorded_path(path: str | os.PathLike) -> str:
+def recorded_path(path: str | os.PathLike, outside: str = "name") -> str:
     """``path`` as a results file or a card records it: relative to the working directory (the repository root)
-    where it lies under it; else as given when relative, else its file name alone, so that no absolute path of
-    this machine lands in ``results/`` or a card."""
+    where it lies under it; else (``outside`` "name") as given when relative, else its file name alone, so that no
+    absolute path of this machine lands in ``results/`` or a card; or (``outside`` "relpath", as the pipeline sweep
+    records its run folder and figure) relative to the working directory, ``..`` and all."""
     try:
         return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
     except ValueError:
+        if outside == "relpath":
+            return os.path.relpath(path)
         return Path(path).name if Path(path).is_absolute() else str(path)

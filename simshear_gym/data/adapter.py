@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from simshear_gym.data.labels import ANGLE_LIMIT_DEG, IMAGE_COLUMN, LENGTH_LIMIT_MM, MOVE_COLUMNS, POSE_COLUMNS
+from simshear_gym.data.labels import IMAGE_COLUMN, MOVE_COLUMNS, POSE_COLUMNS, label_limit
 from simshear_gym.data.tactile_set import (
     TactileDataError,
     check_header,
@@ -358,7 +358,7 @@ def canonical_labels(config: DatasetConfig, frame: FrameConfig, table: pd.DataFr
                                    f"{table[source.column].iloc[int(bad[0])]!r}; expected a finite number")
         factor = (ANGLE_UNITS if is_angle(name) else LENGTH_UNITS)[source.unit]
         lab[:, index] = values * factor * source.scale
-        limit, unit = (ANGLE_LIMIT_DEG, "deg") if is_angle(name) else (LENGTH_LIMIT_MM, "mm")
+        limit, unit = label_limit(CANONICAL_COLUMNS[name])
         outside = np.flatnonzero(np.abs(lab[:, index]) > limit)
         if len(outside):
             row = int(outside[0])

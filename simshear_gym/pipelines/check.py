@@ -59,10 +59,8 @@ from simshear_gym.data.adapter import (
     DatasetConfig,
     FrameConfig,
     adapt_dataset,
-    config_files,
     summarise_variables,
 )
-from simshear_gym.data.paths import data_root
 from simshear_gym.data.tactile_set import TactileDataError
 from simshear_gym.io import write_json
 from simshear_gym.tables import add_set_argument
@@ -420,11 +418,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.pipelines.config import load_config
+    from simshear_gym.pipelines.run import config_and_root
 
     start = time.perf_counter()
-    config = load_config(args.config, args.settings)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args)
     reports = check(config, root, args.max_rows)
     print(format_report(config, reports))
     print(f"ok in {time.perf_counter() - start:.1f} s")

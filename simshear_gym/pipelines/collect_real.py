@@ -73,22 +73,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"\rrow {done}/{total}  {row_s:.2f} s/row  ETA {(total - done) * row_s / 60.0:.1f} min", end="",
               flush=True)
 
-    def record(endpoint, camera) -> dict:
-        with connect(endpoint, safety) as client:
-            return collect(protocol, client, camera, args.out, lambda frame: preprocess(frame, layout),
-                           {"config": str(args.config), "sensor": config.name}, progress=show)
+    def record(client, camera) -> dict:
+        return collect(protocol, client, camera, args.out, lambda frame: preprocess(frame, layout),
+                       {"config": str(args.config), "sensor": config.name}, progress=show)
 
     if args.rehearsal:
-        with Rehearsal(protocol, config.replay) as rig:
-            summary = record(rig.endpoint, rig.camera)
+        with Rehearsal(protocol, config.replay) as rig, connect(rig.endpoint, safety) as client:
+            summary = record(client, rig.camera)
     elif args.camera == "rehearsal":  # an arm (or an emulator elsewhere) and the camera rendered from its feedback
         with connect(ArmEndpoint.parse(args.robot, "--robot"), safety) as client:
             with rehearsal_camera(protocol, config.replay, client.measured_pose) as camera:
-                summary = collect(protocol, client, camera, args.out, lambda frame: preprocess(frame, layout),
-                                  {"config": str(args.config), "sensor": config.name}, progress=show)
+                summary = record(client, camera)
     else:
-        with CameraSource(args.camera) as camera:
-            summary = record(ArmEndpoint.parse(args.robot, "--robot"), camera)
+        with CameraSource(args.camera) as camera, connect(ArmEndpoint.parse(args.robot, "--robot"), safety) as client:
+            summary = record(client, camera)
     print()
     rows = pd.read_csv(Path(args.out) / TARGETS)
     stub = config_stub(f"{config.name}_collected", protocol, tables, Path(args.out).resolve(), rows)

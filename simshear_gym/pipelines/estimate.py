@@ -42,8 +42,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.data.adapter import config_files, split_sizes
-from simshear_gym.data.paths import data_root
+from simshear_gym.data.adapter import split_sizes
 from simshear_gym.io import write_json
 from simshear_gym.machine import machine_info
 from simshear_gym.pipelines.stages import Step, order_steps
@@ -290,14 +289,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.pipelines.config import load_config
+    from simshear_gym.pipelines.run import config_and_root
 
     for name in ("jobs", "probe_steps"):
         value = getattr(args, name)
         if value is not None and value < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be a positive integer, got {value!r}")
-    config = load_config(args.config, args.settings)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args)
     if args.compare is not None and not args.compare.is_dir():
         raise FileNotFoundError(f"--compare {args.compare}: no such run folder")
     result = estimate(config, root, args.profile, args.jobs, args.probe_steps, args.device)

@@ -173,6 +173,15 @@ def only_contacts(config: ExperimentConfig, contacts: list[str] | None) -> Exper
                                      if dataset.contact in keep}, profiles=profiles)
 
 
+def config_and_root(args: argparse.Namespace, contacts: list[str] | None = None) -> tuple[ExperimentConfig, Path]:
+    """A pipeline command's experiment config (``args.config`` with its ``--set`` settings, restricted to
+    ``contacts``: :func:`only_contacts`) and the data root its paths are relative to (``args.data``)."""
+    from simshear_gym.pipelines.config import load_config
+
+    config = only_contacts(load_config(args.config, args.settings), contacts)
+    return config, data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+
+
 def contacts_of(config: ExperimentConfig) -> dict[str, list[str]]:
     """{contact type: its datasets}."""
     out: dict[str, list[str]] = {}
@@ -318,12 +327,13 @@ def gdnn_step(config: ExperimentConfig, stage, contact: str, source: str, names:
               seed: int | None = None, baseline: bool = False, random_rows: int = 0) -> Step:
     """The training step of a GDNN (:func:`posenet_step`) of a contact type; it needs the translator steps it
     draws from (``drawn``), and is named ``name`` (by default as :func:`posenet_step` names its stage). Its
-    ``work`` adds ``random_rows`` random sim contacts to the rows of ``names``."""
-    options = {"device": device, **({"seed": seed} if seed is not None else {}),
-               **({"baseline": True} if baseline else {})}
+    ``work`` adds ``random_rows`` random sim contacts to the rows of ``names``. It trains with the stage's settings
+    for the contact type; ``seed`` (not None) replaces the stage's seed; ``baseline``: one of the profile's
+    comparison GDNNs (trained ``baseline_epochs``)."""
+    options = {"device": device, **({"seed": seed} if seed is not None else {})}
     settings = stage.train_settings(contact, baseline) | ({"seed": seed} if seed is not None else {})
     return Step(name or f"posenet/{contact}_{source}{f'_s{seed}' if seed is not None else ''}", partial(
-        posenet_step, config, stage, contact, source, train_sets, variables, drawn, **options),
+        posenet_step, config, settings, contact, source, train_sets, variables, drawn, **options),
         needs=tuple(step for step, _ in drawn), cost=POSENET_EPOCH_COST * stage.epochs_for(contact, baseline),
         work={"trainer": "posenet", "contact": contact, "datasets": tuple(names), "random_rows": random_rows,
               "settings": settings, "translators": tuple(dict.fromkeys(step for step, _ in drawn))})
@@ -341,19 +351,15 @@ def chain_step(config: ExperimentConfig, stage, contact: str, names: list[str], 
                      random_rows=stage.random_contacts.get(contact, 0))
 
 
-def posenet_step(config: ExperimentConfig, stage, contact: str, source: str, train_sets: list[str],
+def posenet_step(config: ExperimentConfig, settings: dict, contact: str, source: str, train_sets: list[str],
                  variables: str, translator_steps: tuple[tuple[str, int], ...], runner: StageRunner,
-                 done: dict, *, device: str = "auto", seed: int | None = None,
-                 baseline: bool = False) -> StageResult:
+                 done: dict, *, device: str = "auto", seed: int | None = None) -> StageResult:
     """A GDNN of a contact type on the real images (``source`` "real"), on the raw sim renders ("sim") or on
     translations of them (``translator_steps``: the translator steps it draws from, each with its number of
-    draws), trained on ``device``; ``seed`` (not None) replaces the stage's seed and names the step
-    ``<source>_s<seed>`` (a further pose-consistency reader); ``baseline``: one of the profile's comparison GDNNs
-    (trained ``baseline_epochs``)."""
+    draws), trained on ``device`` with ``settings`` (its trainer settings, as :func:`gdnn_step` resolves them
+    once for the step and its ``work``); ``seed`` (not None: the seed in ``settings``) names the step
+    ``<source>_s<seed>`` (a further pose-consistency reader)."""
     used = tuple(path for name, draws in translator_steps for path in [done[name].outputs["weights"]] * draws)
-    settings = stage.train_settings(contact, baseline)
-    if seed is not None:
-        settings |= {"seed": seed}
     step_source = f"{source}_s{seed}" if seed is not None else source
     name = f"posenet/{contact}_{step_source}"
     key = {"paired": train_sets, "source": source, "translators": used, "variables": variables,
@@ -645,10 +651,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.pipelines.config import load_config
-
-    config = only_contacts(load_config(args.config, args.settings), args.contacts)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args, args.contacts)
     out = args.out or Path(DEFAULT_PIPELINE_RUNS) / config.name
     try:
         with stop_on_signals():

@@ -40,7 +40,7 @@ import numpy as np
 import pandas as pd
 
 from simshear_gym.command_line import recorded_command
-from simshear_gym.io import write_json
+from simshear_gym.io import recorded_path, write_json
 from simshear_gym.pipelines.stages import StageRunner, file_fingerprint, run_steps
 from simshear_gym.tables import add_set_argument
 
@@ -400,23 +400,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="only these contact types' datasets (default: all)")
 
 
-def _relative(path: Path) -> str:
-    """``path`` relative to the working directory where it lies under it, else as given."""
-    try:
-        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return os.path.relpath(path)
-
-
 def run(args: argparse.Namespace) -> int:
-    from simshear_gym.data.adapter import config_files
-    from simshear_gym.data.paths import data_root
-    from simshear_gym.pipelines.config import load_config
-    from simshear_gym.pipelines.run import PLUMBING_PROFILES, contacts_of, only_contacts
+    from simshear_gym.pipelines.run import PLUMBING_PROFILES, config_and_root, contacts_of
 
     budgets = parse_budgets(args.real_rows)
-    config = only_contacts(load_config(args.config, args.settings), args.contacts)
-    root = data_root(args.data, holding=config_files(config.datasets.values(), args.config))
+    config, root = config_and_root(args, args.contacts)
     out = args.out or Path("runs") / "pipeline" / config.name
     prefix = args.record or Path("results") / "ablations" / f"pipeline_sweep_{config.name}_{args.profile}"
     body = run_sweep(config, out, root, args.profile, budgets, scale_cap=args.scale_epochs, workers=args.workers,
@@ -434,7 +422,7 @@ def run(args: argparse.Namespace) -> int:
             "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
             "machine": machine_info(), "device": body["device"], "jobs": body["jobs"], "wall_s": body["wall_s"],
             "load_1min": body["load_1min"], "stages": body["stages"],
-            "run_folder": _relative(out),
+            "run_folder": recorded_path(out, outside="relpath"),
             "collection_rate_s_per_row": ROBOT_S_PER_ROW,
             "rows_from": ("the first N rows of each training set" if args.rows_from == "first" else
                           f"N rows of each training set drawn at random (seed {SUBSET_SEED}; a smaller budget's "
@@ -448,7 +436,7 @@ def run(args: argparse.Namespace) -> int:
             "train_rows": {name: body["train_rows"][name] for name in names},
             "val_rows": {name: body["val_rows"][name] for name in names},
             "variables": body["variables"][contact], "budgets": body["budgets"][contact],
-            "figure": _relative(json_path.with_suffix(".png"))}
+            "figure": recorded_path(json_path.with_suffix(".png"), outside="relpath")}
         write_json(json_path, record)
         plot_contact(record, json_path.with_suffix(".png"))
         print(f"{config.name} {contact}: {len(budgets)} budgets; record {json_path}, figure "
