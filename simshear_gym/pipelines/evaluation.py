@@ -55,7 +55,7 @@ def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators
     from simshear_gym.evaluate.metrics import mape, metrics, ssim  # torch: not for `pipeline compare --help`
     from simshear_gym.models.gdnn_input import label_matrix, predict
     from simshear_gym.models.posenet_io import load_posenet
-    from simshear_gym.models.translator import Translator
+    from simshear_gym.models.translator import Translator, translate_rows
 
     translation, pose, summary = {}, {}, {}
     loaded_translators = {contact: {arch: Translator.load(root / path) for arch, path in archs.items()}
@@ -72,8 +72,7 @@ def evaluate_sensor(config, root: Path, adapted: dict, paired: dict, translators
         shear = targets[list(SHEAR_COLUMNS)].to_numpy(np.float32)
         entry = {"rows": len(targets)}
         for arch, translator in loaded_translators[dataset.contact].items():
-            generated = np.concatenate([translator(sim[i:i + 64], shear[i:i + 64]) for i in range(0, len(sim), 64)])
-            generated = resize_tactile(generated, real.shape[-1])
+            generated = resize_tactile(translate_rows(translator, sim, shear), real.shape[-1])
             entry[arch] = {"mape": float(mape(generated, real).mean()), "ssim": float(ssim(generated, real).mean())}
         retrieved = nearest_label_images(train_paired.targets, train_real.load_images(use_cache=False),
                                          targets)
