@@ -54,7 +54,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -281,8 +281,7 @@ def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np
 
 def _at(endpoint: ArmEndpoint, real_env: RealEnvConfig) -> RealEnvConfig:
     """``real_env`` with its client at ``endpoint`` (its timeouts kept)."""
-    return replace(real_env, client=replace(real_env.client, host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                            motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port))
+    return replace(real_env, client=replace(real_env.client, **asdict(endpoint)))
 
 
 def _client(endpoint: ArmEndpoint, real_env: RealEnvConfig):
