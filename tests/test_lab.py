@@ -159,6 +159,21 @@ def test_cli_fixture_calibration_and_bad_flags(tmp_path, capsys):
     assert "give --leader, --follower, --camera and --calibration" in capsys.readouterr().err
 
 
+def test_cli_a_bad_endpoint_fails_before_the_camera_opens(tmp_path, capsys, monkeypatch, torch_one_thread):
+    import simshear_gym.real.camera
+    from simshear_gym.cli import main
+
+    def no_camera(source):
+        raise AssertionError(f"the camera {source!r} opened before the endpoints were parsed")
+
+    monkeypatch.setattr(simshear_gym.real.camera, "CameraSource", no_camera)
+    calibration = ArmsCalibration(BaseToBase()).save(tmp_path / "arms.json")
+    for experiment in ("tracking", "colift"):
+        assert main(["experiment", experiment, "--leader", "10.0.0.1:1,2", "--follower", "10.0.0.2", "--camera", "0",
+                     "--calibration", str(calibration)]) == 2
+        assert "--leader '10.0.0.1:1,2': expected HOST or HOST:DASHBOARD,MOTION,FEEDBACK" in capsys.readouterr().err
+
+
 # -- slow: on the rehearsal rig --------------------------------------------------------------------------------
 
 SHORT = dict(scale=0.25, settle_s=1.0, hold_s=0.5,

@@ -62,7 +62,6 @@ from simshear_gym.lab.colift_layout import (
     OBJECT_NAMES,
     ObjectFace,
 )
-from simshear_gym.lab.endpoints import ArmEndpoint
 from simshear_gym.lab.experiment import (
     STOPS,
     ExperimentConfig,
@@ -71,12 +70,10 @@ from simshear_gym.lab.experiment import (
     _move_and_wait,
     add_arm_arguments,
     add_loop_arguments,
-    report_run,
+    run_experiment,
     run_on_rig,
-    start_run,
 )
-from simshear_gym.lab.frames import ArmsCalibration, BaseToBase
-from simshear_gym.real.camera import preprocess_config
+from simshear_gym.lab.frames import ArmsCalibration
 from simshear_gym.real.env import RealEnvConfig
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 
@@ -201,7 +198,7 @@ class CoLiftPlan:
 class CoLiftRun(ExperimentRun):
     """One co-lift run (see the module docstring): the tracking run's loop with the co-lift's plan, action,
     release, drop and summary. ``truth``: the co-lift rig's camera (:class:`~simshear_gym.lab.colift_rig.
-    CoLiftCamera`), or None."""
+    CoLiftCamera`), or None; ``posenet`` None (or empty): the shipped ``colift`` GDNN."""
 
     config: CoLiftConfig
 
@@ -209,6 +206,10 @@ class CoLiftRun(ExperimentRun):
         super().__init__(*args, **kwargs)
         if kwargs.get("plan") is None:
             self.plan = CoLiftPlan(self.config)
+        if not self.posenet:
+            from simshear_gym.models.zoo import posenet_weights
+
+            self.posenet = str(posenet_weights("colift"))
 
     def _settling(self, left_s: float) -> None:
         """On the rig, the object leaves its support ``release_s`` before the lift (the grip takes its weight)."""
@@ -267,17 +268,16 @@ class CoLiftRun(ExperimentRun):
 
 def run_colift_rehearsal(config: CoLiftConfig, out_dir: str | Path, controller: str = "servo",
                          calibration: ArmsCalibration | None = None, posenet: str | None = None, command: str = "",
-                         rig_config=None, on_cycle=None, rig=None) -> dict[str, Any]:
-    """One co-lift run on a fresh co-lift rig (or on ``rig``, started), with the shipped ``colift`` GDNN unless
-    ``posenet``; the summary of :func:`~simshear_gym.lab.experiment.run_on_rig` (``rows`` included)."""
+                         rig_config=None, on_cycle=None, rig=None, **rig_changes) -> dict[str, Any]:
+    """One co-lift run on a fresh co-lift rig (default: laid out as ``config`` has it, with ``rig_changes``) or on
+    ``rig``, started, with the shipped ``colift`` GDNN unless ``posenet`` (:class:`CoLiftRun`); the summary of
+    :func:`~simshear_gym.lab.experiment.run_on_rig` (``rows`` included)."""
     from simshear_gym.lab.colift_rig import CoLiftRig, CoLiftRigConfig
-    from simshear_gym.models.zoo import posenet_weights
 
-    posenet = posenet if posenet is not None else str(posenet_weights("colift"))
     if rig is not None:
         return run_on_rig(rig, config, out_dir, controller, calibration, posenet, command, on_cycle,
                           experiment=CoLiftRun)
-    rig_config = rig_config if rig_config is not None else CoLiftRigConfig.for_run(config)
+    rig_config = rig_config if rig_config is not None else CoLiftRigConfig.for_run(config, **rig_changes)
     if rig_config.object_name != config.object_name:
         raise ValueError(f"the rig holds {rig_config.object_name!r}, the run expects {config.object_name!r}")
     with CoLiftRig(rig_config) as started:
@@ -306,32 +306,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the co-lift experiment; 0 when it completed, 1 when a stop ended it early."""
-    safety = start_run(args)
-    config = CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
-                          lift_mm=args.lift_mm).with_env(control_period_s=args.period_s, safety=safety,
-                                                         preprocess=preprocess_config(args.preprocess))
-    command = recorded_command("simshear experiment colift", add_arguments, args)
-    out_dir = args.out if args.out is not None else Path("runs/colift") / time.strftime("%Y%m%d-%H%M%S")
-    calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
-    if args.rehearsal:
-        from simshear_gym.lab.colift_rig import CoLiftRigConfig
+    def config(**env) -> CoLiftConfig:
+        return CoLiftConfig(trajectory=args.trajectory, object_name=args.object, speed_mm_s=args.speed_mm_s,
+                            lift_mm=args.lift_mm).with_env(**env)
 
-        rig_config = CoLiftRigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
-        summary = run_colift_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
-                                       command, rig_config)
-        summary.pop("rows")
-    else:
-        from simshear_gym.models.zoo import posenet_weights
-        from simshear_gym.real.camera import CameraSource
-
-        run_ = CoLiftRun(ArmEndpoint.parse(args.leader, "--leader"), ArmEndpoint.parse(args.follower, "--follower"),
-                         CameraSource(args.camera), calibration, args.controller, config,
-                         args.posenet or str(posenet_weights("colift")))
-        summary = run_.run(out_dir, command)
-    mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
-    return report_run(summary, out_dir, f"{summary['trajectory']} with the {summary['object']}: "
-                      f"{summary['tracking_cycles']} cycles at {summary['loop_rate_hz']} Hz, contact error {mean} +- "
-                      f"{std} mm, dropped: {summary['dropped']}, compute {summary['compute_ms_median']} ms median")
+    return run_experiment(args, recorded_command("simshear experiment colift", add_arguments, args), config,
+                          CoLiftRun, run_colift_rehearsal, "runs/colift",
+                          "{trajectory} with the {object}: {tracking_cycles} cycles at {loop_rate_hz} Hz, contact "
+                          "error {contact_error_mean_mm} +- {contact_error_std_mm} mm, dropped: {dropped}, compute "
+                          "{compute_ms_median} ms median")
 
 
 __all__ = ["COLIFT_STOPS", "OBJECT_NAMES", "CoLiftConfig", "CoLiftPlan", "CoLiftRun", "ObjectFace",

@@ -288,14 +288,11 @@ class Rehearsal:
         self.camera = None
 
     def __enter__(self) -> Rehearsal:
-        from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
-        from simshear_gym.robots.mg400.kinematics import inverse
+        from simshear_gym.lab.rig import loopback_emulator
 
         protocol = self.protocol
         air = np.array([0.0, 0.0, protocol.surface_depth_mm - protocol.hover_mm - 5.0, 0.0, 0.0, 0.0])
-        start = protocol.flange_pose(air, protocol.T_base_work())
-        self.emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
-                                                     initial_joints_deg=tuple(float(v) for v in inverse(*start))))
+        self.emulator = loopback_emulator(protocol.flange_pose(air, protocol.T_base_work()))
         self.emulator.start()
         emulator = self.emulator
         self.camera = rehearsal_camera(protocol, self.geometry, lambda: emulator.pose)
@@ -322,8 +319,7 @@ def connect(endpoint, safety):
     from simshear_gym.real.mg400_client import MG400Client
     from simshear_gym.real.safety import SafetyLayer
 
-    client = MG400Client(env_client(endpoint.host, endpoint.dashboard_port, endpoint.motion_port,
-                                    endpoint.feedback_port, feedback_max_age_s=safety.max_feedback_age_s),
+    client = MG400Client(env_client(**asdict(endpoint), feedback_max_age_s=safety.max_feedback_age_s),
                          SafetyLayer(safety))
     client.connect()
     _ready(client, "collecting")

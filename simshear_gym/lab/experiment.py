@@ -54,7 +54,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Self
 
@@ -281,8 +281,7 @@ def follower_hover_pose(config: ExperimentConfig, calibration: BaseToBase) -> np
 
 def _at(endpoint: ArmEndpoint, real_env: RealEnvConfig) -> RealEnvConfig:
     """``real_env`` with its client at ``endpoint`` (its timeouts kept)."""
-    return replace(real_env, client=replace(real_env.client, host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                            motion_port=endpoint.motion_port, feedback_port=endpoint.feedback_port))
+    return replace(real_env, client=replace(real_env.client, **asdict(endpoint)))
 
 
 def _client(endpoint: ArmEndpoint, real_env: RealEnvConfig):
@@ -883,11 +882,12 @@ def run_on_rig(rig, config: ExperimentConfig, out_dir: str | Path, controller: s
 
 def run_tracking_rehearsal(config: ExperimentConfig, out_dir: str | Path, controller: str = "servo",
                            calibration: ArmsCalibration | None = None, posenet: str | None = None,
-                           command: str = "", rig_config=None) -> dict[str, Any]:
-    """One tracking run on a fresh rehearsal rig (:func:`run_on_rig`)."""
+                           command: str = "", rig_config=None, **rig_changes) -> dict[str, Any]:
+    """One tracking run on a fresh rehearsal rig (:func:`run_on_rig`; default: laid out as ``config`` has it, with
+    ``rig_changes``)."""
     from simshear_gym.lab.rig import RehearsalRig, RigConfig
 
-    rig_config = rig_config if rig_config is not None else RigConfig.for_run(config)
+    rig_config = rig_config if rig_config is not None else RigConfig.for_run(config, **rig_changes)
     with RehearsalRig(rig_config) as rig:
         summary = run_on_rig(rig, config, out_dir, controller, calibration, posenet, command)
     summary.pop("rows")
@@ -912,9 +912,17 @@ def arms_safety(args: argparse.Namespace) -> SafetyConfig:
     return SafetyConfig() if age is None else rehearsal_safety(age, max(age, SafetyConfig.max_camera_frame_age_s))
 
 
-def start_run(args: argparse.Namespace) -> SafetyConfig:
-    """What a two-arm experiment's ``run`` starts with: the arms, camera and calibration given (or ``--rehearsal``),
-    the controller found, logging and torch's threads set; returns :func:`arms_safety`."""
+def run_experiment(args: argparse.Namespace, command: str, make_config: Callable[..., ExperimentConfig],
+                   experiment: type[ExperimentRun], rehearse, out: str, headline: str) -> int:
+    """A two-arm experiment command's ``run`` (``command``: its recorded command line); 0 when it completed, 1 when
+    a stop ended it early.
+
+    It checks the arms, camera and calibration given (or ``--rehearsal``) and the controller, sets logging and
+    torch's threads; builds the run's config, ``make_config(**env)`` (``env``: the follower env's control period,
+    both arms' limits, :func:`arms_safety`, and the camera preprocessing); runs on a fresh rehearsal rig
+    (``rehearse``, as :func:`run_tracking_rehearsal`, the rig's leader base from ``--rig-leader-base``) or on the
+    arms (an ``experiment``: both endpoints parsed before the camera opens) into ``--out`` (default
+    ``out/<time>``); and reports with :func:`report_run`, ``headline`` filled in from the summary."""
     import torch
 
     if args.rehearsal and (args.leader or args.follower or args.camera):
@@ -925,36 +933,33 @@ def start_run(args: argparse.Namespace) -> SafetyConfig:
         raise FileNotFoundError(f"--controller {args.controller!r} is neither 'servo' nor an existing SB3 .zip file")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     torch.set_num_threads(args.threads)
-    return arms_safety(args)
+    config = make_config(control_period_s=args.period_s, safety=arms_safety(args),
+                         preprocess=preprocess_config(args.preprocess))
+    out_dir = args.out if args.out is not None else Path(out) / time.strftime("%Y%m%d-%H%M%S")
+    calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
+    if args.rehearsal:
+        summary = rehearse(config, out_dir, args.controller, calibration, args.posenet, command,
+                           leader_in_follower=BaseToBase(*args.rig_leader_base))
+        summary.pop("rows", None)
+    else:
+        from simshear_gym.real.camera import CameraSource
+
+        leader, follower = ArmEndpoint.parse(args.leader, "--leader"), ArmEndpoint.parse(args.follower, "--follower")
+        summary = experiment(leader, follower, CameraSource(args.camera), calibration, args.controller, config,
+                             args.posenet).run(out_dir, command)
+    return report_run(summary, out_dir, headline.format(**summary))
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the experiment; 0 when it completed, 1 when a stop ended it early."""
-    safety = start_run(args)
-    config = ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s).with_env(
-        control_period_s=args.period_s, reference_depth_mm=args.reference_depth_mm, safety=safety,
-        preprocess=preprocess_config(args.preprocess))
-    command = recorded_command("simshear experiment tracking", add_arguments, args)
-    out_dir = args.out if args.out is not None else Path("runs/experiment") / time.strftime("%Y%m%d-%H%M%S")
-    calibration = ArmsCalibration.load(args.calibration) if args.calibration else None
-    if args.rehearsal:
-        from simshear_gym.lab.rig import RigConfig
+    def config(**env) -> ExperimentConfig:
+        return ExperimentConfig(trajectory=args.trajectory, speed_mm_s=args.speed_mm_s).with_env(
+            reference_depth_mm=args.reference_depth_mm, **env)
 
-        rig_config = RigConfig.for_run(config, leader_in_follower=BaseToBase(*args.rig_leader_base))
-        summary = run_tracking_rehearsal(config, out_dir, args.controller, calibration, args.posenet,
-                                         command, rig_config)
-    else:
-        from simshear_gym.real.camera import CameraSource
-
-        camera = CameraSource(args.camera)
-        run_ = ExperimentRun(ArmEndpoint.parse(args.leader, "--leader"),
-                             ArmEndpoint.parse(args.follower, "--follower"), camera, calibration, args.controller,
-                             config, args.posenet)
-        summary = run_.run(out_dir, command)
-    mean, std = summary["contact_error_mean_mm"], summary["contact_error_std_mm"]
-    return report_run(summary, out_dir, f"{summary['trajectory']}: {summary['tracking_cycles']} tracking cycles at "
-                      f"{summary['loop_rate_hz']} Hz, contact error {mean} +- {std} mm, compute "
-                      f"{summary['compute_ms_median']} ms median")
+    return run_experiment(args, recorded_command("simshear experiment tracking", add_arguments, args), config,
+                          ExperimentRun, run_tracking_rehearsal, "runs/experiment",
+                          "{trajectory}: {tracking_cycles} tracking cycles at {loop_rate_hz} Hz, contact error "
+                          "{contact_error_mean_mm} +- {contact_error_std_mm} mm, compute {compute_ms_median} ms median")
 
 
 __all__ = ["STOPS", "BaseToBase", "ExperimentConfig", "ExperimentError", "ExperimentRun", "LeaderPlan",

@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -266,17 +266,11 @@ class RehearsalRig:
         self.follower: MG400Emulator | None = None
         self.camera: RigCamera | None = None
 
-    def _emulator(self, pose_mm_deg) -> MG400Emulator:
-        joints = tuple(float(v) for v in inverse(*pose_mm_deg))
-        return MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
-                                            feedback_period_s=self.config.feedback_period_s,
-                                            initial_joints_deg=joints))
-
     def start(self) -> RehearsalRig:
         cfg = self.config
         try:
-            self.leader = self._emulator(cfg.leader_start_pose_mm_deg).start()
-            self.follower = self._emulator(cfg.follower_start_pose()).start()
+            self.leader = loopback_emulator(cfg.leader_start_pose_mm_deg, cfg.feedback_period_s).start()
+            self.follower = loopback_emulator(cfg.follower_start_pose(), cfg.feedback_period_s).start()
             self.new_camera()
         except BaseException:
             self.stop()
@@ -329,9 +323,7 @@ class RehearsalRig:
         from simshear_gym.real.mg400_client import MG400Client, MG400ClientConfig
 
         for endpoint in (self.leader_endpoint, self.follower_endpoint):
-            with MG400Client(MG400ClientConfig(host=endpoint.host, dashboard_port=endpoint.dashboard_port,
-                                               motion_port=endpoint.motion_port,
-                                               feedback_port=endpoint.feedback_port, use_feedback=False)) as client:
+            with MG400Client(MG400ClientConfig(**asdict(endpoint), use_feedback=False)) as client:
                 client.clear_error()
                 client.continue_()
 
@@ -340,6 +332,13 @@ class RehearsalRig:
         limits refuse, checked from the state the emulator was in when it arrived (empty lists: none)."""
         return {"leader": audit_motion_records(self.leader.motion_records(), safety),
                 "follower": audit_motion_records(self.follower.motion_records(), safety)}
+
+
+def loopback_emulator(pose_mm_deg, feedback_period_s: float = FEEDBACK_PERIOD_S) -> MG400Emulator:
+    """An MG400 emulator (not started) on loopback ephemeral ports, its flange at ``pose_mm_deg``."""
+    joints = tuple(float(v) for v in inverse(*pose_mm_deg))
+    return MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
+                                        feedback_period_s=feedback_period_s, initial_joints_deg=joints))
 
 
 def audit_motion_records(records: list[MotionRecord], safety: SafetyConfig = SafetyConfig()) -> list[str]:
