@@ -75,9 +75,7 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
 
     from simshear_gym.lab.collect_protocol import CollectProtocol
     from simshear_gym.lab.experiment import rehearsal_safety
-    from simshear_gym.lab.rig import audit_motion_records
-    from simshear_gym.real.mg400_emulator import EmulatorConfig, MG400Emulator
-    from simshear_gym.robots.mg400.kinematics import inverse
+    from simshear_gym.lab.rig import audit_motion_records, loopback_emulator
 
     config_path = work / f"{contact}.toml"
     config_path.write_text(CONFIG.format(contact=contact, rows=rows, seed=seed, ranges=_toml_table(RANGES[contact])))
@@ -87,8 +85,7 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
     _, _, planned_s = protocol.plan()
     air = np.array([0.0, 0.0, protocol.surface_depth_mm - protocol.hover_mm - 5.0, 0.0, 0.0, 0.0])
     start = protocol.flange_pose(air, protocol.T_base_work())
-    emulator = MG400Emulator(EmulatorConfig(dashboard_port=0, motion_port=0, feedback_port=0,
-                                            initial_joints_deg=tuple(float(v) for v in inverse(*start)))).start()
+    emulator = loopback_emulator(start).start()
     out = work / f"{contact}_set"
     kill_row = int(np.random.default_rng(seed).integers(1, rows - 1))
     try:
