@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from simshear_gym.evaluate.figures import save_figure
+from simshear_gym.evaluate.figures import pyplot, save_figure
 
 TRAJECTORIES = ("circle", "tilted_square", "spiral", "loop")
 
@@ -69,12 +69,9 @@ def figure(runs: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]], path: Pat
     """One column per run (name -> (target (T, 3), sensor (T, 3) world mm, contact error (T,) mm per step)): the
     3-D paths, the target path from above (x, y mm from its start) coloured by the error on one scale for all
     runs, and the error against time (steps of ``period_s``) with its mean."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from simshear_gym.evaluate.servo import path_panel
+
+    plt = pyplot()
 
     names = list(runs)
     top = max(float(np.max(errors)) for _, _, errors in runs.values())

@@ -17,15 +17,19 @@ RECORDED_PACKAGES = ("simshear-gym", "numpy", "scipy", "pandas", "scikit-image",
                      "matplotlib")
 
 
+def _cpuinfo(key: str) -> str | None:
+    """The value of the first ``/proc/cpuinfo`` line that starts with ``key`` (None: no such line, or no such file)."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        return None
+    return next((line.split(":", 1)[1] for line in lines if line.startswith(key)), None)
+
+
 def cpu_model() -> str:
     """The CPU's model name (``/proc/cpuinfo`` on Linux), else what :mod:`platform` knows (e.g. ``x86_64``)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
+    model = _cpuinfo("model name")
+    return model.strip() if model is not None else platform.processor() or platform.machine()
 
 
 VECTOR_FLAGS = ("avx2", "fma", "avx_vnni", "avx512f", "avx512bw", "avx512_vnni", "avx512_bf16", "amx_tile")
@@ -34,14 +38,8 @@ VECTOR_FLAGS = ("avx2", "fma", "avx_vnni", "avx512f", "avx512bw", "avx512_vnni",
 
 def cpu_vector_extensions() -> list[str]:
     """Which of :data:`VECTOR_FLAGS` the CPU has (``/proc/cpuinfo``'s flags on Linux; empty where unknown)."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("flags"):
-                flags = set(line.split(":", 1)[1].split())
-                return [name for name in VECTOR_FLAGS if name in flags]
-    except OSError:
-        pass
-    return []
+    flags = set((_cpuinfo("flags") or "").split())
+    return [name for name in VECTOR_FLAGS if name in flags]
 
 
 def package_versions() -> dict[str, str | None]:

@@ -84,7 +84,6 @@ def from_table(cls: type[T], table: Any, source: str, key: str = "") -> T:
     where = f"{source}: [{key}]" if key else f"{source}:"
     if not isinstance(table, dict):
         raise ConfigError(f"{where} must be a table of {cls.__name__} settings, got {table!r}")
-    hints = get_type_hints(cls)
     known = {field.name: field for field in dataclasses.fields(cls) if field.init}
     unknown = sorted(set(table) - set(known))
     if unknown:
@@ -93,7 +92,7 @@ def from_table(cls: type[T], table: Any, source: str, key: str = "") -> T:
                and field.default is dataclasses.MISSING and field.default_factory is dataclasses.MISSING]
     if missing:
         raise ConfigError(f"{where} missing key {_join(key, missing[0])!r} ({cls.__name__} needs {missing})")
-    values = {name: _convert(hints[name], value, source, _join(key, name)) for name, value in table.items()}
+    values = field_values(cls, table, source, key)
     try:
         return cls(**values)
     except ConfigError:

@@ -193,9 +193,6 @@ class EdgeServoController(EstimateThenLaw):
             estimator = replace(estimator, posenet=str(posenet_weights("edge")))
         self.estimator = EdgeEstimator(estimator, gains.angle_process_std_deg)
         self.law = EdgeLaw(reference_depth_mm, self._scale, step_mm, gains)
-        self._last_move: np.ndarray | None = None
-        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
-        """(mean (3,), std (3,)) of the last step's state estimate (y, z, edge angle), for logging."""
 
     @classmethod
     def for_env(cls, env, gains: EdgeGains = EdgeGains(),

@@ -85,6 +85,9 @@ class EstimateThenLaw:
 
     who = "the controller"
     """Names the controller in its errors."""
+    _last_move: np.ndarray | None = None
+    last_estimate: tuple[np.ndarray, np.ndarray] | None = None
+    """(mean, std) of the last step's state estimate (None before the first), for logging."""
 
     def reset(self) -> None:
         self.estimator.reset()

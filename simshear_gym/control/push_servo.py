@@ -308,8 +308,6 @@ class PushServoController(EstimateThenLaw):
         self.estimator = _push_estimator(estimator)
         self.law = PushLaw(self._scale, step_mm, gains, use_shear)
         self.name = "push_servo" if use_shear else "push_servo_no_shear"
-        self._last_move: np.ndarray | None = None
-        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def for_env(cls, env, gains: PushGains = PushGains(), use_shear: bool = True,

@@ -95,9 +95,6 @@ class ServoController(EstimateThenLaw):
                 f"steers on (gains kp={gains.kp}, ki={gains.ki} for x, y, depth, Rz): train the sensor on data "
                 f"that varies them (a shear set), or give gains of 0 for those components")
         self.law = PILaw(reference_depth_mm, self._scale, gains)
-        self._last_move: np.ndarray | None = None
-        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
-        """(mean (4,), std (4,)) of the last step's state estimate, for logging."""
 
     @classmethod
     def for_env(cls, env, gains: PIGains | None = None,

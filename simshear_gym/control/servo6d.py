@@ -124,8 +124,6 @@ class Servo6DController(EstimateThenLaw):
         self.estimator = TiltEstimator(estimator, gains.tilt_process_std_deg)
         self.law = PILaw(reference_depth_mm, self._scale[:4], gains.planar)
         self.tilt_law = PILaw(0.0, np.array([tilt_step_deg, tilt_step_deg, 1.0, 1.0]), gains.tilt)
-        self._last_move: np.ndarray | None = None
-        self.last_estimate: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def for_env(cls, env, gains: Servo6DGains = Servo6DGains(),

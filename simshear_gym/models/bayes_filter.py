@@ -52,11 +52,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from simshear_gym.data.labels import wrap_deg
+
 _Matrix = tuple[tuple[float, ...], ...]
-
-
-def _wrap_deg(angle_deg: np.ndarray) -> np.ndarray:
-    return (angle_deg + 180.0) % 360.0 - 180.0
 
 
 @dataclass(frozen=True)
@@ -254,7 +252,7 @@ class DiscriminativeKalmanFilter:
     def _wrap(self, values: np.ndarray) -> np.ndarray:
         if self._periodic.any():
             values = values.copy()
-            values[self._periodic] = _wrap_deg(values[self._periodic])
+            values[self._periodic] = wrap_deg(values[self._periodic])
         return values
 
 

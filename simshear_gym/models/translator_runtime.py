@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from simshear_gym.io import file_sha256, verify_checksum
-from simshear_gym.models.device import DEVICES, check_device_name
+from simshear_gym.models.device import DEVICES
 
 RUNTIMES: tuple[str, ...] = ("auto", "torch", "onnx")
 DEFAULT_THREADS = 1
@@ -139,6 +139,16 @@ def load_translator(weights: str | os.PathLike, runtime: str = "auto", threads: 
     return Translator.load(weights)
 
 
+def _chosen(value, env: str, default: str, argument: str, choices: tuple[str, ...], note: str = "") -> str:
+    """``value`` if given, else ``$env``, else ``default``; unless it is one of ``choices``, a ValueError naming where
+    it came from (``argument`` or the variable) and the choices (then ``note``)."""
+    chosen = value if value is not None else os.environ.get(env) or default
+    if chosen not in choices:
+        source = argument if value is not None else f"${env}"
+        raise ValueError(f"{source} must be one of {choices}{note}, got {chosen!r}")
+    return chosen
+
+
 TRANSLATOR_RUNTIME_ENV = "SIMSHEAR_TRANSLATOR_RUNTIME"
 
 
@@ -146,11 +156,7 @@ def choose_translator_runtime(runtime: str | None = None) -> str:
     """The translator runtime to use: ``runtime`` if given, else ``$SIMSHEAR_TRANSLATOR_RUNTIME``, else
     ``"auto"`` (ONNX Runtime where onnxruntime is installed and the ``.onnx`` beside the weights is current, else
     torch). The environment variable reaches every process of a vector env, the envs' own argument-free default."""
-    chosen = runtime if runtime is not None else os.environ.get(TRANSLATOR_RUNTIME_ENV) or "auto"
-    if chosen not in RUNTIMES:
-        source = "translator_runtime" if runtime is not None else f"${TRANSLATOR_RUNTIME_ENV}"
-        raise ValueError(f"{source} must be one of {RUNTIMES}, got {chosen!r}")
-    return chosen
+    return _chosen(runtime, TRANSLATOR_RUNTIME_ENV, "auto", "translator_runtime", RUNTIMES)
 
 
 TRANSLATOR_THREADS_ENV = "SIMSHEAR_TRANSLATOR_THREADS"
@@ -178,11 +184,7 @@ def choose_translator(translator: str | None = None) -> str:
     ``"full"`` (the shipped shPix2pix); ``"student"`` is its distilled student (a smaller generator that learned the
     full one's images: the fast path, :func:`simshear_gym.models.zoo.translator_weights`; see its card for its
     quality on the real validation images). The environment variable reaches every process of a vector env."""
-    chosen = translator if translator is not None else os.environ.get(TRANSLATOR_ENV) or "full"
-    if chosen not in TRANSLATORS:
-        source = "translator" if translator is not None else f"${TRANSLATOR_ENV}"
-        raise ValueError(f"{source} must be one of {TRANSLATORS}, got {chosen!r}")
-    return chosen
+    return _chosen(translator, TRANSLATOR_ENV, "full", "translator", TRANSLATORS)
 
 
 TRANSLATOR_DEVICE_ENV = "SIMSHEAR_TRANSLATOR_DEVICE"
@@ -193,12 +195,7 @@ def choose_translator_device(device: str | None = None) -> str:
     ``"cpu"`` (the envs' default: one env at batch 1 is fastest on the CPU's ONNX path, and forked vector-env
     workers cannot share a GPU); ``"auto"`` is CUDA where torch finds it; ``"cuda"`` without one is an error
     (:func:`simshear_gym.models.device.resolve_device`). Returns ``"cpu"`` or the CUDA device's name."""
-    chosen = device if device is not None else os.environ.get(TRANSLATOR_DEVICE_ENV) or "cpu"
-    try:
-        check_device_name(chosen)
-    except ValueError:
-        source = "device" if device is not None else f"${TRANSLATOR_DEVICE_ENV}"
-        raise ValueError(f"{source} must be one of {DEVICES} (where the translator runs), got {chosen!r}") from None
+    chosen = _chosen(device, TRANSLATOR_DEVICE_ENV, "cpu", "device", DEVICES, " (where the translator runs)")
     if chosen == "cpu":
         return "cpu"
     from simshear_gym.models.device import resolve_device

@@ -74,7 +74,7 @@ from scipy.spatial.transform import Rotation
 from simshear_gym.sim.objects import OBJECTS, ObjectSpec, object_spec, spawn_object
 from simshear_gym.sim.shear import ShearTracker, ShearTrackerConfig
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.world import World, WorldConfig
+from simshear_gym.sim.world import ClosedOnExit, World, WorldConfig
 from simshear_gym.transforms import (
     invert,
     matrix_to_pose,
@@ -246,7 +246,7 @@ def _check_transform(name: str, value: np.ndarray) -> np.ndarray:
     return matrix
 
 
-class CoLiftScene:
+class CoLiftScene(ClosedOnExit):
     """A plate, a TacTip and one object in their own :class:`World`. Close it (or use ``with``) when done.
 
     Call :meth:`reset` first, then :meth:`step` once per control step with the plate's and the sensor's new
@@ -553,12 +553,6 @@ class CoLiftScene:
         if self._world is not None:
             self._world.close()
             self._world = None
-
-    def __enter__(self) -> CoLiftScene:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _interpolate(T_start: np.ndarray, T_end: np.ndarray, fractions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -98,19 +98,11 @@ def replay_set(real_dir: Path, out_dir: Path, config: CollectConfig, root: Path 
     """Render every row of a real set; returns the number of rows written."""
     real = read_set(real_dir, required_columns=POSE_COLUMNS)
     contact = contact or infer_task(real_dir)[0]
-    poses, moves = real.poses(), real.moves()
+    labels = np.hstack([real.poses(), real.moves()])
     _check_mount(real)
-    targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(len(real))],
-                            REAL_IMAGE_COLUMN: real.targets[IMAGE_COLUMN].to_numpy()})
-    for column, values in zip(POSE_COLUMNS + MOVE_COLUMNS, np.hstack([poses, moves]).T):
-        targets[column] = values
-    for column, values in zip(SHEAR_COLUMNS, replay_shear(poses, moves, config.shear).T):
-        targets[column] = values
-    meta = _meta(config, contact, source="replay")
-    meta["real_set"] = _relative_to(real_dir, root)
-    meta["real_set_relative_to_data_root"] = meta["real_set"] != str(Path(real_dir).resolve())
-    write_paired_set(out_dir, contact, poses, targets, meta, config)
-    return len(real)
+    real_set = _relative_to(real_dir, root)
+    extra = {"real_set": real_set, "real_set_relative_to_data_root": real_set != str(Path(real_dir).resolve())}
+    return labelled_set(contact, labels, out_dir, config, "replay", extra, real.targets[IMAGE_COLUMN].to_numpy())
 
 
 def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectConfig,
@@ -138,15 +130,17 @@ def random_set(contact: str, n: int, seed: int, out_dir: Path, config: CollectCo
 
 
 def labelled_set(contact: str, labels: np.ndarray, out_dir: Path, config: CollectConfig, source: str,
-                 extra_meta: dict | None = None) -> int:
-    """Render the contacts of ``labels`` ((N, 12): ``pose_1..6``, ``move_1..6``) as a paired set without real
-    images; ``source`` and ``extra_meta`` go into its meta. Returns the number of rows."""
+                 extra_meta: dict | None = None, real_images: np.ndarray | None = None) -> int:
+    """Render the contacts of ``labels`` ((N, 12): ``pose_1..6``, ``move_1..6``) as a paired set, without real
+    images or beside ``real_images`` (their names, one per row); ``source`` and ``extra_meta`` go into its meta.
+    Returns the number of rows."""
     labels = np.asarray(labels, dtype=np.float64)
     if labels.ndim != 2 or labels.shape[1] != 12:
         raise ValueError(f"labels must be (N, 12) pose_1..6 and move_1..6, got shape {labels.shape}")
     n = len(labels)
     poses, moves = labels[:, :6], labels[:, 6:]
-    targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)], REAL_IMAGE_COLUMN: [""] * n})
+    targets = pd.DataFrame({IMAGE_COLUMN: [image_name(i) for i in range(n)],
+                            REAL_IMAGE_COLUMN: [""] * n if real_images is None else real_images})
     for column, values in zip(POSE_COLUMNS + MOVE_COLUMNS, labels.T):
         targets[column] = values
     for column, values in zip(SHEAR_COLUMNS, replay_shear(poses, moves, config.shear).T):

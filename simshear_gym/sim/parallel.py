@@ -45,7 +45,6 @@ def map_chunks(function: Callable[[Any], Any], chunks: Sequence[Any], workers: i
     Process workers are forked where the platform allows it (start-up in milliseconds); each builds what it
     needs itself (a PyBullet scene, say), so nothing stateful crosses a process boundary.
     """
-    check_ray_address(ray_address)
     if ray_address is not None:
         with ray_session(ray_address, num_cpus=workers) as ray:
             task = ray.remote(num_cpus=1)(_call)

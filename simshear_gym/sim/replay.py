@@ -17,7 +17,7 @@ from simshear_gym.data.labels import SURFACE_DEPTH_MM
 from simshear_gym.sim.parallel import map_chunks
 from simshear_gym.sim.stimuli import make_stimulus, spawn
 from simshear_gym.sim.tactip import TacTip, TacTipConfig
-from simshear_gym.sim.world import World
+from simshear_gym.sim.world import ClosedOnExit, World
 from simshear_gym.transforms import invert, pose_to_matrix
 
 
@@ -51,7 +51,7 @@ class ReplayGeometry:
         return transform
 
 
-class ReplayScene:
+class ReplayScene(ClosedOnExit):
     """A world with one stimulus (``surface`` | ``edge``) and a TacTip that renders label poses.
 
     Owns its :class:`World`; close it (or use ``with``) when done.
@@ -80,12 +80,6 @@ class ReplayScene:
 
     def close(self) -> None:
         self.world.close()
-
-    def __enter__(self) -> ReplayScene:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _render_chunk(args: tuple[str, np.ndarray, TacTipConfig, ReplayGeometry]) -> np.ndarray:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simshear_gym.data.labels import shear_to_sensor_frame
+from simshear_gym.data.labels import shear_to_sensor_frame, wrap_deg
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ class ShearTracker:
         if self._anchor is None:
             self._anchor = pose.copy()
         move = pose - self._anchor
-        move[3:] = (move[3:] + 180.0) % 360.0 - 180.0
+        move[3:] = wrap_deg(move[3:])
         planar = float(np.hypot(move[0], move[1]))
         if planar > self.config.slip_limit_mm:  # slip: drag the anchor behind the sensor
             excess = (planar - self.config.slip_limit_mm) / planar

@@ -7,6 +7,7 @@ import contextlib
 import os
 import sys
 from dataclasses import dataclass
+from typing import Self
 
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
@@ -51,7 +52,17 @@ def _quiet_stdout():
         os.close(saved)
 
 
-class World:
+class ClosedOnExit:
+    """``with`` support for an owner of a resource: the block's end calls its ``close()``."""
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class World(ClosedOnExit):
     """A headless (DIRECT) PyBullet physics client with fixed settings.
 
     Use as a context manager or call :meth:`close`; a closed world refuses further use.
@@ -80,9 +91,3 @@ class World:
         if self._client is not None:
             self._client.disconnect()
             self._client = None
-
-    def __enter__(self) -> World:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
