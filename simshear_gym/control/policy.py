@@ -87,7 +87,8 @@ class EstimateThenLaw:
     """Names the controller in its errors."""
     _last_move: np.ndarray | None = None
     last_estimate: tuple[np.ndarray, np.ndarray] | None = None
-    """(mean, std) of the last step's state estimate (None before the first), for logging."""
+    """(mean, std) of the last step's state estimate, for logging (None before the first): (4,) each for the servo
+    controller, (6,) for the 6-DoF one, the edge and push controllers' ``state_names`` (3,)."""
 
     def reset(self) -> None:
         self.estimator.reset()
