@@ -74,8 +74,9 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
     import pandas as pd
 
     from simshear_gym.lab.collect_protocol import CollectProtocol
+    from simshear_gym.lab.collect_real import rehearsal_emulator
     from simshear_gym.lab.experiment import rehearsal_safety
-    from simshear_gym.lab.rig import audit_motion_records, loopback_emulator
+    from simshear_gym.lab.rig import audit_motion_records
 
     config_path = work / f"{contact}.toml"
     config_path.write_text(CONFIG.format(contact=contact, rows=rows, seed=seed, ranges=_toml_table(RANGES[contact])))
@@ -83,9 +84,7 @@ def rehearse(contact: str, rows: int, seed: int, work: Path, timeout_s: float = 
                                tap_share=0.5, surface_depth_mm=2.2,
                                ranges={k: tuple(v) for k, v in RANGES[contact].items()})  # the config's [collect]
     _, _, planned_s = protocol.plan()
-    air = np.array([0.0, 0.0, protocol.surface_depth_mm - protocol.hover_mm - 5.0, 0.0, 0.0, 0.0])
-    start = protocol.flange_pose(air, protocol.T_base_work())
-    emulator = loopback_emulator(start).start()
+    emulator = rehearsal_emulator(protocol).start()
     out = work / f"{contact}_set"
     kill_row = int(np.random.default_rng(seed).integers(1, rows - 1))
     try:

@@ -275,6 +275,15 @@ def rehearsal_camera(protocol: CollectProtocol, geometry, follower_pose: Callabl
                      contact=protocol.stimulus, stimulus=stimulus)
 
 
+def rehearsal_emulator(protocol: CollectProtocol):
+    """A loopback MG400 emulator (not started) whose sensor stands 5 mm above the protocol's hover height over the
+    work origin: where a rehearsed collection starts."""
+    from simshear_gym.lab.rig import loopback_emulator
+
+    air = np.array([0.0, 0.0, protocol.surface_depth_mm - protocol.hover_mm - 5.0, 0.0, 0.0, 0.0])
+    return loopback_emulator(protocol.flange_pose(air, protocol.T_base_work()))
+
+
 class Rehearsal:
     """An emulated MG400 (loopback) and a rig camera rendering the protocol's stimulus where the config says it lies
     (:func:`rehearsal_camera`; a context manager): the whole collection runs on it, with no hardware."""
@@ -288,14 +297,10 @@ class Rehearsal:
         self.camera = None
 
     def __enter__(self) -> Rehearsal:
-        from simshear_gym.lab.rig import loopback_emulator
-
-        protocol = self.protocol
-        air = np.array([0.0, 0.0, protocol.surface_depth_mm - protocol.hover_mm - 5.0, 0.0, 0.0, 0.0])
-        self.emulator = loopback_emulator(protocol.flange_pose(air, protocol.T_base_work()))
+        self.emulator = rehearsal_emulator(self.protocol)
         self.emulator.start()
         emulator = self.emulator
-        self.camera = rehearsal_camera(protocol, self.geometry, lambda: emulator.pose)
+        self.camera = rehearsal_camera(self.protocol, self.geometry, lambda: emulator.pose)
         return self
 
     def __exit__(self, *exc_info: object) -> None:
