@@ -253,8 +253,9 @@ def renders_on_read(source: object) -> bool:
     return getattr(type(source), "renders_on_read", False) is True
 
 
-class _SourceBase:
-    """Context manager and iteration shared by the sources below."""
+class SourceBase:
+    """Context manager and iteration shared by the frame sources below and the simulated cameras of
+    :mod:`simshear_gym.real.hil` (a base class; :class:`FrameSource` is the protocol they meet)."""
 
     def read(self) -> np.ndarray:  # pragma: no cover - overridden
         raise NotImplementedError
@@ -277,7 +278,7 @@ class _SourceBase:
                 return
 
 
-class VirtualCamera(_SourceBase):
+class VirtualCamera(SourceBase):
     """A frame source backed by a callable, e.g. a simulated TacTip's renderer.
 
     Args:
@@ -306,7 +307,7 @@ class VirtualCamera(_SourceBase):
         self._closed = True
 
 
-class CameraSource(_SourceBase):
+class CameraSource(SourceBase):
     """Frames from an OpenCV camera device, a video file or a folder of images.
 
     Args:

@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 from simshear_gym.contract import RENDER_SIZE_PX, TacTipMount, finish_tactile
-from simshear_gym.real.camera import CameraError, PreprocessConfig, _SourceBase
+from simshear_gym.real.camera import CameraError, PreprocessConfig, SourceBase
 from simshear_gym.robots.mg400.frames import pose_to_T_base_flange
 from simshear_gym.sim import stimuli
 from simshear_gym.sim.replay import SURFACE_DEPTH_MM
@@ -116,7 +116,7 @@ class ContactTruth:
     shear_sensor: np.ndarray
 
 
-class SimTacTipCamera(_SourceBase):
+class SimTacTipCamera(SourceBase):
     """What the simulated cameras share: the lock, the clock, the world with its TacTip, the history, the image
     finishing and the frame (the context manager: the frame sources' of :mod:`~simshear_gym.real.camera`). A
     subclass builds its scene and implements :meth:`_touch`; ``read()`` places the TacTip at the arm's flange pose,
