@@ -195,6 +195,31 @@ def test_untrained_network_predicts_centre_and_initial_std():
         tiny_config(initial_std=0.005)
 
 
+def test_pooling_before_the_elu_is_the_map_of_the_elu_before_pooling():
+    """Each conv level pools, then applies the ELU (on a quarter of the pixels): ELU being increasing, the same
+    outputs and gradients as the ELU first, with the same state dict."""
+    torch.manual_seed(0)
+    model = GDNN(tiny_config())
+    layers, elu_first, index = list(model.features), [], 0
+    while index < len(layers):
+        if isinstance(layers[index], torch.nn.MaxPool2d):
+            assert isinstance(layers[index + 1], torch.nn.ELU)
+            elu_first += [layers[index + 1], layers[index]]
+            index += 2
+        else:
+            elu_first.append(layers[index])
+            index += 1
+    reference = torch.nn.Sequential(*elu_first)
+    assert reference.state_dict().keys() == model.features.state_dict().keys()
+    images = torch.rand(4, 1, 32, 32)
+    got, expected = model.features(images), reference(images)
+    assert torch.equal(got, expected)
+    weights = torch.randn_like(got)
+    grad_got = torch.autograd.grad((got * weights).sum(), model.features[0].weight)[0]
+    grad_expected = torch.autograd.grad((reference(images) * weights).sum(), model.features[0].weight)[0]
+    torch.testing.assert_close(grad_got, grad_expected)
+
+
 def test_frozen_copy_gives_the_same_outputs():
     torch.manual_seed(0)
     model = GDNN(tiny_config(dropout=0.1))

@@ -29,8 +29,10 @@ the angular uncertainty as well as the two stds.
 Tensors: input float (B, 1, H, W) in [0, 1] (a uint8 TacTip image / 255), H = W = ``image_size_px``; output
 ``(mean, std)``, each float (B, D) in normalised units, ``std >= min_std > 0``.
 
-Architecture (:class:`GDNNConfig`): per conv level a ``k x k`` convolution ('same' padding), batch norm, ELU and
-2x2 max-pool; flatten; dense layers with ELU and dropout; a linear mean head and a std head
+Architecture (:class:`GDNNConfig`): per conv level a ``k x k`` convolution ('same' padding), batch norm, 2x2
+max-pool and ELU (the map of ELU then max-pool, ELU being increasing, with the ELU on a quarter of the pixels: a
+training step 10-17 % faster on our CPU, ``results/ablations/train_speed_pool_elu_*.json``); flatten; dense
+layers with ELU and dropout; a linear mean head and a std head
 ``std = min_std + softplus(raw)`` (positive, smooth, bounded below so that the NLL cannot collapse).
 """
 
@@ -295,7 +297,7 @@ class GDNN(nn.Module):
             layers.append(nn.Conv2d(previous, out, kernel, padding=kernel // 2, bias=not config.batch_norm))
             if config.batch_norm:
                 layers.append(nn.BatchNorm2d(out))
-            layers += [nn.ELU(), nn.MaxPool2d(2)]
+            layers += [nn.MaxPool2d(2), nn.ELU()]  # parameter-free: the state dict's keys are those of ELU first
             previous = out
         self.features = nn.Sequential(*layers)
         dense: list[nn.Module] = [nn.Flatten()]
