@@ -78,18 +78,40 @@ def test_a_smoke_run_prints_its_epochs_and_tensorboard_and_says_it_is_a_plumbing
         assert f"[{stage}] training 1 epoch; tensorboard --logdir " in printed
 
 
+def test_the_cpus_in_use_are_counted_from_the_kernels_counters_not_the_lagging_load_average(tmp_path, monkeypatch):
+    """Two readings of /proc/stat's first line: the share of the window not idle, times the CPUs; None where the
+    counters cannot be read (the estimate then falls back to the load average)."""
+    import os
+
+    from simshear_gym.pipelines import estimate
+
+    stat = tmp_path / "stat"
+    readings = iter(["cpu 100 0 100 700 100 0 0 0 0 0\n", "cpu 175 0 125 800 100 0 0 0 0 0\n"])
+
+    def sleep(seconds):  # the window passes: the counters move on
+        stat.write_text(next(readings))
+
+    stat.write_text(next(readings))
+    monkeypatch.setattr(estimate.time, "sleep", sleep)
+    busy = estimate.busy_cpus_now(window_s=1.0, stat=str(stat))
+    assert busy == pytest.approx(0.5 * (os.cpu_count() or 1))  # 100 of 200 ticks not idle
+    assert estimate.busy_cpus_now(window_s=0.0, stat=str(tmp_path / "missing")) is None
+
+
 def test_the_estimate_measures_the_load_and_says_how_it_skews_the_figure():
     from simshear_gym.pipelines.estimate import format_estimate, load_note, machine_load
 
-    idle = machine_load(jobs=2, load_1min=0.05, cpus=2)
-    assert idle == {"load_1min": 0.05, "cpus": 2, "jobs": 2, "slowdown": 1.02, "busy": False}
-    busy = machine_load(jobs=2, load_1min=3.5, cpus=2)  # the issue's loaded 2-core machine
-    assert busy["busy"] and busy["slowdown"] == 2.75
-    assert load_note(idle, 26.0).startswith("machine idle enough")
+    idle = machine_load(jobs=2, busy_cpus=0.05, cpus=2)
+    assert {key: idle[key] for key in ("busy_cpus", "cpus", "jobs", "slowdown", "busy")} == {
+        "busy_cpus": 0.05, "cpus": 2, "jobs": 2, "slowdown": 1.02, "busy": False}
+    busy = machine_load(jobs=2, busy_cpus=3.5, cpus=2)  # the issue's loaded 2-core machine
+    assert busy["busy"] and busy["slowdown"] == 2.75 and busy["measured_by"] == "given"
+    assert load_note(idle, 26.0).startswith("machine idle enough (0.05 of 2 CPUs in use")
     note = load_note(busy, 89.0)
-    assert note.startswith("machine busy: load 3.50 on 2 CPUs") and "about 2.8x" in note and "about 32.4 min" in note
+    assert note.startswith("machine busy: 3.50 of 2 CPUs in use") and "about 2.8x" in note and "about 32.4 min" in note
     measured = machine_load(jobs=1)  # this machine, now: whatever its load, the record's fields are there
-    assert measured["cpus"] >= 1 and measured["load_1min"] >= 0 and measured["slowdown"] >= 1
+    assert measured["cpus"] >= 1 and 0 <= measured["busy_cpus"] and measured["load_1min"] >= 0
+    assert measured["slowdown"] >= 1 and measured["measured_by"] in ("/proc/stat over 2 s", "1-minute load average")
     result = {"steps": [], "sensor": "lab", "profile": "quick", "training_wall_min": 89.0, "jobs": 2,
               "lane_busy_min": 150.0, "load": busy}
     assert format_estimate(result).splitlines()[-1] == note

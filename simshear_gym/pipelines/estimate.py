@@ -15,9 +15,13 @@ The probes train on the device the run would (``--device``, else the profile's `
 run keeps them (``data_on_device``), ``jobs`` probes sharing it as the run's steps would; a GDNN's rows are
 translated on the GPU there too, as in the run.
 
-The machine's load is measured before the probes (:func:`machine_load`: the 1-minute load average against the
-CPU count, ``os.getloadavg``): probes beside other work run slower than the run would on an idle machine, about
-``(load + jobs) / cpus`` times where that exceeds 1; the estimate says so and gives the idle figure beside it.
+The machine's load is measured before the probes (:func:`machine_load`: the CPUs in use over
+:data:`BUSY_WINDOW_S` seconds, from ``/proc/stat`` where there is one, else the 1-minute load average): probes
+beside other work run slower than the run would on an idle machine, about ``(busy + jobs) / cpus`` times where that
+exceeds 1; the estimate says so and gives the idle figure beside it. The load average lags: a minute after a
+heavy command it still reads 0.7-1.6 on an idle 2-core machine, which made an estimate just after its own probes
+(or a training run) call the machine busy and give an idle figure 1.4x too low (docs/experiments.md,
+pipeline_tactip331_fast5).
 
 Not included: the data stages (adapt, collect, random contacts) and the evaluation, about 2 minutes of the
 shipped recipe's 136 on the 2-core CPU it was first measured on; a GDNN stopped early by its ``patience_epochs``
@@ -73,24 +77,59 @@ class StepEstimate:
     end_s: float
 
 
-def machine_load(jobs: int, load_1min: float | None = None, cpus: int | None = None) -> dict:
-    """The machine's load as the probes start: ``load_1min`` (``os.getloadavg``'s first value unless given),
-    ``cpus`` (``os.cpu_count`` unless given) and ``slowdown``: about how much slower ``jobs`` probes run beside that
-    load than on an idle machine, ``max(1, (load + jobs) / cpus)`` (each process's share of the CPUs, when more
-    want one than there are); ``busy``: whether that exceeds 1.1."""
-    load_1min = os.getloadavg()[0] if load_1min is None else float(load_1min)
+BUSY_WINDOW_S = 2.0
+"""Seconds over which :func:`busy_cpus_now` counts the CPUs in use."""
+
+
+def busy_cpus_now(window_s: float = BUSY_WINDOW_S, stat: str = "/proc/stat") -> float | None:
+    """CPUs in use (0 to the CPU count) over the next ``window_s`` seconds, from the kernel's CPU time counters
+    (``stat``'s first line: user, nice, system, idle, iowait, irq, softirq, steal); None where they cannot be read
+    (not Linux)."""
+    def counters() -> tuple[int, int] | None:
+        try:
+            with open(stat) as file:
+                fields = [int(value) for value in file.readline().split()[1:9]]
+        except (OSError, ValueError):
+            return None
+        return (sum(fields), fields[3] + fields[4]) if len(fields) == 8 else None  # (total, idle + iowait)
+
+    before = counters()
+    if before is None:
+        return None
+    time.sleep(window_s)
+    after = counters()
+    if after is None or after[0] <= before[0]:
+        return None
+    idle_share = (after[1] - before[1]) / (after[0] - before[0])
+    return max(0.0, 1.0 - idle_share) * (os.cpu_count() or 1)
+
+
+def machine_load(jobs: int, busy_cpus: float | None = None, cpus: int | None = None) -> dict:
+    """The machine's load as the probes start: ``busy_cpus``, the CPUs in use (:func:`busy_cpus_now` unless given;
+    the 1-minute load average where it cannot measure), ``cpus`` (``os.cpu_count`` unless given), the 1-minute
+    load average beside them (``load_1min``, for the record: it lags), and ``slowdown``: about how much slower
+    ``jobs`` probes run beside that load than on an idle machine, ``max(1, (busy + jobs) / cpus)`` (each process's
+    share of the CPUs, when more want one than there are); ``busy``: whether that exceeds 1.1."""
+    load_1min = os.getloadavg()[0]
+    measured_by = "given"
+    if busy_cpus is None:
+        busy_cpus = busy_cpus_now()
+        measured_by = f"/proc/stat over {BUSY_WINDOW_S:g} s"
+        if busy_cpus is None:
+            busy_cpus, measured_by = load_1min, "1-minute load average"
     cpus = (os.cpu_count() or 1) if cpus is None else int(cpus)
-    slowdown = max(1.0, (load_1min + jobs) / cpus)
-    return {"load_1min": round(load_1min, 2), "cpus": cpus, "jobs": jobs, "slowdown": round(slowdown, 2),
-            "busy": slowdown > 1.1}
+    slowdown = max(1.0, (float(busy_cpus) + jobs) / cpus)
+    return {"busy_cpus": round(float(busy_cpus), 2), "measured_by": measured_by, "load_1min": round(load_1min, 2),
+            "cpus": cpus, "jobs": jobs, "slowdown": round(slowdown, 2), "busy": slowdown > 1.1}
 
 
 def load_note(load: dict, training_wall_min: float) -> str:
     """What the load means for the figure, one line."""
+    busy = load.get("busy_cpus", load["load_1min"])  # records written before busy_cpus hold the load average
     if not load["busy"]:
-        return (f"machine idle enough (load {load['load_1min']:.2f} on {load['cpus']} CPUs, {load['jobs']} probe(s)): "
+        return (f"machine idle enough ({busy:.2f} of {load['cpus']} CPUs in use, {load['jobs']} probe(s)): "
                 "the figure is this machine's")
-    return (f"machine busy: load {load['load_1min']:.2f} on {load['cpus']} CPUs before the probes, with "
+    return (f"machine busy: {busy:.2f} of {load['cpus']} CPUs in use before the probes, with "
             f"{load['jobs']} probe(s) beside it about {load['slowdown']:.1f}x an idle machine's times; idle, the "
             f"training would take about {training_wall_min / load['slowdown']:.1f} min (run the estimate again when "
             "the machine is idle for a figure that needs no such correction)")
